@@ -1,0 +1,102 @@
+// Kennedy-O'Hagan calibration with a cheap simulator written in Stan
+// (review section 4.1, eq. 6):
+//   y_i = rho * f(x_i, theta) + delta(x_i, z_i) + eps_i,
+//   delta ~ GP(0, ARD kernel), eps_i ~ N(0, noise_sd^2).
+// With use_discrepancy = 0 it is plain Bayesian parameter estimation.
+// Outputs are standardised inside: y = (y_original - y_center) / y_scale.
+functions {
+#include simulator.stan
+#include simulator_output.stan
+#include gp_kernels.stan
+#include gp_conditional.stan
+#include loo.stan
+#include priors.stan
+#include scaling.stan
+}
+data {
+  int<lower=1> N;                       // number of physical observations
+  int<lower=1> D;                       // number of simulator inputs
+  int<lower=1> D_delta;                 // number of discrepancy inputs: simulator inputs, then covariates
+  int<lower=1> Q;                       // number of calibration parameters
+  matrix[N, D] X;                       // simulator inputs of the physical points, original units
+  array[N] vector[D_delta] x_delta;     // discrepancy inputs of the physical points, scaled to [0, 1]
+  vector[N] y;                          // physical output, standardised
+  real y_center;                        // original-scale y = y_center + y_scale * y
+  real<lower=0> y_scale;                // see y_center
+  vector[Q] theta_lower;                // lower bounds of theta, original units (uniform prior)
+  vector<lower=theta_lower>[Q] theta_upper;  // upper bounds of theta, original units
+  int<lower=0, upper=1> use_discrepancy;     // 1 = GP discrepancy, 0 = none
+  int<lower=1, upper=2> kernel_id;      // discrepancy kernel: 1 = squared exponential, 2 = Matern 5/2
+  int<lower=0, upper=1> estimate_rho;   // 1 = estimate the KOH scale rho, 0 = rho fixed at 1
+  int<lower=0, upper=1> prior_only;     // 1 = ignore y: draws from the prior
+  int<lower=0> P;                       // number of prediction points
+  matrix[P, D] X_new;                   // simulator inputs of the prediction points, original units
+  array[P] vector[D_delta] x_delta_new; // discrepancy inputs of the prediction points, scaled to [0, 1]
+}
+parameters {
+  vector<lower=0, upper=1>[Q] theta_unit;                // theta rescaled to [0, 1]
+  real<lower=0> noise_sd;                                // standardised units
+  array[use_discrepancy] real<lower=0> delta_sd;         // standardised units
+  array[use_discrepancy ? D_delta : 0] real<lower=0> delta_length_scale;  // fraction of input range
+  array[estimate_rho] real<lower=0> rho_free;
+}
+transformed parameters {
+  vector[Q] theta = theta_from_unit(theta_unit, theta_lower, theta_upper);
+  real rho = estimate_rho ? rho_free[1] : 1.0;
+}
+model {
+  // theta_unit is uniform on [0, 1]: the bounds are the prior support.
+  noise_sd ~ normal(0, 1);
+  delta_sd ~ normal(0, 0.5);
+  delta_length_scale ~ discrepancy_length_scale();
+  rho_free ~ normal(1, 0.25);
+  if (!prior_only) {
+    vector[N] resid = y - rho * standardized_simulator(X, theta, y_center, y_scale);
+    if (use_discrepancy) {
+      matrix[N, N] K = add_diag(ard_cov(x_delta, kernel_id, delta_sd[1], delta_length_scale),
+                                square(noise_sd));
+      resid ~ multi_normal_cholesky(rep_vector(0, N), cholesky_decompose(K));
+    } else {
+      resid ~ normal(0, noise_sd);
+    }
+  }
+}
+generated quantities {
+  real noise_sd_original = noise_sd * y_scale;
+  array[use_discrepancy] real delta_sd_original;
+  vector[N] log_lik;      // log p(y_i | y_-i, parameters), original units
+  vector[N] y_rep;        // replicated data, original units
+  vector[P] f_new;        // simulator output at the prediction points
+  vector[P] delta_new;    // discrepancy at the prediction points
+  vector[P] zeta_new;     // true process rho * f + delta at the prediction points
+  {
+    vector[N] f = standardized_simulator(X, theta, y_center, y_scale);
+    vector[N] resid = y - rho * f;
+    vector[P] f_new_std = standardized_simulator(X_new, theta, y_center, y_scale);
+    vector[N] delta_obs = rep_vector(0, N);
+    vector[P] delta_new_std = rep_vector(0, P);
+    if (use_discrepancy) {
+      delta_sd_original[1] = delta_sd[1] * y_scale;
+      matrix[N, N] K_delta = ard_cov(x_delta, kernel_id, delta_sd[1], delta_length_scale);
+      matrix[N, N] L = cholesky_decompose(add_diag(K_delta, square(noise_sd)));
+      matrix[P, N] K_cross = ard_cross_cov(x_delta_new, x_delta, kernel_id, delta_sd[1],
+                                           delta_length_scale);
+      matrix[P, P] K_new = ard_cov(x_delta_new, kernel_id, delta_sd[1], delta_length_scale);
+      log_lik = mvn_loo_log_lik(resid, L);
+      if (prior_only) {
+        delta_obs = gp_prior_rng(K_delta);
+        if (P > 0) delta_new_std = gp_prior_rng(K_new);
+      } else {
+        delta_obs = gp_conditional_rng(resid, L, K_delta, K_delta);
+        if (P > 0) delta_new_std = gp_conditional_rng(resid, L, K_cross, K_new);
+      }
+    } else {
+      for (i in 1:N) log_lik[i] = normal_lpdf(resid[i] | 0, noise_sd);
+    }
+    log_lik -= log(y_scale);
+    y_rep = y_center + y_scale * to_vector(normal_rng(rho * f + delta_obs, noise_sd));
+    f_new = y_center + y_scale * f_new_std;
+    delta_new = y_scale * delta_new_std;
+    zeta_new = y_center + y_scale * (rho * f_new_std + delta_new_std);
+  }
+}

@@ -1,0 +1,115 @@
+// Full Kennedy-O'Hagan calibration with an expensive simulator
+// (review section 4.2): the simulator runs and the physical data enter one
+// joint GP likelihood, and theta, the emulator and the discrepancy
+// hyperparameters are sampled together.
+//   y_sim_j = f(x_sim_j, theta_sim_j) + nugget_j
+//   y_i     = rho * f(x_i, theta) + delta(x_i, z_i) + eps_i
+//   f ~ GP(emulator_mean, ARD kernel over (x, theta)), delta ~ GP(0, ARD kernel)
+// Inputs and theta are scaled to [0, 1]; outputs are standardised.
+functions {
+#include gp_kernels.stan
+#include gp_conditional.stan
+#include koh_joint.stan
+#include loo.stan
+#include priors.stan
+#include scaling.stan
+}
+data {
+  int<lower=1> N;                       // number of physical observations
+  int<lower=1> M;                       // number of simulator runs
+  int<lower=1> D;                       // number of simulator inputs
+  int<lower=1> D_delta;                 // number of discrepancy inputs: simulator inputs, then covariates
+  int<lower=1> Q;                       // number of calibration parameters
+  array[N] vector[D] x;                 // simulator inputs of the physical points, scaled to [0, 1]
+  array[N] vector[D_delta] x_delta;     // discrepancy inputs of the physical points, scaled to [0, 1]
+  vector[N] y;                          // physical output, standardised
+  array[M] vector[D] x_sim;             // simulator inputs of the runs, scaled to [0, 1]
+  array[M] vector[Q] theta_sim;         // theta of the runs, scaled to [0, 1] within its bounds
+  vector[M] y_sim;                      // simulator output of the runs, standardised like y
+  real y_center;                        // original-scale y = y_center + y_scale * y
+  real<lower=0> y_scale;                // see y_center
+  vector[Q] theta_lower;                // lower bounds of theta, original units (uniform prior)
+  vector<lower=theta_lower>[Q] theta_upper;  // upper bounds of theta, original units
+  int<lower=0, upper=1> use_discrepancy;     // 1 = GP discrepancy, 0 = none
+  int<lower=1, upper=2> kernel_id;      // kernel of both GPs: 1 = squared exponential, 2 = Matern 5/2
+  int<lower=0, upper=1> estimate_rho;   // 1 = estimate the KOH scale rho, 0 = rho fixed at 1
+  int<lower=0, upper=1> prior_only;     // 1 = ignore y (the runs still train the emulator)
+  int<lower=0> P;                       // number of prediction points
+  array[P] vector[D] x_new;             // simulator inputs of the prediction points, scaled to [0, 1]
+  array[P] vector[D_delta] x_delta_new; // discrepancy inputs of the prediction points, scaled to [0, 1]
+}
+transformed data {
+  array[M] vector[D + Q] xt_sim;
+  for (j in 1:M) xt_sim[j] = append_row(x_sim[j], theta_sim[j]);
+  vector[M + N] y_joint = append_row(y_sim, y);
+}
+parameters {
+  vector<lower=0, upper=1>[Q] theta_unit;                // theta rescaled to [0, 1]
+  real<lower=0> noise_sd;                                // standardised units
+  array[use_discrepancy] real<lower=0> delta_sd;         // standardised units
+  array[use_discrepancy ? D_delta : 0] real<lower=0> delta_length_scale;  // fraction of input range
+  array[estimate_rho] real<lower=0> rho_free;
+  real emulator_mean;
+  real<lower=0> emulator_sd;
+  array[D + Q] real<lower=0> emulator_length_scale;     // inputs first, then theta
+  real<lower=0> emulator_nugget;
+}
+transformed parameters {
+  vector[Q] theta = theta_from_unit(theta_unit, theta_lower, theta_upper);
+  real rho = estimate_rho ? rho_free[1] : 1.0;
+}
+model {
+  noise_sd ~ normal(0, 1);
+  delta_sd ~ normal(0, 0.5);
+  delta_length_scale ~ discrepancy_length_scale();
+  rho_free ~ normal(1, 0.25);
+  emulator_mean ~ normal(0, 1);
+  emulator_sd ~ normal(0, 1);
+  emulator_length_scale ~ emulator_length_scale();
+  emulator_nugget ~ normal(0, 0.05);
+  if (prior_only) {
+    matrix[M, M] K_sim = add_diag(ard_cov(xt_sim, kernel_id, emulator_sd, emulator_length_scale),
+                                  square(emulator_nugget));
+    y_sim ~ multi_normal_cholesky(rep_vector(emulator_mean, M), cholesky_decompose(K_sim));
+  } else {
+    matrix[M + N, M + N] K = koh_joint_cov(xt_sim, append_theta(x, theta_unit), x_delta, kernel_id,
+                                           emulator_sd, emulator_length_scale, emulator_nugget,
+                                           rho, delta_sd, delta_length_scale, noise_sd);
+    vector[M + N] mu = append_row(rep_vector(emulator_mean, M), rep_vector(rho * emulator_mean, N));
+    y_joint ~ multi_normal_cholesky(mu, cholesky_decompose(K));
+  }
+}
+generated quantities {
+  real noise_sd_original = noise_sd * y_scale;
+  array[use_discrepancy] real delta_sd_original;
+  vector[N] log_lik;      // log p(y_i | y_-i, runs, parameters), original units
+  vector[N] y_rep;        // replicated data, original units
+  vector[P] f_new;        // emulated simulator output at the prediction points
+  vector[P] delta_new;    // discrepancy at the prediction points
+  vector[P] zeta_new;     // true process rho * f + delta at the prediction points
+  if (use_discrepancy) delta_sd_original[1] = delta_sd[1] * y_scale;
+  {
+    array[N] vector[D + Q] xt_obs = append_theta(x, theta_unit);
+    matrix[M + N, M + N] L = cholesky_decompose(
+      koh_joint_cov(xt_sim, xt_obs, x_delta, kernel_id, emulator_sd, emulator_length_scale,
+                    emulator_nugget, rho, delta_sd, delta_length_scale, noise_sd));
+    vector[M + N] mu = append_row(rep_vector(emulator_mean, M), rep_vector(rho * emulator_mean, N));
+    vector[M + N] resid = y_joint - mu;
+    log_lik = mvn_loo_log_lik(resid, L)[(M + 1):(M + N)] - log(y_scale);
+    // Under prior_only, condition on the runs alone: the leading block of L
+    // is the Cholesky factor of the runs' covariance.
+    int n_cond = prior_only ? 0 : N;
+    // one joint draw at the physical points and the prediction points
+    vector[2 * (N + P)] f_delta = koh_joint_predict_rng(
+      resid[1:(M + n_cond)], L[1:(M + n_cond), 1:(M + n_cond)], xt_sim, xt_obs[1:n_cond],
+      x_delta[1:n_cond], append_array(xt_obs, append_theta(x_new, theta_unit)),
+      append_array(x_delta, x_delta_new), kernel_id, emulator_sd, emulator_length_scale, rho,
+      delta_sd, delta_length_scale);
+    vector[N + P] f_all = emulator_mean + f_delta[1:(N + P)];
+    vector[N + P] delta_all = f_delta[(N + P + 1):(2 * (N + P))];
+    y_rep = y_center + y_scale * to_vector(normal_rng(rho * f_all[1:N] + delta_all[1:N], noise_sd));
+    f_new = y_center + y_scale * f_all[(N + 1):(N + P)];
+    delta_new = y_scale * delta_all[(N + 1):(N + P)];
+    zeta_new = y_center + y_scale * (rho * f_all[(N + 1):(N + P)] + delta_all[(N + 1):(N + P)]);
+  }
+}

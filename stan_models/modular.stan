@@ -1,0 +1,114 @@
+// Modular (two-stage) KOH calibration with an expensive simulator
+// (Bayarri et al. 2007b; Liu et al. 2009; review section 4.2). The emulator
+// hyperparameters come fixed from stage 1 (emulator.stan), which cuts the
+// feedback from the physical data into the emulator. Given the runs, the
+// emulator at (x_i, theta) is normal with mean m(theta) and covariance
+// V(theta); V is carried into the likelihood:
+//   y ~ N(rho * m(theta), rho^2 V(theta) + K_delta + noise_sd^2 I).
+functions {
+#include gp_kernels.stan
+#include gp_conditional.stan
+#include koh_joint.stan
+#include loo.stan
+#include priors.stan
+#include scaling.stan
+}
+data {
+  int<lower=1> N;                       // number of physical observations
+  int<lower=1> M;                       // number of simulator runs
+  int<lower=1> D;                       // number of simulator inputs
+  int<lower=1> D_delta;                 // number of discrepancy inputs: simulator inputs, then covariates
+  int<lower=1> Q;                       // number of calibration parameters
+  array[N] vector[D] x;                 // simulator inputs of the physical points, scaled to [0, 1]
+  array[N] vector[D_delta] x_delta;     // discrepancy inputs of the physical points, scaled to [0, 1]
+  vector[N] y;                          // physical output, standardised
+  array[M] vector[D] x_sim;             // simulator inputs of the runs, scaled to [0, 1]
+  array[M] vector[Q] theta_sim;         // theta of the runs, scaled to [0, 1] within its bounds
+  vector[M] y_sim;                      // simulator output of the runs, standardised like y
+  real y_center;                        // original-scale y = y_center + y_scale * y
+  real<lower=0> y_scale;                // see y_center
+  vector[Q] theta_lower;                // lower bounds of theta, original units (uniform prior)
+  vector<lower=theta_lower>[Q] theta_upper;  // upper bounds of theta, original units
+  int<lower=0, upper=1> use_discrepancy;     // 1 = GP discrepancy, 0 = none
+  int<lower=1, upper=2> kernel_id;      // kernel of both GPs: 1 = squared exponential, 2 = Matern 5/2
+  int<lower=0, upper=1> estimate_rho;   // 1 = estimate the KOH scale rho, 0 = rho fixed at 1
+  int<lower=0, upper=1> prior_only;     // 1 = ignore y (the runs still inform the emulator)
+  real emulator_mean;                   // stage-1 emulator hyperparameters, standardised units
+  real<lower=0> emulator_sd;            // see emulator_mean
+  array[D + Q] real<lower=0> emulator_length_scale;  // inputs first, then theta; unit-cube units
+  real<lower=0> emulator_nugget;        // see emulator_mean
+  int<lower=0> P;                       // number of prediction points
+  array[P] vector[D] x_new;             // simulator inputs of the prediction points, scaled to [0, 1]
+  array[P] vector[D_delta] x_delta_new; // discrepancy inputs of the prediction points, scaled to [0, 1]
+}
+transformed data {
+  array[M] vector[D + Q] xt_sim;
+  for (j in 1:M) xt_sim[j] = append_row(x_sim[j], theta_sim[j]);
+  matrix[M, M] L_sim = cholesky_decompose(
+    add_diag(ard_cov(xt_sim, kernel_id, emulator_sd, emulator_length_scale),
+             square(emulator_nugget)));
+  vector[M] alpha_sim = mdivide_right_tri_low(mdivide_left_tri_low(L_sim, y_sim - emulator_mean)',
+                                              L_sim)';
+}
+parameters {
+  vector<lower=0, upper=1>[Q] theta_unit;                // theta rescaled to [0, 1]
+  real<lower=0> noise_sd;                                // standardised units
+  array[use_discrepancy] real<lower=0> delta_sd;         // standardised units
+  array[use_discrepancy ? D_delta : 0] real<lower=0> delta_length_scale;  // fraction of input range
+  array[estimate_rho] real<lower=0> rho_free;
+}
+transformed parameters {
+  vector[Q] theta = theta_from_unit(theta_unit, theta_lower, theta_upper);
+  real rho = estimate_rho ? rho_free[1] : 1.0;
+}
+model {
+  noise_sd ~ normal(0, 1);
+  delta_sd ~ normal(0, 0.5);
+  delta_length_scale ~ discrepancy_length_scale();
+  rho_free ~ normal(1, 0.25);
+  if (!prior_only) {
+    array[N] vector[D + Q] xt_obs = append_theta(x, theta_unit);
+    matrix[N, M] K_obs_sim = ard_cross_cov(xt_obs, xt_sim, kernel_id, emulator_sd,
+                                           emulator_length_scale);
+    matrix[M, N] A = mdivide_left_tri_low(L_sim, K_obs_sim');
+    vector[N] emulator_mean_obs = emulator_mean + K_obs_sim * alpha_sim;
+    matrix[N, N] K = square(rho) * (ard_cov(xt_obs, kernel_id, emulator_sd, emulator_length_scale)
+                                    - crossprod(A));
+    if (use_discrepancy) {
+      K += ard_cov(x_delta, kernel_id, delta_sd[1], delta_length_scale);
+    }
+    y ~ multi_normal_cholesky(rho * emulator_mean_obs, cholesky_decompose(add_diag(K, square(noise_sd))));
+  }
+}
+generated quantities {
+  real noise_sd_original = noise_sd * y_scale;
+  array[use_discrepancy] real delta_sd_original;
+  vector[N] log_lik;      // log p(y_i | y_-i, runs, parameters), original units
+  vector[N] y_rep;        // replicated data, original units
+  vector[P] f_new;        // emulated simulator output at the prediction points
+  vector[P] delta_new;    // discrepancy at the prediction points
+  vector[P] zeta_new;     // true process rho * f + delta at the prediction points
+  if (use_discrepancy) delta_sd_original[1] = delta_sd[1] * y_scale;
+  {
+    // With the emulator fixed, the joint model's conditionals are exact.
+    array[N] vector[D + Q] xt_obs = append_theta(x, theta_unit);
+    matrix[M + N, M + N] L = cholesky_decompose(
+      koh_joint_cov(xt_sim, xt_obs, x_delta, kernel_id, emulator_sd, emulator_length_scale,
+                    emulator_nugget, rho, delta_sd, delta_length_scale, noise_sd));
+    vector[M + N] mu = append_row(rep_vector(emulator_mean, M), rep_vector(rho * emulator_mean, N));
+    vector[M + N] resid = append_row(y_sim, y) - mu;
+    log_lik = mvn_loo_log_lik(resid, L)[(M + 1):(M + N)] - log(y_scale);
+    int n_cond = prior_only ? 0 : N;
+    vector[2 * (N + P)] f_delta = koh_joint_predict_rng(
+      resid[1:(M + n_cond)], L[1:(M + n_cond), 1:(M + n_cond)], xt_sim, xt_obs[1:n_cond],
+      x_delta[1:n_cond], append_array(xt_obs, append_theta(x_new, theta_unit)),
+      append_array(x_delta, x_delta_new), kernel_id, emulator_sd, emulator_length_scale, rho,
+      delta_sd, delta_length_scale);
+    vector[N + P] f_all = emulator_mean + f_delta[1:(N + P)];
+    vector[N + P] delta_all = f_delta[(N + P + 1):(2 * (N + P))];
+    y_rep = y_center + y_scale * to_vector(normal_rng(rho * f_all[1:N] + delta_all[1:N], noise_sd));
+    f_new = y_center + y_scale * f_all[(N + 1):(N + P)];
+    delta_new = y_scale * delta_all[(N + 1):(N + P)];
+    zeta_new = y_center + y_scale * (rho * f_all[(N + 1):(N + P)] + delta_all[(N + 1):(N + P)]);
+  }
+}

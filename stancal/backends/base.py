@@ -1,0 +1,55 @@
+"""The one interface between stancal and a Stan interface library."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+import numpy as np
+
+from ..stan_source import FlatProgram
+
+Draws = dict[str, np.ndarray]
+"""Variable name -> array of shape (chain, draw, *variable shape)."""
+
+
+class StanRuntimeError(RuntimeError):
+    """Stan rejected the data or failed while sampling."""
+
+
+@dataclass
+class SampleOutput:
+    draws: Draws
+    sample_stats: Draws  # lp, diverging, tree_depth, n_steps, step_size, energy, ...
+    max_treedepth: int
+    compile_seconds: float
+    sample_seconds: float
+    messages: list[str] = field(default_factory=list)
+
+
+class StanBackend(Protocol):
+    name: str
+
+    def sample(
+        self,
+        program: FlatProgram,
+        data: dict[str, Any],
+        *,
+        chains: int,
+        warmup: int,
+        draws: int,
+        seed: int,
+        inits: list[dict[str, Any]] | None,
+        adapt_delta: float,
+        max_treedepth: int,
+    ) -> SampleOutput: ...
+
+    def generate_quantities(
+        self,
+        program: FlatProgram,
+        data: dict[str, Any],
+        parameters: Draws,
+        seed: int,
+    ) -> Draws:
+        """Rerun generated quantities for given parameter draws (chain, draw, ...)."""
+        ...

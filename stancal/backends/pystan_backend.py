@@ -1,0 +1,146 @@
+"""PyStan 3 (httpstan): the embedded backend that needs only pip and g++."""
+
+from __future__ import annotations
+
+import logging
+import time
+from typing import Any
+
+import numpy as np
+
+from ..stan_source import FlatProgram, StanProgramError
+from .base import Draws, SampleOutput, StanRuntimeError
+
+logger = logging.getLogger("stancal")
+
+_STATS = {
+    "lp__": "lp",
+    "accept_stat__": "acceptance_rate",
+    "stepsize__": "step_size",
+    "treedepth__": "tree_depth",
+    "n_leapfrog__": "n_steps",
+    "divergent__": "diverging",
+    "energy__": "energy",
+}
+
+
+def _is_compiled(code: str) -> bool:
+    import httpstan.cache
+    import httpstan.models
+
+    try:
+        name = httpstan.models.calculate_model_name(code)
+        return httpstan.cache.model_directory(name).exists()
+    except Exception:  # cache layout is httpstan's business; assume a compile
+        return False
+
+
+def _by_chain(flat: np.ndarray, dims: list[int], chains: int) -> np.ndarray:
+    """PyStan's (*dims, draw * chains) with chain varying fastest -> (chain, draw, *dims)."""
+    draws = flat.shape[-1] // chains
+    return np.moveaxis(flat.reshape(*dims, draws, chains), [-1, -2], [0, 1])
+
+
+class PyStanBackend:
+    name = "pystan"
+
+    def _build(self, program: FlatProgram, data: dict[str, Any], seed: int):
+        import stan
+
+        if not _is_compiled(program.code):
+            logger.warning(
+                "Compiling Stan program %s with PyStan; the first compile takes about a "
+                "minute, later runs use the cache.", program.origin[0][0] if program.origin else "?"
+            )
+        try:
+            return stan.build(program.code, data=data, random_seed=seed)
+        except ValueError as err:  # stanc errors and data errors arrive as ValueError
+            raise StanProgramError(program.explain(str(err))) from None
+        except RuntimeError as err:
+            raise StanRuntimeError(program.explain(str(err))) from None
+
+    def sample(
+        self,
+        program: FlatProgram,
+        data: dict[str, Any],
+        *,
+        chains: int,
+        warmup: int,
+        draws: int,
+        seed: int,
+        inits: list[dict[str, Any]] | None,
+        adapt_delta: float,
+        max_treedepth: int,
+    ) -> SampleOutput:
+        started = time.perf_counter()
+        model = self._build(program, data, seed)
+        compiled = time.perf_counter()
+        kwargs: dict[str, Any] = dict(
+            num_chains=chains, num_warmup=warmup, num_samples=draws,
+            delta=adapt_delta, max_depth=max_treedepth,
+        )
+        if inits is not None:
+            kwargs["init"] = inits
+        try:
+            fit = model.sample(**kwargs)
+        except RuntimeError as err:
+            raise StanRuntimeError(self._explain_failure(model, program, inits, err)) from None
+        finished = time.perf_counter()
+        names = [n for n in fit.param_names]
+        draws_out = {
+            n: _by_chain(np.asarray(fit[n]), list(fit.dims[i]), chains)
+            for i, n in enumerate(names)
+        }
+        stats = {
+            out: _by_chain(np.asarray(fit[stan_name]).reshape(-1), [], chains)
+            for stan_name, out in _STATS.items()
+            if stan_name in fit.sample_and_sampler_param_names
+        }
+        return SampleOutput(
+            draws=draws_out,
+            sample_stats=stats,
+            max_treedepth=max_treedepth,
+            compile_seconds=compiled - started,
+            sample_seconds=finished - compiled,
+        )
+
+    @staticmethod
+    def _explain_failure(model, program: FlatProgram, inits, err: RuntimeError) -> str:
+        """httpstan 4.17 can lose Stan's message while reporting a failed run;
+        evaluating the log density at the first init usually recovers it."""
+        message = str(err)
+        if inits:
+            try:
+                model.log_prob(model.unconstrain_pars(inits[0]))
+            except Exception as inner:  # the recovered Stan message
+                message = f"{inner}"
+        return program.explain(f"Stan failed while sampling: {message.strip()}")
+
+    def generate_quantities(
+        self, program: FlatProgram, data: dict[str, Any], parameters: Draws, seed: int
+    ) -> Draws:
+        model = self._build(program, data, seed)
+        names = list(model.param_names)
+        dims = [list(d) for d in model.dims]
+        sampled = set(parameters)
+        chains, draws = next(iter(parameters.values())).shape[:2]
+        flat_rows = []
+        for c in range(chains):
+            for d in range(draws):
+                point = {k: np.asarray(v[c, d]).tolist() for k, v in parameters.items()}
+                unconstrained = model.unconstrain_pars(point)
+                flat_rows.append(model.constrain_pars(unconstrained))
+        flat = np.asarray(flat_rows, dtype=float)  # (chain * draw, all constrained names)
+        out: Draws = {}
+        offset = 0
+        for name, shape in zip(names, dims):
+            size = int(np.prod(shape)) if shape else 1
+            if name not in sampled:
+                block = flat[:, offset : offset + size]
+                # Stan flattens column-major
+                block = block.reshape(chains, draws, *reversed(shape)) if shape else block.reshape(chains, draws)
+                if len(shape) > 1:
+                    block = np.moveaxis(block, list(range(2, 2 + len(shape))), list(range(1 + len(shape), 1, -1)))
+                out[name] = block
+            offset += size
+        return out

@@ -1,0 +1,147 @@
+"""calibrate(): from a CalibrationData to a CalibrationResult."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from . import diagnostics as sampler_checks
+from . import modes as mode_checks
+from .backends import get_backend
+from .data import CalibrationData
+from .inits import spread_theta_inits
+from .models import Method, model_spec
+from .result import CalibrationResult, build_datatree
+from .stan_source import flatten
+from .standata import (EMULATOR_HYPERPARAMETERS, ModelOptions, build_stan_data,
+                       default_new_points, emulator_run_data, to_stan_json)
+
+logger = logging.getLogger("stancal")
+
+# parameters block of each program, for diagnostics and for predict()
+_CALIBRATION_PARAMETERS = ["theta_unit", "noise_sd", "delta_sd", "delta_length_scale", "rho_free"]
+_PARAMETERS = {
+    Method.KOH: _CALIBRATION_PARAMETERS,
+    Method.MODULAR: _CALIBRATION_PARAMETERS,
+    Method.KOH_EMULATOR: [*_CALIBRATION_PARAMETERS, *EMULATOR_HYPERPARAMETERS],
+}
+_DIAGNOSED = ["theta", "noise_sd", "delta_sd", "delta_length_scale", "rho",
+              *EMULATOR_HYPERPARAMETERS]
+
+
+def choose_method(data: CalibrationData, simulator: str | Path | None, method: str | None) -> Method:
+    if method is None:
+        if simulator is None and not data.has_runs:
+            raise ValueError("give a Stan simulator, simulator runs, or both")
+        return Method.KOH if simulator is not None else Method.KOH_EMULATOR
+    chosen = Method(method)
+    if model_spec(chosen).needs_simulator and simulator is None:
+        raise ValueError(f"method '{chosen}' needs a Stan simulator file")
+    if model_spec(chosen).needs_runs and not data.has_runs:
+        raise ValueError(f"method '{chosen}' needs simulator runs")
+    return chosen
+
+
+def fit_emulator(data: CalibrationData, options: ModelOptions, *, backend, chains: int,
+                 warmup: int, draws: int, seed: int) -> dict[str, Any]:
+    """Stage 1 of modular calibration: the emulator's hyperparameters at their
+    posterior medians, and its leave-one-out accuracy on the runs."""
+    program = flatten(model_spec("emulator").path)
+    stan_data = {**emulator_run_data(data), "D": len(data.inputs), "Q": len(data.parameters),
+                 "y_scale": data.scaling.y_scale, "kernel_id": options.kernel_id, "prior_only": 0}
+    sample = backend.sample(program, to_stan_json(stan_data), chains=chains, warmup=warmup,
+                            draws=draws, seed=seed, inits=None, adapt_delta=0.9, max_treedepth=10)
+    d = sample.draws
+    hyper = {
+        "emulator_mean": float(np.median(d["emulator_mean"])),
+        "emulator_sd": float(np.median(d["emulator_sd"])),
+        "emulator_length_scale": np.median(d["emulator_length_scale"].reshape(-1, len(data.inputs) + len(data.parameters)), axis=0).tolist(),
+        "emulator_nugget": float(np.median(d["emulator_nugget"])),
+    }
+    loo_error = d["loo_error"].reshape(-1, d["loo_error"].shape[-1]).mean(0)
+    return {
+        "hyperparameters": hyper,
+        "loo_rmse": float(np.sqrt(np.mean(loo_error**2))),
+        "runs_sd": float(data.runs[data.output].std()),
+        "compile_s": sample.compile_seconds,
+        "sample_s": sample.sample_seconds,
+    }
+
+
+def calibrate(
+    data: CalibrationData,
+    *,
+    simulator: str | Path | None = None,
+    method: str | None = None,
+    program: str | Path | None = None,
+    discrepancy: str = "gp",
+    kernel: str = "se",
+    estimate_rho: bool = False,
+    new_points: pd.DataFrame | None = None,
+    chains: int = 4,
+    warmup: int = 1000,
+    draws: int = 1000,
+    seed: int | None = None,
+    backend: str | None = None,
+    adapt_delta: float = 0.9,
+    max_treedepth: int = 10,
+    out_dir: str | Path | None = None,
+) -> CalibrationResult:
+    """Calibrate theta (Kennedy & O'Hagan 2001) and return the posterior.
+
+    ``simulator``: a Stan file defining ``vector simulator(matrix X, vector theta)``.
+    ``method``: koh (cheap simulator), koh_emulator (joint, from runs) or
+    modular (two-stage, from runs); by default koh with a simulator, else koh_emulator.
+    ``program``: your own copy of the method's .stan file.
+    ``out_dir``: the posterior is written there as soon as sampling ends.
+    """
+    options = ModelOptions(discrepancy, kernel, estimate_rho)
+    chosen = choose_method(data, simulator, method)
+    spec = model_spec(chosen)
+    aliases = {"simulator.stan": Path(simulator)} if simulator is not None else {}
+    flat = flatten(Path(program) if program else spec.path, aliases=aliases)
+    stan_backend = get_backend(backend)
+    seed = int(np.random.default_rng().integers(2**31 - 1)) if seed is None else seed
+    new_points = default_new_points(data) if new_points is None else new_points.reset_index(drop=True)
+
+    emulator: dict[str, Any] = {}
+    if chosen is Method.MODULAR:
+        logger.info("modular stage 1: fitting the emulator to %d runs", len(data.runs))
+        emulator = fit_emulator(data, options, backend=stan_backend, chains=chains,
+                                warmup=warmup, draws=draws, seed=seed)
+    stan_data = build_stan_data(data, chosen, options, new_points,
+                                emulator_hyperparameters=emulator.get("hyperparameters"))
+    inits = spread_theta_inits(chains, len(data.parameters), np.random.default_rng(seed))
+    logger.info("sampling %s: %d chains x (%d warmup + %d draws) with %s",
+                chosen, chains, warmup, draws, stan_backend.name)
+    sample = stan_backend.sample(flat, to_stan_json(stan_data), chains=chains, warmup=warmup,
+                                 draws=draws, seed=seed, inits=inits, adapt_delta=adapt_delta,
+                                 max_treedepth=max_treedepth)
+    tree = build_datatree(sample, data, stan_data, new_points, _PARAMETERS[chosen], options)
+    timing = {"compile_s": sample.compile_seconds + emulator.get("compile_s", 0.0),
+              "sample_s": sample.sample_seconds + emulator.get("sample_s", 0.0)}
+    posterior = tree["posterior"].to_dataset()
+    result = CalibrationResult(
+        idata=tree, data=data, method=str(chosen), backend=stan_backend.name, options=options,
+        program=flat, stan_data=stan_data,
+        diagnostics=sampler_checks.Diagnostics(0, 0, np.nan, "", np.nan, np.nan, "", 0, []),
+        modes=[], timing=timing, emulator=emulator,
+    )
+    if out_dir is not None:  # nothing below may lose the draws
+        result.save(Path(out_dir) / "posterior.nc")
+    widths = np.array([p.upper - p.lower for p in data.parameters])
+    result.modes = mode_checks.find_modes(np.asarray(posterior["theta"]),
+                                          np.asarray(tree["sample_stats"]["lp"]),
+                                          data.theta_names, widths)
+    result.diagnostics = sampler_checks.check_sampler(
+        posterior, tree["sample_stats"].to_dataset(), max_treedepth,
+        [v for v in _DIAGNOSED if v in posterior])
+    sampler_checks.report(result.diagnostics)
+    mode_checks.report(result.modes)
+    if out_dir is not None:
+        result.save(Path(out_dir) / "posterior.nc")
+    return result

@@ -1,0 +1,119 @@
+"""Sampler checks after every fit, reported with numbers and advice."""
+
+from __future__ import annotations
+
+import logging
+import warnings
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+import xarray as xr
+
+logger = logging.getLogger("stancal")
+
+
+class SamplerWarning(UserWarning):
+    """The sampler did not explore the posterior reliably."""
+
+
+RHAT_LIMIT = 1.01
+ESS_PER_CHAIN = 100  # Vehtari et al. (2021): at least 100 bulk/tail ESS per chain
+
+
+@dataclass
+class Diagnostics:
+    divergences: int
+    draws: int
+    max_rhat: float
+    worst_rhat: str
+    min_ess_bulk: float
+    min_ess_tail: float
+    worst_ess: str
+    treedepth_hits: int
+    low_bfmi_chains: list[int]
+    messages: list[str] = field(default_factory=list)
+
+    @property
+    def ok(self) -> bool:
+        return not self.messages
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def _bfmi(energy: np.ndarray) -> np.ndarray:
+    """Estimated Bayesian fraction of missing information per chain."""
+    return np.square(np.diff(energy, axis=1)).mean(axis=1) / np.var(energy, axis=1)
+
+
+def check_sampler(posterior: xr.Dataset, sample_stats: xr.Dataset, max_treedepth: int,
+                  parameters: list[str]) -> Diagnostics:
+    """Check divergences, R-hat, ESS, tree depth and E-BFMI of ``parameters``."""
+    import arviz_stats as ast
+
+    chains = posterior.sizes["chain"]
+    draws = chains * posterior.sizes["draw"]
+    rhat = ast.rhat(posterior[parameters])
+    ess_bulk = ast.ess(posterior[parameters], method="bulk")
+    ess_tail = ast.ess(posterior[parameters], method="tail")
+
+    def extreme(ds: xr.Dataset, largest: bool) -> tuple[float, str]:
+        best, where = (-np.inf if largest else np.inf), ""
+        for name, da in ds.data_vars.items():
+            values = np.nan_to_num(np.asarray(da, dtype=float).ravel(),
+                                   nan=np.inf if largest else -np.inf)
+            if values.size == 0:
+                continue
+            i = int(np.argmax(values) if largest else np.argmin(values))
+            value = values[i]
+            if (value > best) if largest else (value < best):
+                best, where = float(value), name + (f"[{i}]" if values.size > 1 else "")
+        return best, where
+
+    max_rhat, worst_rhat = extreme(rhat, largest=True)
+    min_bulk, worst_bulk = extreme(ess_bulk, largest=False)
+    min_tail, worst_tail = extreme(ess_tail, largest=False)
+    divergences = int(np.asarray(sample_stats["diverging"]).sum())
+    hits = int((np.asarray(sample_stats["tree_depth"]) >= max_treedepth).sum())
+    bfmi = _bfmi(np.asarray(sample_stats["energy"]))
+    low_bfmi = [int(c) for c in np.flatnonzero(bfmi < 0.3)]
+
+    messages = []
+    if divergences:
+        messages.append(
+            f"{divergences} of {draws} transitions diverged ({100 * divergences / draws:.1f} %): "
+            "the posterior has regions the sampler cannot follow. Raise adapt_delta "
+            "(e.g. 0.95 or 0.99), or rescale the problem; do not trust the draws near them."
+        )
+    if max_rhat > RHAT_LIMIT:
+        messages.append(
+            f"R-hat up to {max_rhat:.3f} ({worst_rhat}) > {RHAT_LIMIT}: chains disagree. "
+            "Run longer (more warmup and draws); if chains sit in different theta modes, "
+            "see result.modes."
+        )
+    min_ess = min(min_bulk, min_tail)
+    if min_ess < ESS_PER_CHAIN * chains:
+        which = worst_bulk if min_bulk <= min_tail else worst_tail
+        messages.append(
+            f"effective sample size down to {min_ess:.0f} ({which}; bulk {min_bulk:.0f}, "
+            f"tail {min_tail:.0f}) < {ESS_PER_CHAIN} per chain: intervals are imprecise. "
+            "Draw more samples."
+        )
+    if hits:
+        messages.append(
+            f"{hits} of {draws} transitions hit the maximum tree depth {max_treedepth}: "
+            "sampling was slow and may be incomplete. Raise max_treedepth or rescale."
+        )
+    if low_bfmi:
+        messages.append(
+            f"E-BFMI below 0.3 in chains {low_bfmi} ({', '.join(f'{b:.2f}' for b in bfmi[low_bfmi])}): "
+            "the sampler explores the energy poorly; consider reparameterising."
+        )
+    return Diagnostics(divergences, draws, max_rhat, worst_rhat, min_bulk, min_tail,
+                       worst_bulk if min_bulk <= min_tail else worst_tail, hits, low_bfmi, messages)
+
+
+def report(diagnostics: Diagnostics) -> None:
+    for message in diagnostics.messages:
+        logger.warning(message)
+        warnings.warn(message, SamplerWarning, stacklevel=3)

@@ -1,0 +1,243 @@
+"""The result of a calibration: an ArviZ DataTree plus what is needed to
+summarise it on the original scale and to predict at new points."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+import xarray as xr
+
+from .backends import Draws, SampleOutput, get_backend
+from .data import CalibrationData
+from .diagnostics import Diagnostics
+from .modes import Mode
+from .standata import ModelOptions, build_stan_data, to_stan_json
+from .stan_source import FlatProgram
+
+# Stan program variables -> names in the posterior group (original units)
+_REPORTED = {
+    "theta": "theta",
+    "noise_sd_original": "noise_sd",
+    "delta_sd_original": "delta_sd",
+    "rho": "rho",
+}
+_PREDICTED = ("f_new", "delta_new", "zeta_new")
+QUANTILES = (0.05, 0.5, 0.95)
+
+
+def build_datatree(sample: SampleOutput, data: CalibrationData, stan_data: dict[str, Any],
+                   new_points: pd.DataFrame, parameter_names: list[str],
+                   options: ModelOptions) -> xr.DataTree:
+    import arviz_base as ab
+
+    d = sample.draws
+    posterior: Draws = {out: d[stan] for stan, out in _REPORTED.items() if stan in d}
+    if options.discrepancy == "gp":
+        posterior["delta_sd"] = posterior["delta_sd"][..., 0]
+        widths = np.array([data.scaling.width[c] for c in data.discrepancy_inputs])
+        posterior["delta_length_scale"] = d["delta_length_scale"] * widths
+    else:
+        posterior.pop("delta_sd", None)
+    if not options.estimate_rho:
+        posterior.pop("rho", None)
+    for name in ("emulator_mean", "emulator_sd", "emulator_length_scale", "emulator_nugget"):
+        if name in d:
+            posterior[name] = d[name]
+    groups = {
+        "posterior": posterior,
+        "stan_parameters": {k: d[k] for k in parameter_names},
+        "posterior_predictive": {"y": d["y_rep"]},
+        "log_likelihood": {"y": d["log_lik"]},
+        "observed_data": {"y": data.physical[data.output].to_numpy()},
+        "constant_data": {c: data.physical[c].to_numpy() for c in data.discrepancy_inputs},
+        "sample_stats": sample.sample_stats,
+        "predictions": {k: d[k] for k in _PREDICTED},
+        "predictions_constant_data": {c: new_points[c].to_numpy() for c in new_points},
+    }
+    dims = {
+        "theta": ["theta_name"], "delta_length_scale": ["delta_input"],
+        "emulator_length_scale": ["emulator_input"], "y": ["obs"],
+        **{k: ["new_point"] for k in _PREDICTED},
+    }
+    coords = {
+        "theta_name": data.theta_names, "delta_input": data.discrepancy_inputs,
+        "emulator_input": [*data.inputs, *data.theta_names],
+        "obs": np.arange(len(data.physical)), "new_point": np.arange(len(new_points)),
+    }
+    tree = ab.from_dict({k: v for k, v in groups.items() if k in ("posterior", "posterior_predictive",
+                                                                  "log_likelihood", "sample_stats",
+                                                                  "predictions")},
+                        dims=dims, coords=coords)
+    tree["observed_data"] = xr.DataTree(xr.Dataset(
+        {"y": ("obs", groups["observed_data"]["y"])}, coords={"obs": coords["obs"]}))
+    tree["constant_data"] = xr.DataTree(xr.Dataset(
+        {c: ("obs", v) for c, v in groups["constant_data"].items()}, coords={"obs": coords["obs"]}))
+    tree["predictions_constant_data"] = xr.DataTree(xr.Dataset(
+        {c: ("new_point", v) for c, v in groups["predictions_constant_data"].items()},
+        coords={"new_point": coords["new_point"]}))
+    tree["stan_parameters"] = xr.DataTree(ab.dict_to_dataset(groups["stan_parameters"]))
+    return tree
+
+
+def _interval_table(values: np.ndarray, prefix: str) -> dict[str, np.ndarray]:
+    """values: (samples, points) -> mean and quantiles per point."""
+    out = {f"{prefix}_mean": values.mean(0)}
+    for q in QUANTILES:
+        out[f"{prefix}_q{int(round(q * 100)):02d}"] = np.quantile(values, q, axis=0)
+    return out
+
+
+@dataclass
+class CalibrationResult:
+    """Posterior of one calibration. ``idata`` is the ArviZ DataTree."""
+
+    idata: xr.DataTree
+    data: CalibrationData
+    method: str
+    backend: str
+    options: ModelOptions
+    program: FlatProgram
+    stan_data: dict[str, Any]
+    diagnostics: Diagnostics
+    modes: list[Mode]
+    timing: dict[str, float]
+    emulator: dict[str, Any] = field(default_factory=dict)  # stage-1 results of modular
+
+    # ---- summaries -------------------------------------------------------
+    def _summary_of(self, posterior: xr.Dataset) -> pd.DataFrame:
+        import arviz_stats as ast
+
+        diag = ast.summary(posterior, kind="diagnostics", round_to="none")
+        rows = []
+        for name, da in posterior.data_vars.items():
+            flat = np.asarray(da).reshape(da.sizes["chain"] * da.sizes["draw"], -1)
+            extra_dims = [dim for dim in da.dims if dim not in ("chain", "draw")]
+            labels = ([str(v) for v in da[extra_dims[0]].values] if extra_dims else [None])
+            for k, label in enumerate(labels):
+                key = name if label is None else f"{name}[{label}]"
+                v = flat[:, k]
+                rows.append({
+                    "parameter": key, "mean": v.mean(), "sd": v.std(ddof=1),
+                    "q05": np.quantile(v, 0.05), "q50": np.quantile(v, 0.5),
+                    "q95": np.quantile(v, 0.95),
+                    "rhat": float(diag.loc[key, "r_hat"]),
+                    "ess_bulk": float(diag.loc[key, "ess_bulk"]),
+                })
+        return pd.DataFrame(rows).set_index("parameter")
+
+    def summary(self) -> pd.DataFrame:
+        """theta and hyperparameters on the original scale. With several theta
+        modes, one block of rows per mode (column ``mode``, 1 = highest density)."""
+        posterior = self.idata["posterior"].to_dataset()
+        if len(self.modes) <= 1:
+            return self._summary_of(posterior)
+        blocks = []
+        for k, mode in enumerate(self.modes, start=1):
+            block = self._summary_of(posterior.isel(chain=mode.chains))
+            block.insert(0, "mode", k)
+            blocks.append(block)
+        return pd.concat(blocks)
+
+    def theta_summary(self) -> dict[str, dict[str, float]]:
+        table = self._summary_of(self._dominant_posterior()[["theta"]])
+        return {
+            name: {k: float(table.loc[f"theta[{name}]", k])
+                   for k in ("mean", "sd", "q05", "q50", "q95", "rhat", "ess_bulk")}
+            for name in self.data.theta_names
+        }
+
+    def _dominant_posterior(self) -> xr.Dataset:
+        posterior = self.idata["posterior"].to_dataset()
+        if len(self.modes) > 1:
+            return posterior.isel(chain=self.modes[0].chains)
+        return posterior
+
+    def theta_draws(self) -> pd.DataFrame:
+        theta = self.idata["posterior"]["theta"]
+        flat = np.asarray(theta).reshape(-1, theta.shape[-1])
+        return pd.DataFrame(flat, columns=self.data.theta_names)
+
+    # ---- prediction ------------------------------------------------------
+    def predict(self, new_points: pd.DataFrame | None = None, *, backend: str | None = None,
+                seed: int = 1) -> pd.DataFrame:
+        """zeta (the real process), f(x, theta) and delta at ``new_points``
+        (columns: simulator inputs and covariates), with 5/50/95 % quantiles,
+        plus ``y`` with measurement noise. Without ``new_points``, the points
+        stored with the fit."""
+        if new_points is None:
+            draws = {k: np.asarray(self.idata["predictions"][k]) for k in _PREDICTED}
+            points = pd.DataFrame({c: np.asarray(self.idata["predictions_constant_data"][c])
+                                   for c in self.data.discrepancy_inputs})
+        else:
+            points = self.data.check_new_points(new_points).reset_index(drop=True)
+            stan_data = build_stan_data(self.data, self.method, self.options, points,
+                                        emulator_hyperparameters=self.emulator.get("hyperparameters"))
+            params = {k: np.asarray(v) for k, v in self.idata["stan_parameters"].data_vars.items()}
+            draws = get_backend(backend or self.backend).generate_quantities(
+                self.program, to_stan_json(stan_data), params, seed)
+        table = points.copy()
+        for name in _PREDICTED:
+            values = draws[name].reshape(-1, len(points))
+            table = table.assign(**_interval_table(values, name.removesuffix("_new")))
+        noise = np.asarray(self.idata["posterior"]["noise_sd"]).reshape(-1, 1)
+        zeta = draws["zeta_new"].reshape(-1, len(points))
+        rng = np.random.default_rng(seed)
+        table = table.assign(**_interval_table(zeta + noise * rng.standard_normal(zeta.shape), "y"))
+        return table
+
+    # ---- persistence -----------------------------------------------------
+    def _metadata(self) -> dict[str, Any]:
+        return {
+            "method": self.method, "backend": self.backend,
+            "options": {"discrepancy": self.options.discrepancy, "kernel": self.options.kernel,
+                        "estimate_rho": self.options.estimate_rho},
+            "program": {"code": self.program.code, "origin": self.program.origin},
+            "stan_data": to_stan_json(self.stan_data), "data": self.data.to_dict(),
+            "diagnostics": self.diagnostics.to_dict(), "modes": [m.__dict__ for m in self.modes],
+            "timing": self.timing, "emulator": self.emulator,
+        }
+
+    def save(self, path: str | Path) -> Path:
+        """Write the DataTree and everything needed to reload it as netCDF."""
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tree = self.idata.copy()
+        tree.attrs["stancal"] = json.dumps(self._metadata())
+        tree.to_netcdf(path)
+        return path
+
+    @classmethod
+    def load(cls, path: str | Path) -> "CalibrationResult":
+        tree = xr.open_datatree(path).load()
+        meta = json.loads(tree.attrs.pop("stancal"))
+        return cls(
+            idata=tree, data=CalibrationData.from_dict(meta["data"]), method=meta["method"],
+            backend=meta["backend"], options=ModelOptions(**meta["options"]),
+            program=FlatProgram(meta["program"]["code"],
+                                tuple(tuple(o) for o in meta["program"]["origin"])),
+            stan_data=meta["stan_data"], diagnostics=Diagnostics(**meta["diagnostics"]),
+            modes=[Mode(**m) for m in meta["modes"]], timing=meta["timing"],
+            emulator=meta["emulator"],
+        )
+
+    def to_summary_json(self) -> dict[str, Any]:
+        d = self.diagnostics
+        return {
+            "method": self.method,
+            "backend": self.backend,
+            "options": {"discrepancy": self.options.discrepancy, "kernel": self.options.kernel,
+                        "estimate_rho": self.options.estimate_rho},
+            "theta": self.theta_summary(),
+            "modes": [m.to_dict() for m in self.modes],
+            "parameters": json.loads(self.summary().reset_index().to_json(orient="records")),
+            "diagnostics": {"divergences": d.divergences, "max_rhat": d.max_rhat,
+                            "min_ess_bulk": d.min_ess_bulk, "min_ess_tail": d.min_ess_tail,
+                            "treedepth_hits": d.treedepth_hits, "warnings": d.messages},
+            "timing": self.timing,
+            "emulator": {k: v for k, v in self.emulator.items() if k != "hyperparameters"},
+        }

@@ -1,0 +1,109 @@
+"""Stan data for each program, built from a CalibrationData."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from .data import CalibrationData
+from .models import Kernel, Method
+
+
+@dataclass(frozen=True)
+class ModelOptions:
+    """Choices that change the model, not the sampler."""
+
+    discrepancy: str = "gp"  # gp | none
+    kernel: str = "se"  # se | matern52
+    estimate_rho: bool = False
+
+    def __post_init__(self) -> None:
+        if self.discrepancy not in ("gp", "none"):
+            raise ValueError(f"discrepancy must be 'gp' or 'none'; got {self.discrepancy!r}")
+        if self.kernel not in ("se", "matern52"):
+            raise ValueError(f"kernel must be 'se' or 'matern52'; got {self.kernel!r}")
+
+    @property
+    def kernel_id(self) -> int:
+        return int(Kernel.SE if self.kernel == "se" else Kernel.MATERN52)
+
+
+EMULATOR_HYPERPARAMETERS = ("emulator_mean", "emulator_sd", "emulator_length_scale", "emulator_nugget")
+
+
+def default_new_points(data: CalibrationData, size: int = 60) -> pd.DataFrame:
+    """A grid over the one input when there is one; otherwise the physical points."""
+    columns = data.discrepancy_inputs
+    if len(columns) == 1:
+        values = data.physical[columns[0]]
+        return pd.DataFrame({columns[0]: np.linspace(values.min(), values.max(), size)})
+    return data.physical[columns].reset_index(drop=True)
+
+
+def _standardise(data: CalibrationData, values: np.ndarray) -> np.ndarray:
+    return (values - data.scaling.y_center) / data.scaling.y_scale
+
+
+def build_stan_data(
+    data: CalibrationData,
+    method: Method | str,
+    options: ModelOptions,
+    new_points: pd.DataFrame,
+    prior_only: bool = False,
+    emulator_hyperparameters: dict[str, Any] | None = None,
+) -> dict[str, Any]:
+    method = Method(method)
+    s = data.scaling
+    new_points = data.check_new_points(new_points)
+    out: dict[str, Any] = dict(
+        N=len(data.physical),
+        D=len(data.inputs),
+        D_delta=len(data.discrepancy_inputs),
+        Q=len(data.parameters),
+        x_delta=s.to_unit(data.physical, data.discrepancy_inputs),
+        y=_standardise(data, data.physical[data.output].to_numpy()),
+        y_center=s.y_center,
+        y_scale=s.y_scale,
+        theta_lower=np.array([p.lower for p in data.parameters]),
+        theta_upper=np.array([p.upper for p in data.parameters]),
+        use_discrepancy=int(options.discrepancy == "gp"),
+        kernel_id=options.kernel_id,
+        estimate_rho=int(options.estimate_rho),
+        prior_only=int(prior_only),
+        P=len(new_points),
+        x_delta_new=s.to_unit(new_points, data.discrepancy_inputs),
+    )
+    if method is Method.KOH:
+        out["X"] = data.physical[data.inputs].to_numpy()
+        out["X_new"] = new_points[data.inputs].to_numpy()
+        return out
+    if data.runs is None:
+        raise ValueError(f"method '{method}' needs simulator runs")
+    out.update(emulator_run_data(data))
+    out["x"] = s.to_unit(data.physical, data.inputs)
+    out["x_new"] = s.to_unit(new_points, data.inputs)
+    if method is Method.MODULAR:
+        if emulator_hyperparameters is None:
+            raise ValueError("method 'modular' needs the stage-1 emulator hyperparameters")
+        out.update(emulator_hyperparameters)
+    return out
+
+
+def emulator_run_data(data: CalibrationData) -> dict[str, Any]:
+    """The runs as the emulator programs take them (emulator.stan's data)."""
+    assert data.runs is not None
+    s = data.scaling
+    return dict(
+        M=len(data.runs),
+        x_sim=s.to_unit(data.runs, data.inputs),
+        theta_sim=s.to_unit(data.runs, data.theta_names),
+        y_sim=_standardise(data, data.runs[data.output].to_numpy()),
+    )
+
+
+def to_stan_json(stan_data: dict[str, Any]) -> dict[str, Any]:
+    """Plain lists, for PyStan and for storing with a result."""
+    return {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in stan_data.items()}
