@@ -90,6 +90,7 @@ def calibrate(
     adapt_delta: float = 0.9,
     max_treedepth: int = 10,
     out_dir: str | Path | None = None,
+    prior: bool = False,
 ) -> CalibrationResult:
     """Calibrate theta (Kennedy & O'Hagan 2001) and return the posterior.
 
@@ -98,6 +99,8 @@ def calibrate(
     modular (two-stage, from runs); by default koh with a simulator, else koh_emulator.
     ``program``: your own copy of the method's .stan file.
     ``out_dir``: the posterior is written there as soon as sampling ends.
+    ``prior``: also draw from the prior (same program, ``prior_only = 1``) into
+    the ``prior`` and ``prior_predictive`` groups.
     """
     options = ModelOptions(discrepancy, kernel, estimate_rho)
     chosen = choose_method(data, simulator, method)
@@ -122,6 +125,15 @@ def calibrate(
                                  draws=draws, seed=seed, inits=inits, adapt_delta=adapt_delta,
                                  max_treedepth=max_treedepth)
     tree = build_datatree(sample, data, stan_data, new_points, _PARAMETERS[chosen], options)
+    if prior:
+        prior_sample = stan_backend.sample(
+            flat, to_stan_json({**stan_data, "prior_only": 1}), chains=chains, warmup=warmup,
+            draws=draws, seed=seed + 1, inits=inits, adapt_delta=adapt_delta,
+            max_treedepth=max_treedepth)
+        prior_tree = build_datatree(prior_sample, data, stan_data, new_points,
+                                    _PARAMETERS[chosen], options)
+        tree["prior"] = prior_tree["posterior"]
+        tree["prior_predictive"] = prior_tree["posterior_predictive"]
     timing = {"compile_s": sample.compile_seconds + emulator.get("compile_s", 0.0),
               "sample_s": sample.sample_seconds + emulator.get("sample_s", 0.0)}
     posterior = tree["posterior"].to_dataset()

@@ -1,0 +1,80 @@
+"""Read a calibration problem from a TOML config (paths relative to it)."""
+
+from __future__ import annotations
+
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+from .data import CalibrationData
+
+
+class ConfigError(ValueError):
+    """A config file that cannot be used; the message names the key."""
+
+
+@dataclass
+class Problem:
+    data: CalibrationData
+    simulator: Path | None
+    model: dict[str, Any] = field(default_factory=dict)
+
+
+_MODEL_KEYS = {"method", "discrepancy", "kernel", "estimate_rho", "program"}
+
+
+def _read_csv(path: Path, key: str) -> pd.DataFrame:
+    if not path.is_file():
+        raise ConfigError(f"{key}: file not found: {path}")
+    try:
+        return pd.read_csv(path)
+    except Exception as err:  # pandas raises many parser errors
+        raise ConfigError(f"{key}: cannot read {path} as CSV: {err}") from None
+
+
+def _require(table: dict, key: str, where: str) -> Any:
+    if key not in table:
+        raise ConfigError(f"config: [{where}] needs '{key}'")
+    return table[key]
+
+
+def load_config(path: str | Path) -> Problem:
+    path = Path(path)
+    try:
+        raw = tomllib.loads(path.read_text())
+    except FileNotFoundError:
+        raise ConfigError(f"config file not found: {path}") from None
+    except tomllib.TOMLDecodeError as err:
+        raise ConfigError(f"config {path}: not valid TOML: {err}") from None
+    base = path.parent
+    physical = raw.get("physical")
+    if physical is None:
+        raise ConfigError("config: missing the [physical] section")
+    simulator = raw.get("simulator")
+    if simulator is None:
+        raise ConfigError("config: missing the [simulator] section")
+    theta = _require(simulator, "theta", "simulator")
+    stan = base / simulator["stan"] if "stan" in simulator else None
+    if stan is not None and not stan.is_file():
+        raise ConfigError(f"simulator.stan: file not found: {stan}")
+    runs = _read_csv(base / simulator["runs"], "simulator.runs") if "runs" in simulator else None
+    if stan is None and runs is None:
+        raise ConfigError("config: [simulator] needs 'stan' (a Stan simulator), 'runs' (a CSV of runs), or both")
+    model = dict(raw.get("model", {}))
+    unknown = set(model) - _MODEL_KEYS
+    if unknown:
+        raise ConfigError(f"config: unknown key(s) {sorted(unknown)} in [model]; known: {sorted(_MODEL_KEYS)}")
+    if "program" in model:
+        model["program"] = base / model["program"]
+    data = CalibrationData(
+        _read_csv(base / _require(physical, "csv", "physical"), "physical.csv"),
+        inputs=_require(physical, "inputs", "physical"),
+        output=_require(physical, "output", "physical"),
+        theta={k: tuple(v) if isinstance(v, list) else v for k, v in theta.items()},
+        covariates=physical.get("covariates", []),
+        runs=runs,
+    )
+    return Problem(data=data, simulator=stan, model=model)

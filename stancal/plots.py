@@ -1,0 +1,113 @@
+"""Figures of a calibration: theta posteriors, zeta over the data, delta."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from .result import CalibrationResult
+
+
+def _pyplot():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def plot_theta(result: CalibrationResult, path: str | Path | None = None):
+    """Posterior histogram of each theta over its prior box, one colour per mode."""
+    plt = _pyplot()
+    params = result.data.parameters
+    fig, axes = plt.subplots(1, len(params), figsize=(4 * len(params), 3.2), squeeze=False)
+    theta = np.asarray(result.idata["posterior"]["theta"])
+    groups = [m.chains for m in result.modes] or [list(range(theta.shape[0]))]
+    for k, (ax, p) in enumerate(zip(axes[0], params)):
+        for g, chains in enumerate(groups):
+            label = f"mode {g + 1} (chains {chains})" if len(groups) > 1 else "posterior"
+            ax.hist(theta[chains, :, k].ravel(), bins=40, range=(p.lower, p.upper),
+                    density=True, alpha=0.6, label=label)
+        ax.axhline(1 / (p.upper - p.lower), color="grey", ls="--", lw=1, label="prior")
+        ax.set_xlabel(p.name)
+        ax.set_xlim(p.lower, p.upper)
+    axes[0][0].legend(fontsize=8)
+    fig.suptitle(f"theta posterior ({result.method})")
+    fig.tight_layout()
+    return _finish(fig, path)
+
+
+def _along(result: CalibrationResult):
+    """The x axis for curve plots: the single input if there is one, else the first."""
+    return result.data.discrepancy_inputs[0]
+
+
+def plot_fit(result: CalibrationResult, path: str | Path | None = None):
+    """zeta (90 % band) and the calibrated simulator against the data."""
+    plt = _pyplot()
+    table = result.predict()
+    column = _along(result)
+    order = np.argsort(table[column].to_numpy())
+    x = table[column].to_numpy()[order]
+    fig, ax = plt.subplots(figsize=(6.5, 4))
+    ax.fill_between(x, table["y_q05"].to_numpy()[order], table["y_q95"].to_numpy()[order],
+                    color="C0", alpha=0.15, label="new observation, 90 %")
+    ax.fill_between(x, table["zeta_q05"].to_numpy()[order], table["zeta_q95"].to_numpy()[order],
+                    color="C0", alpha=0.35, label="true process zeta, 90 %")
+    ax.plot(x, table["zeta_q50"].to_numpy()[order], color="C0")
+    ax.plot(x, table["f_q50"].to_numpy()[order], color="C3", ls="--", label="simulator f(x, theta)")
+    ax.scatter(result.data.physical[column], result.data.physical[result.data.output],
+               s=14, color="k", zorder=3, label="physical data")
+    ax.set_xlabel(column)
+    ax.set_ylabel(result.data.output)
+    ax.legend(fontsize=8)
+    ax.set_title("prediction of reality" if len(result.data.discrepancy_inputs) == 1
+                 else f"prediction at the data points, against {column}")
+    fig.tight_layout()
+    return _finish(fig, path)
+
+
+def plot_discrepancy(result: CalibrationResult, path: str | Path | None = None):
+    """delta with its 90 % band against each discrepancy input."""
+    plt = _pyplot()
+    table = result.predict()
+    columns = result.data.discrepancy_inputs
+    fig, axes = plt.subplots(1, len(columns), figsize=(5 * len(columns), 3.5), squeeze=False)
+    for ax, column in zip(axes[0], columns):
+        order = np.argsort(table[column].to_numpy())
+        x = table[column].to_numpy()[order]
+        lo, hi = table["delta_q05"].to_numpy()[order], table["delta_q95"].to_numpy()[order]
+        if len(columns) == 1:
+            ax.fill_between(x, lo, hi, alpha=0.3, color="C2", label="delta, 90 %")
+            ax.plot(x, table["delta_q50"].to_numpy()[order], color="C2")
+        else:
+            mid = table["delta_q50"].to_numpy()[order]
+            ax.errorbar(x, mid, yerr=[mid - lo, hi - mid], fmt="o", ms=3, color="C2", label="delta, 90 %")
+        ax.axhline(0, color="k", lw=0.8)
+        ax.set_xlabel(column)
+        ax.set_ylabel(f"discrepancy in {result.data.output}")
+    axes[0][0].legend(fontsize=8)
+    fig.suptitle("model discrepancy delta(x)")
+    fig.tight_layout()
+    return _finish(fig, path)
+
+
+def _finish(fig, path):
+    if path is not None:
+        fig.savefig(path, dpi=110)
+        _pyplot().close(fig)
+    return fig
+
+
+def write_plots(result: CalibrationResult, folder: str | Path) -> list[Path]:
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    paths = [folder / "theta.png", folder / "fit.png"]
+    plot_theta(result, paths[0])
+    plot_fit(result, paths[1])
+    if result.options.discrepancy != "none":
+        paths.append(folder / "discrepancy.png")
+        plot_discrepancy(result, paths[-1])
+    return paths

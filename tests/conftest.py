@@ -1,0 +1,60 @@
+"""Shared fixtures. Every Stan program is compiled once per run (PyStan caches
+it), and each fit that several tests read is made once per session."""
+
+from __future__ import annotations
+
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+import stancal
+
+ROOT = Path(__file__).resolve().parent.parent
+COOLING = ROOT / "case_studies" / "cooling"
+AMBIENT = 20.0
+K_TRUE = 0.05
+
+
+def newton(t, T0, k):
+    return AMBIENT + (T0 - AMBIENT) * np.exp(-k * t)
+
+
+@pytest.fixture(scope="session")
+def exact_cooling_data() -> stancal.CalibrationData:
+    """Data from the exact simulator at k = 0.05, plus the shipped runs."""
+    rng = np.random.default_rng(7)
+    t = np.tile(np.linspace(2, 60, 12), 2)
+    T0 = np.repeat([60.0, 90.0], 12)
+    physical = pd.DataFrame({"t": t, "T0": T0,
+                             "temperature": newton(t, T0, K_TRUE) + 0.3 * rng.standard_normal(t.size)})
+    runs = pd.read_csv(COOLING / "runs.csv")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", stancal.InputRangeWarning)
+        return stancal.CalibrationData(physical, ["t", "T0"], "temperature", {"k": (0.01, 0.2)}, runs=runs)
+
+
+def fit(data, **kwargs):
+    """Small but honest sampling settings for tests."""
+    settings = dict(chains=2, warmup=400, draws=400, seed=11)
+    settings.update(kwargs)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return stancal.calibrate(data, **settings)
+
+
+@pytest.fixture(scope="session")
+def koh_fit(exact_cooling_data):
+    return fit(exact_cooling_data, simulator=COOLING / "simulator.stan", method="koh", prior=True)
+
+
+@pytest.fixture(scope="session")
+def koh_emulator_fit(exact_cooling_data):
+    return fit(exact_cooling_data, method="koh_emulator")
+
+
+@pytest.fixture(scope="session")
+def modular_fit(exact_cooling_data):
+    return fit(exact_cooling_data, method="modular")

@@ -1,0 +1,36 @@
+// Exposes the shared functions to the tests (run with fixed_param).
+functions {
+#include gp_kernels.stan
+#include gp_conditional.stan
+#include koh_joint.stan
+#include loo.stan
+#include scaling.stan
+array[] vector first_coordinate(array[] vector x) {
+  array[size(x)] vector[1] out;
+  for (i in 1:size(x)) out[i] = x[i][1:1];
+  return out;
+}
+}
+data {
+  int<lower=1> n1;
+  int<lower=1> n2;
+  array[n1] vector[2] x1;
+  array[n2] vector[2] x2;
+  real<lower=0> sd_;
+  array[2] real<lower=0> ls;
+  vector[n1] resid;
+  vector[3] unit;
+  vector[3] lo;
+  vector[3] hi;
+}
+generated quantities {
+  matrix[n1, n2] se_cross = ard_cross_cov(x1, x2, 1, sd_, ls);
+  matrix[n1, n2] m52_cross = ard_cross_cov(x1, x2, 2, sd_, ls);
+  matrix[n1, n1] se_sym = ard_cov(x1, 1, sd_, ls);
+  matrix[n1, n1] m52_sym = ard_cov(x1, 2, sd_, ls);
+  vector[n1] loo = mvn_loo_log_lik(resid, cholesky_decompose(add_diag(se_sym, 0.1)));
+  vector[3] theta = theta_from_unit(unit, lo, hi);
+  // joint KOH covariance: runs x2 (as (x, theta) with 1 input + 1 theta), physical x1 inputs
+  matrix[n2 + n1, n2 + n1] joint = koh_joint_cov(
+    x2, append_theta(first_coordinate(x1), [0.3]'), x1, 1, sd_, ls, 0.01, 1.3, {0.7}, {0.4, 0.6}, 0.2);
+}

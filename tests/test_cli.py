@@ -1,0 +1,76 @@
+"""The command line: a full run on the shipped case study and bad input."""
+
+import json
+import shutil
+import subprocess
+import sys
+
+import pytest
+
+from conftest import COOLING
+
+STANCAL = [sys.executable, "-m", "stancal.cli"]
+
+
+def run(*args, cwd=None):
+    return subprocess.run([*STANCAL, *map(str, args)], capture_output=True, text=True, cwd=cwd)
+
+
+@pytest.fixture(scope="module")
+def cli_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("cli") / "out"
+    done = run("calibrate", COOLING / "config.toml", "--out", out, "--chains", 2,
+               "--warmup", 300, "--draws", 300, "--seed", 4, "--backend", "pystan")
+    return done, out
+
+
+def test_calibrate_writes_the_report_folder(cli_run):
+    done, out = cli_run
+    assert done.returncode == 0, done.stderr
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["method"] == "koh" and summary["backend"] == "pystan"
+    k = summary["theta"]["k"]
+    assert set(k) >= {"mean", "sd", "q05", "q50", "q95", "rhat", "ess_bulk"}
+    assert 0.01 < k["q05"] < k["q95"] < 0.2
+    assert set(summary["diagnostics"]) >= {"divergences", "max_rhat", "min_ess_bulk"}
+    assert set(summary["timing"]) == {"compile_s", "sample_s"}
+    for name in ("posterior.nc", "theta.png", "fit.png", "discrepancy.png", "report.md"):
+        assert (out / name).stat().st_size > 0, name
+
+
+def write_config(tmp_path, physical_columns="t,T0,humidity,temperature", stan="simulator.stan"):
+    for name in ("simulator.stan", "runs.csv"):
+        shutil.copy(COOLING / name, tmp_path / name)
+    rows = (COOLING / "physical.csv").read_text().splitlines()
+    rows[0] = physical_columns
+    (tmp_path / "physical.csv").write_text("\n".join(rows) + "\n")
+    config = (COOLING / "config.toml").read_text().replace('stan = "simulator.stan"', f'stan = "{stan}"')
+    (tmp_path / "config.toml").write_text(config)
+    return tmp_path / "config.toml"
+
+
+def test_missing_column_exits_with_one_line(tmp_path):
+    config = write_config(tmp_path, physical_columns="t,T0,humidity,temp")
+    done = run("calibrate", config, "--out", tmp_path / "out")
+    assert done.returncode == 2
+    lines = done.stderr.strip().splitlines()
+    assert lines[-1].startswith("stancal: error: physical data: missing column(s) ['temperature']")
+    assert "Traceback" not in done.stderr
+
+
+def test_missing_config_file(tmp_path):
+    done = run("calibrate", tmp_path / "nope.toml", "--out", tmp_path / "out")
+    assert done.returncode == 2
+    assert "config file not found" in done.stderr
+
+
+def test_stan_error_points_at_the_users_file_and_line(tmp_path):
+    config = write_config(tmp_path, stan="broken.stan")
+    (tmp_path / "broken.stan").write_text(
+        "// cooling, with a typo\nvector simulator(matrix X, vector theta) {\n"
+        "  return 20 + (X[:, 2] - 20) .* exp(-thta[1] * X[:, 1]);\n}\n")
+    done = run("calibrate", config, "--out", tmp_path / "out", "--backend", "pystan")
+    assert done.returncode == 2
+    message = done.stderr.strip().splitlines()[-1]
+    assert f"line 3 of {tmp_path / 'broken.stan'}" in message
+    assert "thta" in message

@@ -1,0 +1,132 @@
+import warnings
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from stancal import CalibrationData, DataError, InputRangeWarning
+
+
+def physical(n=5):
+    return pd.DataFrame({"x": np.linspace(0, 1, n), "z": np.arange(n, dtype=float),
+                         "y": np.linspace(1, 2, n) ** 2})
+
+
+def runs(n=6):
+    return pd.DataFrame({"x": np.linspace(0, 1, n), "k": np.linspace(0.1, 0.9, n),
+                         "y": np.linspace(0, 3, n)})
+
+
+def make(**kw):
+    args = dict(physical=physical(), inputs=["x"], output="y", theta={"k": (0, 1)})
+    args.update(kw)
+    return CalibrationData(**args)
+
+
+def test_valid_problem_scales_to_unit_cube():
+    d = make(covariates=["z"], runs=runs())
+    assert d.scaling.to_unit(d.physical, ["x", "z"]).min() == 0
+    assert d.scaling.to_unit(d.physical, ["x", "z"]).max() == 1
+    assert d.scaling.y_center == pytest.approx(runs()["y"].mean())
+
+
+def test_missing_column():
+    with pytest.raises(DataError, match=r"physical data: missing column\(s\) \['w'\]"):
+        make(inputs=["w"])
+
+
+def test_duplicate_column():
+    frame = pd.concat([physical(), physical()[["x"]]], axis=1)
+    with pytest.raises(DataError, match=r"duplicate column\(s\) \['x'\]"):
+        make(physical=frame)
+
+
+def test_nan_names_column_and_rows():
+    frame = physical()
+    frame.loc[[1, 3], "y"] = np.nan
+    with pytest.raises(DataError, match=r"column 'y' has NaN or inf in rows \[1, 3\]"):
+        make(physical=frame)
+
+
+def test_inf_names_column_and_rows():
+    frame = physical()
+    frame.loc[2, "x"] = np.inf
+    with pytest.raises(DataError, match=r"column 'x' has NaN or inf in rows \[2\]"):
+        make(physical=frame)
+
+
+def test_non_numeric_value():
+    frame = physical().astype({"x": object})
+    frame.loc[4, "x"] = "warm"
+    with pytest.raises(DataError, match=r"column 'x' has non-numeric values in rows \[4\]"):
+        make(physical=frame)
+
+
+def test_theta_in_runs_outside_bounds():
+    table = runs()
+    table.loc[5, "k"] = 1.5
+    with pytest.raises(DataError, match=r"simulator runs: column 'k' lies outside its bounds \[0.0, 1.0\] in rows \[5\]"):
+        make(runs=table)
+
+
+def test_runs_missing_theta_column():
+    with pytest.raises(DataError, match=r"simulator runs: missing column\(s\) \['k'\]"):
+        make(runs=runs().drop(columns="k"))
+
+
+def test_fewer_than_three_points():
+    with pytest.raises(DataError, match="2 rows; calibration needs at least 3"):
+        make(physical=physical(2))
+
+
+def test_constant_output():
+    frame = physical().assign(y=1.0)
+    with pytest.raises(DataError, match="output column 'y' is constant"):
+        make(physical=frame)
+
+
+def test_constant_run_output():
+    with pytest.raises(DataError, match="simulator runs: output column 'y' is constant"):
+        make(runs=runs().assign(y=2.0))
+
+
+@pytest.mark.parametrize("bounds", [(1, 0), (0, np.inf), ("a", 1)])
+def test_bad_theta_bounds(bounds):
+    with pytest.raises(DataError, match="theta 'k'"):
+        make(theta={"k": bounds})
+
+
+def test_no_theta():
+    with pytest.raises(DataError, match="at least one calibration parameter"):
+        make(theta={})
+
+
+def test_column_named_twice():
+    with pytest.raises(DataError, match=r"\['x'\] named more than once"):
+        make(covariates=["x"])
+
+
+def test_theta_name_clashes_with_column():
+    with pytest.raises(DataError, match=r"theta name\(s\) \['x'\] clash"):
+        make(theta={"x": (0, 1)})
+
+
+def test_warning_when_physical_inputs_outside_runs():
+    table = runs().assign(x=np.linspace(0.2, 0.8, 6))
+    with pytest.warns(InputRangeWarning, match=r"physical input 'x' lies outside .* rows \[0, 4\]"):
+        make(runs=table)
+
+
+def test_new_points_are_validated():
+    d = make(covariates=["z"])
+    with pytest.raises(DataError, match=r"prediction points: missing column\(s\) \['z'\]"):
+        d.check_new_points(pd.DataFrame({"x": [0.5]}))
+
+
+def test_round_trip_through_dict():
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        d = make(covariates=["z"], runs=runs())
+    again = CalibrationData.from_dict(d.to_dict())
+    pd.testing.assert_frame_equal(again.physical, d.physical)
+    assert again.parameters == d.parameters

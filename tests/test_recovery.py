@@ -1,0 +1,91 @@
+"""Each program recovers a known theta from data of an exact simulator."""
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from conftest import COOLING, K_TRUE, fit, newton
+
+# Tolerance for agreement between methods: posterior medians of k within
+# 0.004 (2 % of the k box [0.01, 0.2]; the koh 90 % interval is about 0.004 wide).
+AGREEMENT = 0.004
+
+
+def k_summary(result):
+    return result.theta_summary()["k"]
+
+
+@pytest.mark.parametrize("name", ["koh_fit", "koh_emulator_fit", "modular_fit"])
+def test_truth_inside_90_percent_interval(name, request):
+    result = request.getfixturevalue(name)
+    k = k_summary(result)
+    assert k["q05"] < K_TRUE < k["q95"], k
+    assert result.diagnostics.divergences <= 0.01 * result.diagnostics.draws
+
+
+@pytest.mark.parametrize("name", ["koh_emulator_fit", "modular_fit"])
+def test_emulator_methods_agree_with_koh(name, request, koh_fit):
+    other = request.getfixturevalue(name)
+    assert abs(k_summary(other)["q50"] - k_summary(koh_fit)["q50"]) < AGREEMENT
+
+
+def test_plain_parameter_estimation_without_discrepancy(exact_cooling_data):
+    result = fit(exact_cooling_data, simulator=COOLING / "simulator.stan", method="koh",
+                 discrepancy="none")
+    k = k_summary(result)
+    assert k["q05"] < K_TRUE < k["q95"]
+    assert "delta_sd" not in result.idata["posterior"]
+    # noise sd used to make the data is 0.3
+    noise = np.asarray(result.idata["posterior"]["noise_sd"])
+    assert np.quantile(noise, 0.05) < 0.3 < np.quantile(noise, 0.95)
+
+
+def test_datatree_groups_and_original_units(koh_fit):
+    groups = set(koh_fit.idata.children)
+    assert {"posterior", "posterior_predictive", "log_likelihood", "observed_data",
+            "sample_stats", "predictions", "prior", "prior_predictive"} <= groups
+    assert list(koh_fit.idata["posterior"]["theta"].coords["theta_name"].values) == ["k"]
+    # replicated temperatures are on the data's scale (deg C), not standardised
+    y_rep = np.asarray(koh_fit.idata["posterior_predictive"]["y"]).mean(axis=(0, 1))
+    observed = koh_fit.data.physical["temperature"].to_numpy()
+    assert np.sqrt(np.mean((y_rep - observed) ** 2)) < 1.0
+
+
+def test_prior_draws_cover_the_theta_box(koh_fit):
+    prior_k = np.asarray(koh_fit.idata["prior"]["theta"]).ravel()
+    assert prior_k.min() < 0.03 and prior_k.max() > 0.18  # uniform on [0.01, 0.2]
+    assert abs(prior_k.mean() - 0.105) < 0.015
+
+
+def test_predict_at_new_points_matches_the_truth(koh_fit):
+    new = pd.DataFrame({"t": [5.0, 30.0, 55.0], "T0": [70.0, 70.0, 85.0]})
+    table = koh_fit.predict(new)
+    truth = newton(new.t, new.T0, K_TRUE).to_numpy()
+    assert np.all(table["zeta_q05"] < truth) and np.all(truth < table["zeta_q95"])
+    # zeta = f + delta draw by draw, so the means add up
+    np.testing.assert_allclose(table["zeta_mean"], table["f_mean"] + table["delta_mean"], atol=1e-6)
+    assert np.all(table["y_q95"] - table["y_q05"] > table["zeta_q95"] - table["zeta_q05"])
+
+
+@pytest.mark.parametrize("name", ["koh_emulator_fit", "modular_fit"])
+def test_predict_with_emulator(name, request):
+    result = request.getfixturevalue(name)
+    new = pd.DataFrame({"t": [10.0, 40.0], "T0": [65.0, 80.0]})
+    table = result.predict(new)
+    truth = newton(new.t, new.T0, K_TRUE).to_numpy()
+    assert np.all(np.abs(table["zeta_q50"] - truth) < 1.0)
+
+
+def test_save_and_load_round_trip(koh_fit, tmp_path):
+    path = koh_fit.save(tmp_path / "posterior.nc")
+    again = type(koh_fit).load(path)
+    pd.testing.assert_frame_equal(again.summary(), koh_fit.summary())
+    new = pd.DataFrame({"t": [20.0], "T0": [75.0]})
+    a, b = koh_fit.predict(new, seed=3), again.predict(new, seed=3)
+    np.testing.assert_allclose(a["f_mean"], b["f_mean"], rtol=1e-8)
+
+
+def test_modular_reports_emulator_accuracy(modular_fit):
+    emulator = modular_fit.emulator
+    # leave-one-out error of the stage-1 emulator, small against the runs' spread
+    assert emulator["loo_rmse"] < 0.05 * emulator["runs_sd"]
