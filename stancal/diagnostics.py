@@ -96,7 +96,8 @@ def check_sampler(posterior: xr.Dataset, sample_stats: xr.Dataset, max_treedepth
         which = worst_bulk if min_bulk <= min_tail else worst_tail
         messages.append(
             f"effective sample size down to {min_ess:.0f} ({which}; bulk {min_bulk:.0f}, "
-            f"tail {min_tail:.0f}) < {ESS_PER_CHAIN} per chain: intervals are imprecise. "
+            f"tail {min_tail:.0f}) < {ESS_PER_CHAIN * chains} ({ESS_PER_CHAIN} per chain): "
+            "intervals are imprecise. "
             "Draw more samples."
         )
     if hits:

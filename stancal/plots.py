@@ -52,12 +52,18 @@ def plot_fit(result: CalibrationResult, path: str | Path | None = None):
     order = np.argsort(table[column].to_numpy())
     x = table[column].to_numpy()[order]
     fig, ax = plt.subplots(figsize=(6.5, 4))
-    ax.fill_between(x, table["y_q05"].to_numpy()[order], table["y_q95"].to_numpy()[order],
-                    color="C0", alpha=0.15, label="new observation, 90 %")
-    ax.fill_between(x, table["zeta_q05"].to_numpy()[order], table["zeta_q95"].to_numpy()[order],
-                    color="C0", alpha=0.35, label="true process zeta, 90 %")
-    ax.plot(x, table["zeta_q50"].to_numpy()[order], color="C0")
-    ax.plot(x, table["f_q50"].to_numpy()[order], color="C3", ls="--", label="simulator f(x, theta)")
+    if len(result.data.discrepancy_inputs) == 1:
+        ax.fill_between(x, table["y_q05"].to_numpy()[order], table["y_q95"].to_numpy()[order],
+                        color="C0", alpha=0.15, label="new observation, 90 %")
+        ax.fill_between(x, table["zeta_q05"].to_numpy()[order], table["zeta_q95"].to_numpy()[order],
+                        color="C0", alpha=0.35, label="true process zeta, 90 %")
+        ax.plot(x, table["zeta_q50"].to_numpy()[order], color="C0")
+        ax.plot(x, table["f_q50"].to_numpy()[order], color="C3", ls="--", label="simulator f(x, theta)")
+    else:  # points differ in other inputs too: no lines between them
+        mid = table["zeta_q50"].to_numpy()
+        ax.errorbar(table[column], mid, yerr=[mid - table["zeta_q05"], table["zeta_q95"] - mid],
+                    fmt="o", ms=4, color="C0", label="true process zeta, 90 %")
+        ax.scatter(table[column], table["f_q50"], marker="x", color="C3", label="simulator f(x, theta)")
     ax.scatter(result.data.physical[column], result.data.physical[result.data.output],
                s=14, color="k", zorder=3, label="physical data")
     ax.set_xlabel(column)

@@ -16,6 +16,7 @@ from pathlib import Path
 
 _INCLUDE = re.compile(r"^\s*#include\s+[<\"]?([^>\"\s]+)[>\"]?\s*$")
 _LINE_REFERENCE = re.compile(r"line (\d+)")
+_TEMPORARY_FILE = re.compile(r"in '[^']*(?:string|\.stan)', (?=line)")
 
 
 class StanProgramError(ValueError):
@@ -56,6 +57,8 @@ class FlatProgram:
                 return match.group(0)
             return f"line {where[1]} of {where[0]}"
 
+        # the flat program's temporary file name means nothing to the user
+        message = _TEMPORARY_FILE.sub("at ", message)
         return _LINE_REFERENCE.sub(replace, message)
 
 

@@ -48,6 +48,7 @@ class PyStanBackend:
         import stan
 
         if not _is_compiled(program.code):
+            self._check_with_stanc(program)
             logger.warning(
                 "Compiling Stan program %s with PyStan; the first compile takes about a "
                 "minute, later runs use the cache.", program.origin[0][0] if program.origin else "?"
@@ -58,6 +59,17 @@ class PyStanBackend:
             raise StanProgramError(program.explain(str(err))) from None
         except RuntimeError as err:
             raise StanRuntimeError(program.explain(str(err))) from None
+
+    @staticmethod
+    def _check_with_stanc(program: FlatProgram) -> None:
+        """PyStan's build error keeps only 'Semantic error'; stanc alone (no C++,
+        a fraction of a second) gives the whole message."""
+        import httpstan.compile
+
+        try:
+            httpstan.compile.compile(program.code, "stancal_check")
+        except ValueError as err:
+            raise StanProgramError(program.explain(str(err))) from None
 
     def sample(
         self,
