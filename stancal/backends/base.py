@@ -9,6 +9,17 @@ import numpy as np
 
 from ..stan_source import FlatProgram
 
+# Stan's sampler columns -> ArviZ sample_stats names
+SAMPLER_STATS = {
+    "lp__": "lp",
+    "accept_stat__": "acceptance_rate",
+    "stepsize__": "step_size",
+    "treedepth__": "tree_depth",
+    "n_leapfrog__": "n_steps",
+    "divergent__": "diverging",
+    "energy__": "energy",
+}
+
 Draws = dict[str, np.ndarray]
 """Variable name -> array of shape (chain, draw, *variable shape)."""
 

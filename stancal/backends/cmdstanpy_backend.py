@@ -11,20 +11,9 @@ from typing import Any
 import numpy as np
 
 from ..stan_source import FlatProgram, StanProgramError
-from .base import Draws, SampleOutput, StanRuntimeError
+from .base import SAMPLER_STATS, Draws, SampleOutput, StanRuntimeError
 
 logger = logging.getLogger("stancal")
-
-_STATS = {
-    "lp__": "lp",
-    "accept_stat__": "acceptance_rate",
-    "stepsize__": "step_size",
-    "treedepth__": "tree_depth",
-    "n_leapfrog__": "n_steps",
-    "divergent__": "diverging",
-    "energy__": "energy",
-}
-
 
 def cmdstan_available() -> bool:
     try:
@@ -90,7 +79,7 @@ class CmdStanPyBackend:
             values = np.asarray(values)
             draws_out[name] = values.reshape(chains, draws, *values.shape[1:])
         method = fit.method_variables()
-        stats = {out: np.asarray(method[k]).T for k, out in _STATS.items() if k in method}
+        stats = {out: np.asarray(method[k]).T for k, out in SAMPLER_STATS.items() if k in method}
         return SampleOutput(
             draws=draws_out,
             sample_stats=stats,

@@ -9,20 +9,9 @@ from typing import Any
 import numpy as np
 
 from ..stan_source import FlatProgram, StanProgramError
-from .base import Draws, SampleOutput, StanRuntimeError
+from .base import SAMPLER_STATS, Draws, SampleOutput, StanRuntimeError
 
 logger = logging.getLogger("stancal")
-
-_STATS = {
-    "lp__": "lp",
-    "accept_stat__": "acceptance_rate",
-    "stepsize__": "step_size",
-    "treedepth__": "tree_depth",
-    "n_leapfrog__": "n_steps",
-    "divergent__": "diverging",
-    "energy__": "energy",
-}
-
 
 def _is_compiled(code: str) -> bool:
     import httpstan.cache
@@ -105,7 +94,7 @@ class PyStanBackend:
         }
         stats = {
             out: _by_chain(np.asarray(fit[stan_name]).reshape(-1), [], chains)
-            for stan_name, out in _STATS.items()
+            for stan_name, out in SAMPLER_STATS.items()
             if stan_name in fit.sample_and_sampler_param_names
         }
         return SampleOutput(
