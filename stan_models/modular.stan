@@ -47,6 +47,7 @@ transformed data {
   matrix[M, M] L_sim = cholesky_decompose(
     add_diag(ard_cov(xt_sim, kernel_id, emulator_sd, emulator_length_scale),
              square(emulator_nugget)));
+  vector[M + N] y_joint = append_row(y_sim, y);
   vector[M] alpha_sim = mdivide_right_tri_low(mdivide_left_tri_low(L_sim, y_sim - emulator_mean)',
                                               L_sim)';
 }
@@ -89,26 +90,25 @@ generated quantities {
   vector[P] delta_new;    // discrepancy at the prediction points
   vector[P] zeta_new;     // true process rho * f + delta at the prediction points
   if (use_discrepancy) delta_sd_original[1] = delta_sd[1] * y_scale;
+  // With the emulator fixed, the joint model's conditionals are exact.
   {
-    // With the emulator fixed, the joint model's conditionals are exact.
     array[N] vector[D + Q] xt_obs = append_theta(x, theta_unit);
     matrix[M + N, M + N] L = cholesky_decompose(
       koh_joint_cov(xt_sim, xt_obs, x_delta, kernel_id, emulator_sd, emulator_length_scale,
                     emulator_nugget, rho, delta_sd, delta_length_scale, noise_sd));
-    vector[M + N] mu = append_row(rep_vector(emulator_mean, M), rep_vector(rho * emulator_mean, N));
-    vector[M + N] resid = append_row(y_sim, y) - mu;
+    vector[M + N] resid = y_joint - append_row(rep_vector(emulator_mean, M),
+                                               rep_vector(rho * emulator_mean, N));
     log_lik = mvn_loo_log_lik(resid, L)[(M + 1):(M + N)] - log(y_scale);
-    int n_cond = prior_only ? 0 : N;
-    vector[2 * (N + P)] f_delta = koh_joint_predict_rng(
-      resid[1:(M + n_cond)], L[1:(M + n_cond), 1:(M + n_cond)], xt_sim, xt_obs[1:n_cond],
-      x_delta[1:n_cond], append_array(xt_obs, append_theta(x_new, theta_unit)),
-      append_array(x_delta, x_delta_new), kernel_id, emulator_sd, emulator_length_scale, rho,
-      delta_sd, delta_length_scale);
-    vector[N + P] f_all = emulator_mean + f_delta[1:(N + P)];
-    vector[N + P] delta_all = f_delta[(N + P + 1):(2 * (N + P))];
-    y_rep = y_center + y_scale * to_vector(normal_rng(rho * f_all[1:N] + delta_all[1:N], noise_sd));
+    // one joint draw at the physical points (rows 1:N) and the prediction points
+    matrix[N + P, 2] f_delta = koh_joint_draw_rng(
+      resid, L, prior_only, xt_sim, xt_obs, x_delta,
+      append_array(xt_obs, append_theta(x_new, theta_unit)), append_array(x_delta, x_delta_new),
+      kernel_id, emulator_sd, emulator_length_scale, rho, delta_sd, delta_length_scale);
+    vector[N + P] f_all = emulator_mean + f_delta[:, 1];
+    vector[N + P] zeta_all = rho * f_all + f_delta[:, 2];
+    y_rep = y_center + y_scale * to_vector(normal_rng(zeta_all[1:N], noise_sd));
     f_new = y_center + y_scale * f_all[(N + 1):(N + P)];
-    delta_new = y_scale * delta_all[(N + 1):(N + P)];
-    zeta_new = y_center + y_scale * (rho * f_all[(N + 1):(N + P)] + delta_all[(N + 1):(N + P)]);
+    delta_new = y_scale * f_delta[(N + 1):(N + P), 2];
+    zeta_new = y_center + y_scale * zeta_all[(N + 1):(N + P)];
   }
 }

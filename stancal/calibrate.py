@@ -17,8 +17,8 @@ from .inits import spread_theta_inits
 from .models import Method, model_spec
 from .result import CalibrationResult, build_datatree
 from .stan_source import flatten
-from .standata import (EMULATOR_HYPERPARAMETERS, ModelOptions, build_stan_data,
-                       default_new_points, emulator_run_data, to_stan_json)
+from .standata import (EMULATOR_HYPERPARAMETERS, ModelOptions, build_emulator_data,
+                       build_stan_data, default_new_points, to_stan_json)
 
 logger = logging.getLogger("stancal")
 
@@ -51,9 +51,7 @@ def fit_emulator(data: CalibrationData, options: ModelOptions, *, backend, chain
     """Stage 1 of modular calibration: the emulator's hyperparameters at their
     posterior medians, and its leave-one-out accuracy on the runs."""
     program = flatten(model_spec("emulator").path)
-    stan_data = {**emulator_run_data(data), "D": len(data.inputs), "Q": len(data.parameters),
-                 "y_scale": data.scaling.y_scale, "kernel_id": options.kernel_id, "prior_only": 0}
-    sample = backend.sample(program, to_stan_json(stan_data), chains=chains, warmup=warmup,
+    sample = backend.sample(program, to_stan_json(build_emulator_data(data, options)), chains=chains, warmup=warmup,
                             draws=draws, seed=seed, inits=None, adapt_delta=0.9, max_treedepth=10)
     d = sample.draws
     hyper = {
@@ -124,14 +122,13 @@ def calibrate(
     sample = stan_backend.sample(flat, to_stan_json(stan_data), chains=chains, warmup=warmup,
                                  draws=draws, seed=seed, inits=inits, adapt_delta=adapt_delta,
                                  max_treedepth=max_treedepth)
-    tree = build_datatree(sample, data, stan_data, new_points, _PARAMETERS[chosen], options)
+    tree = build_datatree(sample, data, new_points, _PARAMETERS[chosen], options)
     if prior:
         prior_sample = stan_backend.sample(
             flat, to_stan_json({**stan_data, "prior_only": 1}), chains=chains, warmup=warmup,
             draws=draws, seed=seed + 1, inits=inits, adapt_delta=adapt_delta,
             max_treedepth=max_treedepth)
-        prior_tree = build_datatree(prior_sample, data, stan_data, new_points,
-                                    _PARAMETERS[chosen], options)
+        prior_tree = build_datatree(prior_sample, data, new_points, _PARAMETERS[chosen], options)
         tree["prior"] = prior_tree["posterior"]
         tree["prior_predictive"] = prior_tree["posterior_predictive"]
     timing = {"compile_s": sample.compile_seconds + emulator.get("compile_s", 0.0),
@@ -139,9 +136,7 @@ def calibrate(
     posterior = tree["posterior"].to_dataset()
     result = CalibrationResult(
         idata=tree, data=data, method=str(chosen), backend=stan_backend.name, options=options,
-        program=flat, stan_data=stan_data,
-        diagnostics=sampler_checks.Diagnostics(0, 0, np.nan, "", np.nan, np.nan, "", 0, []),
-        modes=[], timing=timing, emulator=emulator,
+        program=flat, timing=timing, emulator=emulator,
     )
     if out_dir is not None:  # nothing below may lose the draws
         result.save(Path(out_dir) / "posterior.nc")

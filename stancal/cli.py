@@ -39,8 +39,8 @@ def run_calibrate(args: argparse.Namespace) -> dict:
 
     problem = load_config(args.config)
     model = dict(problem.model)
-    method = args.method or model.pop("method", None)
-    model.pop("method", None)
+    configured_method = model.pop("method", None)
+    method = args.method or configured_method
     args.out.mkdir(parents=True, exist_ok=True)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")

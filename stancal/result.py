@@ -16,7 +16,7 @@ from .backends import Draws, SampleOutput, get_backend
 from .data import CalibrationData
 from .diagnostics import Diagnostics
 from .modes import Mode
-from .standata import ModelOptions, build_stan_data, to_stan_json
+from .standata import EMULATOR_HYPERPARAMETERS, ModelOptions, build_stan_data, to_stan_json
 from .stan_source import FlatProgram
 
 # Stan program variables -> names in the posterior group (original units)
@@ -30,7 +30,7 @@ _PREDICTED = ("f_new", "delta_new", "zeta_new")
 QUANTILES = (0.05, 0.5, 0.95)
 
 
-def build_datatree(sample: SampleOutput, data: CalibrationData, stan_data: dict[str, Any],
+def build_datatree(sample: SampleOutput, data: CalibrationData,
                    new_points: pd.DataFrame, parameter_names: list[str],
                    options: ModelOptions) -> xr.DataTree:
     import arviz_base as ab
@@ -45,19 +45,15 @@ def build_datatree(sample: SampleOutput, data: CalibrationData, stan_data: dict[
         posterior.pop("delta_sd", None)
     if not options.estimate_rho:
         posterior.pop("rho", None)
-    for name in ("emulator_mean", "emulator_sd", "emulator_length_scale", "emulator_nugget"):
+    for name in EMULATOR_HYPERPARAMETERS:
         if name in d:
             posterior[name] = d[name]
-    groups = {
+    sampled = {
         "posterior": posterior,
-        "stan_parameters": {k: d[k] for k in parameter_names},
         "posterior_predictive": {"y": d["y_rep"]},
         "log_likelihood": {"y": d["log_lik"]},
-        "observed_data": {"y": data.physical[data.output].to_numpy()},
-        "constant_data": {c: data.physical[c].to_numpy() for c in data.discrepancy_inputs},
         "sample_stats": sample.sample_stats,
         "predictions": {k: d[k] for k in _PREDICTED},
-        "predictions_constant_data": {c: new_points[c].to_numpy() for c in new_points},
     }
     dims = {
         "theta": ["theta_name"], "delta_length_scale": ["delta_input"],
@@ -69,18 +65,16 @@ def build_datatree(sample: SampleOutput, data: CalibrationData, stan_data: dict[
         "emulator_input": [*data.inputs, *data.theta_names],
         "obs": np.arange(len(data.physical)), "new_point": np.arange(len(new_points)),
     }
-    tree = ab.from_dict({k: v for k, v in groups.items() if k in ("posterior", "posterior_predictive",
-                                                                  "log_likelihood", "sample_stats",
-                                                                  "predictions")},
-                        dims=dims, coords=coords)
+    tree = ab.from_dict(sampled, dims=dims, coords=coords)
+    obs = {"obs": coords["obs"]}
     tree["observed_data"] = xr.DataTree(xr.Dataset(
-        {"y": ("obs", groups["observed_data"]["y"])}, coords={"obs": coords["obs"]}))
+        {"y": ("obs", data.physical[data.output].to_numpy())}, coords=obs))
     tree["constant_data"] = xr.DataTree(xr.Dataset(
-        {c: ("obs", v) for c, v in groups["constant_data"].items()}, coords={"obs": coords["obs"]}))
+        {c: ("obs", data.physical[c].to_numpy()) for c in data.discrepancy_inputs}, coords=obs))
     tree["predictions_constant_data"] = xr.DataTree(xr.Dataset(
-        {c: ("new_point", v) for c, v in groups["predictions_constant_data"].items()},
+        {c: ("new_point", new_points[c].to_numpy()) for c in new_points},
         coords={"new_point": coords["new_point"]}))
-    tree["stan_parameters"] = xr.DataTree(ab.dict_to_dataset(groups["stan_parameters"]))
+    tree["stan_parameters"] = xr.DataTree(ab.dict_to_dataset({k: d[k] for k in parameter_names}))
     return tree
 
 
@@ -102,10 +96,10 @@ class CalibrationResult:
     backend: str
     options: ModelOptions
     program: FlatProgram
-    stan_data: dict[str, Any]
-    diagnostics: Diagnostics
-    modes: list[Mode]
     timing: dict[str, float]
+    # None until the sampler has been checked (a result is saved before that)
+    diagnostics: Diagnostics | None = None
+    modes: list[Mode] = field(default_factory=list)
     emulator: dict[str, Any] = field(default_factory=dict)  # stage-1 results of modular
 
     # ---- summaries -------------------------------------------------------
@@ -197,8 +191,8 @@ class CalibrationResult:
             "options": {"discrepancy": self.options.discrepancy, "kernel": self.options.kernel,
                         "estimate_rho": self.options.estimate_rho},
             "program": {"code": self.program.code, "origin": self.program.origin},
-            "stan_data": to_stan_json(self.stan_data), "data": self.data.to_dict(),
-            "diagnostics": self.diagnostics.to_dict(), "modes": [m.__dict__ for m in self.modes],
+            "data": self.data.to_dict(),
+            "diagnostics": self.diagnostics and self.diagnostics.to_dict(), "modes": [m.__dict__ for m in self.modes],
             "timing": self.timing, "emulator": self.emulator,
         }
 
@@ -220,7 +214,7 @@ class CalibrationResult:
             backend=meta["backend"], options=ModelOptions(**meta["options"]),
             program=FlatProgram(meta["program"]["code"],
                                 tuple(tuple(o) for o in meta["program"]["origin"])),
-            stan_data=meta["stan_data"], diagnostics=Diagnostics(**meta["diagnostics"]),
+            diagnostics=meta["diagnostics"] and Diagnostics(**meta["diagnostics"]),
             modes=[Mode(**m) for m in meta["modes"]], timing=meta["timing"],
             emulator=meta["emulator"],
         )

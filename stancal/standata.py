@@ -104,6 +104,12 @@ def emulator_run_data(data: CalibrationData) -> dict[str, Any]:
     )
 
 
+def build_emulator_data(data: CalibrationData, options: ModelOptions) -> dict[str, Any]:
+    """Data of emulator.stan (stage 1 of modular calibration)."""
+    return {**emulator_run_data(data), "D": len(data.inputs), "Q": len(data.parameters),
+            "y_scale": data.scaling.y_scale, "kernel_id": options.kernel_id, "prior_only": 0}
+
+
 def to_stan_json(stan_data: dict[str, Any]) -> dict[str, Any]:
     """Plain lists, for PyStan and for storing with a result."""
     return {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in stan_data.items()}

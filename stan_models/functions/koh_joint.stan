@@ -75,3 +75,33 @@ vector koh_joint_predict_rng(vector resid, matrix L_joint, array[] vector xt_sim
   }
   return gp_conditional_rng(resid, L_joint, K_cross, K_new);
 }
+
+/**
+ * One posterior draw of the emulated simulator f and the discrepancy delta
+ * at the given points, for the emulator-based KOH programs. Under
+ * prior_only the draw conditions on the runs alone: the leading M x M block
+ * of L_joint is the Cholesky factor of the runs' covariance.
+ *
+ * @param resid [y_sim; y_obs] minus their prior means
+ * @param L_joint Cholesky factor of koh_joint_cov(...)
+ * @param prior_only 1 = ignore the physical data
+ * @param xt_sim, xt_obs, x_delta, xt_new, x_delta_new, other parameters
+ *        as in koh_joint_predict_rng
+ * @return matrix with one row per new point: column 1 = f minus its prior
+ *         mean, column 2 = delta
+ */
+matrix koh_joint_draw_rng(vector resid, matrix L_joint, int prior_only,
+                          array[] vector xt_sim, array[] vector xt_obs,
+                          array[] vector x_delta, array[] vector xt_new,
+                          array[] vector x_delta_new, int kernel_id, real emulator_sd,
+                          array[] real emulator_length_scale, real rho,
+                          array[] real delta_sd, array[] real delta_length_scale) {
+  int m = size(xt_sim);
+  int n_cond = prior_only ? 0 : size(xt_obs);
+  int p = size(xt_new);
+  vector[2 * p] f_delta = koh_joint_predict_rng(
+    resid[1:(m + n_cond)], L_joint[1:(m + n_cond), 1:(m + n_cond)], xt_sim,
+    xt_obs[1:n_cond], x_delta[1:n_cond], xt_new, x_delta_new, kernel_id, emulator_sd,
+    emulator_length_scale, rho, delta_sd, delta_length_scale);
+  return append_col(f_delta[1:p], f_delta[(p + 1):(2 * p)]);
+}
