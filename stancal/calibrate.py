@@ -51,13 +51,15 @@ def fit_emulator(data: CalibrationData, options: ModelOptions, *, backend, chain
     """Stage 1 of modular calibration: the emulator's hyperparameters at their
     posterior medians, and its leave-one-out accuracy on the runs."""
     program = flatten(model_spec("emulator").path)
-    sample = backend.sample(program, to_stan_json(build_emulator_data(data, options)), chains=chains, warmup=warmup,
-                            draws=draws, seed=seed, inits=None, adapt_delta=0.9, max_treedepth=10)
+    sample = backend.sample(program, to_stan_json(build_emulator_data(data, options)),
+                            chains=chains, warmup=warmup, draws=draws, seed=seed, inits=None,
+                            adapt_delta=0.9, max_treedepth=10)
     d = sample.draws
     hyper = {
         "emulator_mean": float(np.median(d["emulator_mean"])),
         "emulator_sd": float(np.median(d["emulator_sd"])),
-        "emulator_length_scale": np.median(d["emulator_length_scale"].reshape(-1, len(data.inputs) + len(data.parameters)), axis=0).tolist(),
+        "emulator_length_scale": np.median(
+            d["emulator_length_scale"].reshape(-1, d["emulator_length_scale"].shape[-1]), axis=0).tolist(),
         "emulator_nugget": float(np.median(d["emulator_nugget"])),
     }
     loo_error = d["loo_error"].reshape(-1, d["loo_error"].shape[-1]).mean(0)

@@ -135,13 +135,10 @@ class PyStanBackend:
         out: Draws = {}
         offset = 0
         for name, shape in zip(names, dims):
-            size = int(np.prod(shape)) if shape else 1
+            size = int(np.prod(shape))
             if name not in sampled:
-                block = flat[:, offset : offset + size]
-                # Stan flattens column-major
-                block = block.reshape(chains, draws, *reversed(shape)) if shape else block.reshape(chains, draws)
-                if len(shape) > 1:
-                    block = np.moveaxis(block, list(range(2, 2 + len(shape))), list(range(1 + len(shape), 1, -1)))
-                out[name] = block
+                block = flat[:, offset : offset + size].reshape(chains, draws, *reversed(shape))
+                # Stan flattens column-major: put the variable's axes back in order
+                out[name] = block.transpose(0, 1, *range(block.ndim - 1, 1, -1))
             offset += size
         return out
