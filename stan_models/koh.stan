@@ -1,7 +1,8 @@
 // Kennedy-O'Hagan calibration with a cheap simulator written in Stan
 // (review section 4.1, eq. 6):
 //   y_i = rho * f(x_i, theta) + delta(x_i, z_i) + eps_i,
-//   delta ~ GP(0, ARD kernel), eps_i ~ N(0, noise_sd^2).
+//   delta = h(x_i, z_i)' beta + GP(0, ARD kernel), eps_i ~ N(0, noise_sd^2).
+// The mean terms h (H = 0 by default) carry a candidate unmodelled effect.
 // With use_discrepancy = 0 it is plain Bayesian parameter estimation.
 // Outputs are standardised inside: y = (y_original - y_center) / y_scale.
 functions {
@@ -21,6 +22,8 @@ data {
   matrix[N, D] X;                       // simulator inputs of the physical points, original units
   array[N] vector[D_delta] x_delta;     // discrepancy inputs of the physical points, scaled to [0, 1]
   vector[N] y;                          // physical output, standardised
+  int<lower=0> H;                       // number of discrepancy mean terms (0 = zero mean)
+  matrix[N, H] h;                       // mean terms at the physical points, scaled to unit RMS
   real y_center;                        // original-scale y = y_center + y_scale * y
   real<lower=0> y_scale;                // see y_center
   vector[Q] theta_lower;                // lower bounds of theta, original units (uniform prior)
@@ -32,6 +35,7 @@ data {
   int<lower=0> P;                       // number of prediction points
   matrix[P, D] X_new;                   // simulator inputs of the prediction points, original units
   array[P] vector[D_delta] x_delta_new; // discrepancy inputs of the prediction points, scaled to [0, 1]
+  matrix[P, H] h_new;                   // mean terms at the prediction points, scaled like h
 }
 parameters {
   vector<lower=0, upper=1>[Q] theta_unit;                // theta rescaled to [0, 1]
@@ -39,6 +43,7 @@ parameters {
   array[use_discrepancy] real<lower=0> delta_sd;         // standardised units
   array[use_discrepancy ? D_delta : 0] real<lower=0> delta_length_scale;  // fraction of input range
   array[estimate_rho] real<lower=0> rho_free;
+  vector[H] beta;                                        // mean-term coefficients, standardised units
 }
 transformed parameters {
   vector[Q] theta = theta_from_unit(theta_unit, theta_lower, theta_upper);
@@ -50,8 +55,9 @@ model {
   delta_sd ~ normal(0, 0.5);
   delta_length_scale ~ discrepancy_length_scale();
   rho_free ~ normal(1, 0.25);
+  beta ~ normal(0, 1);
   if (!prior_only) {
-    vector[N] resid = y - rho * standardized_simulator(X, theta, y_center, y_scale);
+    vector[N] resid = y - rho * standardized_simulator(X, theta, y_center, y_scale) - h * beta;
     if (use_discrepancy) {
       matrix[N, N] K = add_diag(ard_cov(x_delta, kernel_id, delta_sd[1], delta_length_scale),
                                 square(noise_sd));
@@ -66,14 +72,20 @@ generated quantities {
   array[use_discrepancy] real delta_sd_original;
   vector[N] log_lik;      // log p(y_i | y_-i, parameters), original units
   vector[N] y_rep;        // replicated data, original units
+  vector[N] y_loo_mean;   // E(y_i | y_-i, parameters), original units
+  vector[N] delta_gp;     // GP part of the discrepancy at the physical points, original units
+  vector[N] delta_gp_mean;  // its mean given the data and parameters, original units
   vector[P] f_new;        // simulator output at the prediction points
   vector[P] delta_new;    // discrepancy at the prediction points
   vector[P] zeta_new;     // true process rho * f + delta at the prediction points
   {
     vector[N] f = standardized_simulator(X, theta, y_center, y_scale);
-    vector[N] resid = y - rho * f;
+    vector[N] mean_terms = h * beta;
+    vector[N] resid = y - rho * f - mean_terms;
+    vector[N] resid_loo_mean = rep_vector(0, N);
     vector[P] f_new_std = standardized_simulator(X_new, theta, y_center, y_scale);
     vector[N] delta_obs = rep_vector(0, N);
+    vector[N] delta_obs_mean = rep_vector(0, N);
     vector[P] delta_new_std = rep_vector(0, P);
     if (use_discrepancy) {
       delta_sd_original[1] = delta_sd[1] * y_scale;
@@ -83,20 +95,25 @@ generated quantities {
                                            delta_length_scale);
       matrix[P, P] K_new = ard_cov(x_delta_new, kernel_id, delta_sd[1], delta_length_scale);
       log_lik = mvn_loo_log_lik(resid, L);
+      resid_loo_mean = mvn_loo_mean(resid, L);
       if (prior_only) {
         delta_obs = gp_prior_rng(K_delta);
         if (P > 0) delta_new_std = gp_prior_rng(K_new);
       } else {
         delta_obs = gp_conditional_rng(resid, L, K_delta, K_delta);
+        delta_obs_mean = gp_conditional_mean(resid, L, K_delta);
         if (P > 0) delta_new_std = gp_conditional_rng(resid, L, K_cross, K_new);
       }
     } else {
       for (i in 1:N) log_lik[i] = normal_lpdf(resid[i] | 0, noise_sd);
     }
     log_lik -= log(y_scale);
-    y_rep = y_center + y_scale * to_vector(normal_rng(rho * f + delta_obs, noise_sd));
+    y_rep = y_center + y_scale * to_vector(normal_rng(rho * f + mean_terms + delta_obs, noise_sd));
+    y_loo_mean = y_center + y_scale * (y - resid + resid_loo_mean);
+    delta_gp = y_scale * delta_obs;
+    delta_gp_mean = y_scale * delta_obs_mean;
     f_new = y_center + y_scale * f_new_std;
-    delta_new = y_scale * delta_new_std;
-    zeta_new = y_center + y_scale * (rho * f_new_std + delta_new_std);
+    delta_new = y_scale * (h_new * beta + delta_new_std);
+    zeta_new = y_center + y_scale * (rho * f_new_std + h_new * beta + delta_new_std);
   }
 }

@@ -4,7 +4,8 @@
 // feedback from the physical data into the emulator. Given the runs, the
 // emulator at (x_i, theta) is normal with mean m(theta) and covariance
 // V(theta); V is carried into the likelihood:
-//   y ~ N(rho * m(theta), rho^2 V(theta) + K_delta + noise_sd^2 I).
+//   y ~ N(rho * m(theta) + h' beta, rho^2 V(theta) + K_delta + noise_sd^2 I),
+// with optional discrepancy mean terms h (a candidate unmodelled effect).
 functions {
 #include gp_kernels.stan
 #include gp_conditional.stan
@@ -22,6 +23,8 @@ data {
   array[N] vector[D] x;                 // simulator inputs of the physical points, scaled to [0, 1]
   array[N] vector[D_delta] x_delta;     // discrepancy inputs of the physical points, scaled to [0, 1]
   vector[N] y;                          // physical output, standardised
+  int<lower=0> H;                       // number of discrepancy mean terms (0 = zero mean)
+  matrix[N, H] h;                       // mean terms at the physical points, scaled to unit RMS
   array[M] vector[D] x_sim;             // simulator inputs of the runs, scaled to [0, 1]
   array[M] vector[Q] theta_sim;         // theta of the runs, scaled to [0, 1] within its bounds
   vector[M] y_sim;                      // simulator output of the runs, standardised like y
@@ -40,6 +43,7 @@ data {
   int<lower=0> P;                       // number of prediction points
   array[P] vector[D] x_new;             // simulator inputs of the prediction points, scaled to [0, 1]
   array[P] vector[D_delta] x_delta_new; // discrepancy inputs of the prediction points, scaled to [0, 1]
+  matrix[P, H] h_new;                   // mean terms at the prediction points, scaled like h
 }
 transformed data {
   array[M] vector[D + Q] xt_sim;
@@ -57,6 +61,7 @@ parameters {
   array[use_discrepancy] real<lower=0> delta_sd;         // standardised units
   array[use_discrepancy ? D_delta : 0] real<lower=0> delta_length_scale;  // fraction of input range
   array[estimate_rho] real<lower=0> rho_free;
+  vector[H] beta;                                        // mean-term coefficients, standardised units
 }
 transformed parameters {
   vector[Q] theta = theta_from_unit(theta_unit, theta_lower, theta_upper);
@@ -67,6 +72,7 @@ model {
   delta_sd ~ normal(0, 0.5);
   delta_length_scale ~ discrepancy_length_scale();
   rho_free ~ normal(1, 0.25);
+  beta ~ normal(0, 1);
   if (!prior_only) {
     array[N] vector[D + Q] xt_obs = append_theta(x, theta_unit);
     matrix[N, M] K_obs_sim = ard_cross_cov(xt_obs, xt_sim, kernel_id, emulator_sd,
@@ -78,7 +84,8 @@ model {
     if (use_discrepancy) {
       K += ard_cov(x_delta, kernel_id, delta_sd[1], delta_length_scale);
     }
-    y ~ multi_normal_cholesky(rho * emulator_mean_obs, cholesky_decompose(add_diag(K, square(noise_sd))));
+    y ~ multi_normal_cholesky(rho * emulator_mean_obs + h * beta,
+                              cholesky_decompose(add_diag(K, square(noise_sd))));
   }
 }
 generated quantities {
@@ -86,6 +93,9 @@ generated quantities {
   array[use_discrepancy] real delta_sd_original;
   vector[N] log_lik;      // log p(y_i | y_-i, runs, parameters), original units
   vector[N] y_rep;        // replicated data, original units
+  vector[N] y_loo_mean;   // E(y_i | y_-i, runs, parameters), original units
+  vector[N] delta_gp;     // GP part of the discrepancy at the physical points, original units
+  vector[N] delta_gp_mean;  // its mean given the data, runs and parameters, original units
   vector[P] f_new;        // emulated simulator output at the prediction points
   vector[P] delta_new;    // discrepancy at the prediction points
   vector[P] zeta_new;     // true process rho * f + delta at the prediction points
@@ -97,18 +107,28 @@ generated quantities {
       koh_joint_cov(xt_sim, xt_obs, x_delta, kernel_id, emulator_sd, emulator_length_scale,
                     emulator_nugget, rho, delta_sd, delta_length_scale, noise_sd));
     vector[M + N] resid = y_joint - append_row(rep_vector(emulator_mean, M),
-                                               rep_vector(rho * emulator_mean, N));
+                                               rho * emulator_mean + h * beta);
     log_lik = mvn_loo_log_lik(resid, L)[(M + 1):(M + N)] - log(y_scale);
+    y_loo_mean = y_center + y_scale * (y - resid[(M + 1):(M + N)]
+                                       + mvn_loo_mean(resid, L)[(M + 1):(M + N)]);
     // one joint draw at the physical points (rows 1:N) and the prediction points
     matrix[N + P, 2] f_delta = koh_joint_draw_rng(
       resid, L, prior_only, xt_sim, xt_obs, x_delta,
       append_array(xt_obs, append_theta(x_new, theta_unit)), append_array(x_delta, x_delta_new),
       kernel_id, emulator_sd, emulator_length_scale, rho, delta_sd, delta_length_scale);
     vector[N + P] f_all = emulator_mean + f_delta[:, 1];
-    vector[N + P] zeta_all = rho * f_all + f_delta[:, 2];
+    vector[N + P] delta_all = append_row(h * beta, h_new * beta) + f_delta[:, 2];
+    vector[N + P] zeta_all = rho * f_all + delta_all;
     y_rep = y_center + y_scale * to_vector(normal_rng(zeta_all[1:N], noise_sd));
+    delta_gp = y_scale * f_delta[1:N, 2];
+    delta_gp_mean = rep_vector(0, N);
+    if (use_discrepancy && !prior_only) {
+      matrix[N, M + N] K_cross = append_col(
+        rep_matrix(0, N, M), ard_cov(x_delta, kernel_id, delta_sd[1], delta_length_scale));
+      delta_gp_mean = y_scale * gp_conditional_mean(resid, L, K_cross);
+    }
     f_new = y_center + y_scale * f_all[(N + 1):(N + P)];
-    delta_new = y_scale * f_delta[(N + 1):(N + P), 2];
+    delta_new = y_scale * delta_all[(N + 1):(N + P)];
     zeta_new = y_center + y_scale * zeta_all[(N + 1):(N + P)];
   }
 }

@@ -17,19 +17,25 @@ from .inits import spread_theta_inits
 from .models import Method, model_spec
 from .result import CalibrationResult, build_datatree
 from .stan_source import flatten
-from .standata import (EMULATOR_HYPERPARAMETERS, ModelOptions, build_emulator_data,
-                       build_stan_data, default_new_points, to_stan_json)
+from .standata import (
+    EMULATOR_HYPERPARAMETERS,
+    ModelOptions,
+    build_emulator_data,
+    build_stan_data,
+    default_new_points,
+    to_stan_json,
+)
 
 logger = logging.getLogger("stancal")
 
 # parameters block of each program, for diagnostics and for predict()
-_CALIBRATION_PARAMETERS = ["theta_unit", "noise_sd", "delta_sd", "delta_length_scale", "rho_free"]
+_CALIBRATION_PARAMETERS = ["theta_unit", "noise_sd", "delta_sd", "delta_length_scale", "rho_free", "beta"]
 _PARAMETERS = {
     Method.KOH: _CALIBRATION_PARAMETERS,
     Method.MODULAR: _CALIBRATION_PARAMETERS,
     Method.KOH_EMULATOR: [*_CALIBRATION_PARAMETERS, *EMULATOR_HYPERPARAMETERS],
 }
-_DIAGNOSED = ["theta", "noise_sd", "delta_sd", "delta_length_scale", "rho",
+_DIAGNOSED = ["theta", "noise_sd", "delta_sd", "delta_length_scale", "rho", "beta",
               *EMULATOR_HYPERPARAMETERS]
 
 
@@ -81,6 +87,8 @@ def calibrate(
     discrepancy: str = "gp",
     kernel: str = "se",
     estimate_rho: bool = False,
+    mean_formula: str | None = None,
+    mean_intercept: bool = False,
     new_points: pd.DataFrame | None = None,
     chains: int = 4,
     warmup: int = 1000,
@@ -98,11 +106,14 @@ def calibrate(
     ``method``: koh (cheap simulator), koh_emulator (joint, from runs) or
     modular (two-stage, from runs); by default koh with a simulator, else koh_emulator.
     ``program``: your own copy of the method's .stan file.
+    ``mean_formula``: terms h(x, z) of a discrepancy mean h' beta, a formula
+    over the physical data's columns such as ``"I(v**2) + C(batch)"``;
+    ``mean_intercept`` adds a constant term ``Intercept``.
     ``out_dir``: the posterior is written there as soon as sampling ends.
     ``prior``: also draw from the prior (same program, ``prior_only = 1``) into
     the ``prior`` and ``prior_predictive`` groups.
     """
-    options = ModelOptions(discrepancy, kernel, estimate_rho)
+    options = ModelOptions(discrepancy, kernel, estimate_rho, mean_formula, mean_intercept)
     chosen = choose_method(data, simulator, method)
     spec = model_spec(chosen)
     aliases = {"simulator.stan": Path(simulator)} if simulator is not None else {}

@@ -1,4 +1,5 @@
-"""Command line: ``stancal calibrate CONFIG.toml --out DIR``."""
+"""Command line: ``stancal calibrate CONFIG.toml --out DIR`` and
+``stancal gap CONFIG.toml --out DIR``."""
 
 from __future__ import annotations
 
@@ -23,20 +24,51 @@ def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="stancal", description="Bayesian calibration of computer models with Stan")
     commands = parser.add_subparsers(dest="command", required=True)
     cal = commands.add_parser("calibrate", help="calibrate theta and write a report folder")
-    cal.add_argument("config", type=Path, help="TOML config (paths inside are relative to it)")
-    cal.add_argument("--out", type=Path, required=True, help="output folder")
-    cal.add_argument("--method", choices=[m.value for m in Method])
-    cal.add_argument("--chains", type=int, default=4)
-    cal.add_argument("--warmup", type=int, default=1000)
-    cal.add_argument("--draws", type=int, default=1000)
-    cal.add_argument("--seed", type=int, default=None)
-    cal.add_argument("--backend", choices=BACKENDS, default=None)
+    gap = commands.add_parser("gap", help="diagnose the sim-to-real gap: where, which effect, how far")
+    for command in (cal, gap):
+        command.add_argument("config", type=Path, help="TOML config (paths inside are relative to it)")
+        command.add_argument("--out", type=Path, required=True, help="output folder")
+        command.add_argument("--method", choices=[m.value for m in Method])
+        command.add_argument("--chains", type=int, default=4)
+        command.add_argument("--warmup", type=int, default=1000)
+        command.add_argument("--draws", type=int, default=1000)
+        command.add_argument("--seed", type=int, default=None)
+        command.add_argument("--backend", choices=BACKENDS, default=None)
+    gap.add_argument("--kfold", type=int, default=None,
+                     help="compare by K-fold cross-validation instead of PSIS-LOO")
     return parser
 
 
-def run_calibrate(args: argparse.Namespace) -> dict:
-    from .plots import write_plots
+def _stancal_warnings(caught) -> list[str]:
+    return [str(w.message) for w in caught if w.category.__module__.startswith("stancal")]
 
+
+def run_gap(args: argparse.Namespace) -> dict:
+    from .gap import diagnose_gap
+    from .gap_report import write_gap_report
+
+    problem = load_config(args.config)
+    if not problem.candidates:
+        raise ConfigError("config: `stancal gap` needs a [candidates] section")
+    model = dict(problem.model)
+    method = args.method or model.pop("method", None)
+    args.out.mkdir(parents=True, exist_ok=True)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        analysis = diagnose_gap(problem.data, problem.candidates, simulator=problem.simulator,
+                                method=method, kernel=model.get("kernel", "se"),
+                                chains=args.chains, warmup=args.warmup, draws=args.draws,
+                                seed=args.seed, backend=args.backend, out_dir=args.out,
+                                kfold=args.kfold)
+    summary = write_gap_report(analysis, args.out)
+    write_calibration(analysis.baseline, args.out / "baseline",
+                      analysis.baseline.diagnostics.messages if analysis.baseline.diagnostics else [])
+    for message in _stancal_warnings(caught):
+        print(f"warning: {message}", file=sys.stderr)
+    return summary
+
+
+def run_calibrate(args: argparse.Namespace) -> dict:
     problem = load_config(args.config)
     model = dict(problem.model)
     configured_method = model.pop("method", None)
@@ -47,14 +79,22 @@ def run_calibrate(args: argparse.Namespace) -> dict:
         result = calibrate(problem.data, simulator=problem.simulator, method=method,
                            chains=args.chains, warmup=args.warmup, draws=args.draws,
                            seed=args.seed, backend=args.backend, out_dir=args.out, **model)
-    summary = result.to_summary_json()
-    summary["warnings"] = [str(w.message) for w in caught if w.category.__module__.startswith("stancal")]
-    (args.out / "summary.json").write_text(json.dumps(summary, indent=2))
-    result.summary().to_csv(args.out / "summary.csv")
-    plots = write_plots(result, args.out)
-    (args.out / "report.md").write_text(_report(summary, result.summary(), plots))
+    summary = write_calibration(result, args.out, _stancal_warnings(caught))
     for message in summary["warnings"]:
         print(f"warning: {message}", file=sys.stderr)
+    return summary
+
+
+def write_calibration(result, folder: Path, warning_messages: list[str]) -> dict:
+    """summary.json, summary.csv, figures and report.md of one calibration."""
+    from .plots import write_plots
+
+    summary = result.to_summary_json()
+    summary["warnings"] = warning_messages
+    (folder / "summary.json").write_text(json.dumps(summary, indent=2))
+    result.summary().to_csv(folder / "summary.csv")
+    plots = write_plots(result, folder)
+    (folder / "report.md").write_text(_report(summary, result.summary(), plots))
     return summary
 
 
@@ -96,10 +136,16 @@ def main(argv: list[str] | None = None) -> int:
     for noisy in ("httpstan", "aiohttp", "arviz"):
         logging.getLogger(noisy).setLevel(logging.WARNING)
     try:
-        summary = run_calibrate(args)
+        summary = (run_gap if args.command == "gap" else run_calibrate)(args)
     except (ConfigError, DataError, StanProgramError, StanRuntimeError, ValueError, RuntimeError) as err:
         print(f"stancal: error: {_one_line(err)}", file=sys.stderr)
         return 2
+    if args.command == "gap":
+        best = summary["candidates"][0]
+        print(f"gap: best candidate {best['name']} (ELPD {best['elpd_diff']:+.1f} ± "
+              f"{best['elpd_diff_se']:.1f}, shrinkage {best['shrinkage']['mean']:.2f}); "
+              f"report in {args.out / 'report.md'}")
+        return 0
     theta = ", ".join(f"{k} = {v['mean']:.4g} [{v['q05']:.4g}, {v['q95']:.4g}]" for k, v in summary["theta"].items())
     print(f"{summary['method']}: {theta}; results in {args.out}")
     return 0

@@ -10,6 +10,7 @@ from typing import Any
 import pandas as pd
 
 from .data import CalibrationData
+from .gap import Candidate, CandidateError
 
 
 class ConfigError(ValueError):
@@ -21,9 +22,42 @@ class Problem:
     data: CalibrationData
     simulator: Path | None
     model: dict[str, Any] = field(default_factory=dict)
+    candidates: list[Candidate] = field(default_factory=list)  # for `stancal gap`
 
 
-_MODEL_KEYS = {"method", "discrepancy", "kernel", "estimate_rho", "program"}
+_MODEL_KEYS = {"method", "discrepancy", "kernel", "estimate_rho", "program", "mean_formula",
+               "mean_intercept"}
+_VARIANT_KEYS = {"stan", "inputs", "theta"}
+
+
+def _candidates(table: dict[str, Any], base: Path) -> list[Candidate]:
+    """[candidates]: name = "formula", or a [candidates.NAME] table for a
+    simulator variant (stan, inputs, theta) or a formula (formula)."""
+    out = []
+    for name, spec in table.items():
+        where = f"[candidates.{name}]"
+        if isinstance(spec, str):
+            spec = {"formula": spec}
+        if not isinstance(spec, dict):
+            raise ConfigError(f"candidate '{name}': give a formula string or a table; got {spec!r}")
+        allowed = {"formula"} if "formula" in spec else _VARIANT_KEYS
+        unknown = set(spec) - allowed
+        if unknown:
+            raise ConfigError(f"candidate '{name}': unknown key(s) {sorted(unknown)} in {where}; "
+                              f"known: {sorted(allowed)}")
+        try:
+            if "formula" in spec:
+                out.append(Candidate(name, formula=str(spec["formula"])))
+                continue
+            stan = base / _require(spec, "stan", f"candidates.{name}")
+            if not stan.is_file():
+                raise ConfigError(f"candidate '{name}': Stan file not found: {stan}")
+            theta = {k: tuple(v) for k, v in spec.get("theta", {}).items()}
+            out.append(Candidate(name, stan=stan, inputs=tuple(_require(spec, "inputs", f"candidates.{name}")),
+                                 theta=theta))
+        except CandidateError as err:
+            raise ConfigError(str(err)) from None
+    return out
 
 
 def _read_csv(path: Path, key: str) -> pd.DataFrame:
@@ -77,4 +111,5 @@ def load_config(path: str | Path) -> Problem:
         covariates=physical.get("covariates", []),
         runs=runs,
     )
-    return Problem(data=data, simulator=stan, model=model)
+    candidates = _candidates(raw.get("candidates", {}), base)
+    return Problem(data=data, simulator=stan, model=model, candidates=candidates)

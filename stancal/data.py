@@ -63,6 +63,27 @@ def _numeric_columns(frame: pd.DataFrame, columns: Sequence[str], what: str) -> 
     return pd.DataFrame(out, index=frame.index)
 
 
+def _category_levels(frame: pd.DataFrame, column: str, what: str) -> list[str] | None:
+    """Levels of a text column, or None for a numeric one."""
+    raw = frame[column]
+    if pd.api.types.is_numeric_dtype(raw):
+        return None
+    numeric = pd.to_numeric(raw, errors="coerce").notna().to_numpy()
+    missing = raw.isna().to_numpy()
+    if numeric[~missing].all():
+        return None
+    if numeric.any():
+        raise DataError(f"{what}: column '{column}' mixes numbers and text; numbers in rows "
+                        f"{_rows(numeric, frame.index)}")
+    if missing.any():
+        raise DataError(f"{what}: categorical column '{column}' is empty in rows {_rows(missing, frame.index)}")
+    return sorted(raw.astype(str).unique())
+
+
+def one_hot_name(column: str, level: str) -> str:
+    return f"{column}[{level}]"
+
+
 @dataclass(frozen=True)
 class Scaling:
     """Affine maps to the unit cube (inputs, covariates, theta) and to a
@@ -92,8 +113,11 @@ class CalibrationData:
     inputs : simulator input columns, in the simulator's column order.
     output : the output column (same name in ``runs``).
     theta : calibration parameters in the simulator's order, name -> (lower, upper).
-    covariates : extra physical columns the discrepancy may depend on.
+    covariates : extra physical columns the discrepancy may depend on;
+        text columns are categorical and enter the discrepancy one-hot.
     runs : simulator runs: the input columns, one column per theta, the output.
+    levels : categories of categorical covariates, when they must not be
+        taken from ``physical`` (a subset that lacks a level).
     """
 
     def __init__(
@@ -104,15 +128,19 @@ class CalibrationData:
         theta: Mapping[str, tuple[float, float]],
         covariates: Sequence[str] = (),
         runs: pd.DataFrame | None = None,
+        levels: Mapping[str, Sequence[str]] | None = None,
     ) -> None:
         self.inputs = list(inputs)
         self.output = output
         self.covariates = list(covariates)
         self.parameters = self._parameters(theta)
         self._check_names()
-        self.physical = _numeric_columns(
-            physical, [*self.inputs, *self.covariates, output], "physical data"
-        )
+        self.source = physical.copy()  # every column, for formulas over the physical data
+        self.levels = self._levels(physical, levels or {})
+        numeric = [c for c in self.covariates if c not in self.levels]
+        self.physical = pd.concat([
+            _numeric_columns(physical, [*self.inputs, *numeric, output], "physical data"),
+            self.one_hot(physical)], axis=1)
         if len(self.physical) < 3:
             raise DataError(
                 f"physical data: {len(self.physical)} rows; calibration needs at least 3"
@@ -127,9 +155,50 @@ class CalibrationData:
         return [p.name for p in self.parameters]
 
     @property
+    def discrepancy_variables(self) -> dict[str, list[str]]:
+        """Each simulator input and covariate -> its discrepancy GP columns
+        (one per level for a categorical covariate)."""
+        out = {c: [c] for c in self.inputs}
+        for c in self.covariates:
+            out[c] = [one_hot_name(c, v) for v in self.levels[c]] if c in self.levels else [c]
+        return out
+
+    @property
     def discrepancy_inputs(self) -> list[str]:
-        """Inputs of the discrepancy GP: simulator inputs, then covariates."""
-        return [*self.inputs, *self.covariates]
+        """Columns of the discrepancy GP: simulator inputs, then covariates."""
+        return [col for cols in self.discrepancy_variables.values() for col in cols]
+
+    def _levels(self, physical: pd.DataFrame, given: Mapping[str, Sequence[str]]) -> dict[str, list[str]]:
+        missing = [c for c in self.covariates if c not in physical.columns]
+        if missing:
+            raise DataError(f"physical data: missing column(s) {missing}; available: {list(physical.columns)}")
+        out = {}
+        for column in self.covariates:
+            found = _category_levels(physical, column, "physical data")
+            if found is not None:
+                out[column] = list(given.get(column, found))
+        return out
+
+    def one_hot(self, frame: pd.DataFrame, what: str = "physical data") -> pd.DataFrame:
+        """One 0/1 column per level of each categorical covariate."""
+        columns = {}
+        for column, levels in self.levels.items():
+            if column not in frame.columns:
+                raise DataError(f"{what}: missing categorical column '{column}'")
+            values = frame[column].astype(str).to_numpy()
+            unknown = ~np.isin(values, levels)
+            if unknown.any():
+                raise DataError(f"{what}: column '{column}' has levels not in {levels} in rows "
+                                f"{_rows(unknown, frame.index)}")
+            for level in levels:
+                columns[one_hot_name(column, level)] = (values == level).astype(float)
+        return pd.DataFrame(columns, index=frame.index)
+
+    def subset(self, rows: Sequence[int]) -> "CalibrationData":
+        """The same problem on some physical rows (positions), same categories."""
+        return CalibrationData(self.source.iloc[list(rows)], self.inputs, self.output,
+                               {p.name: (p.lower, p.upper) for p in self.parameters},
+                               self.covariates, self.runs, levels=self.levels)
 
     @property
     def has_runs(self) -> bool:
@@ -208,21 +277,26 @@ class CalibrationData:
         return Scaling(low, width, float(reference.mean()), float(reference.std()) or 1.0)
 
     def check_new_points(self, new: pd.DataFrame) -> pd.DataFrame:
-        """Validated prediction points (the inputs and covariates)."""
-        return _numeric_columns(new, self.discrepancy_inputs, "prediction points")
+        """Validated prediction points: the inputs and covariates as in the
+        physical data, returned with categorical covariates one-hot."""
+        table = pd.concat([new.drop(columns=list(self.levels), errors="ignore"),
+                           self.one_hot(new, "prediction points")], axis=1)
+        return _numeric_columns(table, self.discrepancy_inputs, "prediction points")
 
     def to_dict(self) -> dict:
         return {
-            "physical": self.physical.to_dict(orient="list"),
+            "physical": self.source.to_dict(orient="list"),
             "inputs": self.inputs,
             "output": self.output,
             "covariates": self.covariates,
             "theta": {p.name: [p.lower, p.upper] for p in self.parameters},
             "runs": None if self.runs is None else self.runs.to_dict(orient="list"),
+            "levels": self.levels,
         }
 
     @classmethod
     def from_dict(cls, d: dict) -> "CalibrationData":
         runs = None if d["runs"] is None else pd.DataFrame(d["runs"])
         return cls(pd.DataFrame(d["physical"]), d["inputs"], d["output"],
-                   {k: tuple(v) for k, v in d["theta"].items()}, d["covariates"], runs)
+                   {k: tuple(v) for k, v in d["theta"].items()}, d["covariates"], runs,
+                   levels=d.get("levels"))

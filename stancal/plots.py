@@ -76,10 +76,10 @@ def plot_fit(result: CalibrationResult, path: str | Path | None = None):
 
 
 def plot_discrepancy(result: CalibrationResult, path: str | Path | None = None):
-    """delta with its 90 % band against each discrepancy input."""
+    """delta with its 90 % band against each input and covariate."""
     plt = _pyplot()
     table = result.predict()
-    columns = result.data.discrepancy_inputs
+    columns = list(result.data.discrepancy_variables)
     fig, axes = plt.subplots(1, len(columns), figsize=(5 * len(columns), 3.5), squeeze=False)
     for ax, column in zip(axes[0], columns):
         order = np.argsort(table[column].to_numpy())

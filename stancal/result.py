@@ -4,7 +4,7 @@ summarise it on the original scale and to predict at new points."""
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -16,8 +16,14 @@ from .backends import Draws, SampleOutput, get_backend
 from .data import CalibrationData
 from .diagnostics import Diagnostics
 from .modes import Mode
-from .standata import EMULATOR_HYPERPARAMETERS, ModelOptions, build_stan_data, to_stan_json
 from .stan_source import FlatProgram
+from .standata import (
+    EMULATOR_HYPERPARAMETERS,
+    ModelOptions,
+    build_stan_data,
+    mean_terms_of,
+    to_stan_json,
+)
 
 # Stan program variables -> names in the posterior group (original units)
 _REPORTED = {
@@ -27,6 +33,9 @@ _REPORTED = {
     "rho": "rho",
 }
 _PREDICTED = ("f_new", "delta_new", "zeta_new")
+# per physical point: the GP part of delta (a draw, and its mean given the
+# parameters), and E(y_i | y_-i) for held-out error
+_AT_OBSERVATIONS = ("delta_gp", "delta_gp_mean", "y_loo_mean")
 QUANTILES = (0.05, 0.5, 0.95)
 
 
@@ -48,22 +57,28 @@ def build_datatree(sample: SampleOutput, data: CalibrationData,
     for name in EMULATOR_HYPERPARAMETERS:
         if name in d:
             posterior[name] = d[name]
+    terms = mean_terms_of(data, options)
+    if terms is not None:  # coefficients per raw term, original units
+        posterior["beta"] = d["beta"] * data.scaling.y_scale / terms.scale
     sampled = {
         "posterior": posterior,
         "posterior_predictive": {"y": d["y_rep"]},
         "log_likelihood": {"y": d["log_lik"]},
         "sample_stats": sample.sample_stats,
         "predictions": {k: d[k] for k in _PREDICTED},
+        "at_observations": {k: d[k] for k in _AT_OBSERVATIONS},
     }
     dims = {
         "theta": ["theta_name"], "delta_length_scale": ["delta_input"],
-        "emulator_length_scale": ["emulator_input"], "y": ["obs"],
+        "emulator_length_scale": ["emulator_input"], "y": ["obs"], "beta": ["mean_term"],
+        **{k: ["obs"] for k in _AT_OBSERVATIONS},
         **{k: ["new_point"] for k in _PREDICTED},
     }
     coords = {
         "theta_name": data.theta_names, "delta_input": data.discrepancy_inputs,
         "emulator_input": [*data.inputs, *data.theta_names],
         "obs": np.arange(len(data.physical)), "new_point": np.arange(len(new_points)),
+        "mean_term": terms.names if terms else [],
     }
     tree = ab.from_dict(sampled, dims=dims, coords=coords)
     obs = {"obs": coords["obs"]}
@@ -165,10 +180,10 @@ class CalibrationResult:
         stored with the fit."""
         if new_points is None:
             draws = {k: np.asarray(self.idata["predictions"][k]) for k in _PREDICTED}
-            points = pd.DataFrame({c: np.asarray(self.idata["predictions_constant_data"][c])
-                                   for c in self.data.discrepancy_inputs})
+            points = self.idata["predictions_constant_data"].to_dataset().to_dataframe()
+            points = points.reset_index(drop=True)
         else:
-            points = self.data.check_new_points(new_points).reset_index(drop=True)
+            points = new_points.reset_index(drop=True)
             stan_data = build_stan_data(self.data, self.method, self.options, points,
                                         emulator_hyperparameters=self.emulator.get("hyperparameters"))
             params = {k: np.asarray(v) for k, v in self.idata["stan_parameters"].data_vars.items()}
@@ -188,8 +203,7 @@ class CalibrationResult:
     def _metadata(self) -> dict[str, Any]:
         return {
             "method": self.method, "backend": self.backend,
-            "options": {"discrepancy": self.options.discrepancy, "kernel": self.options.kernel,
-                        "estimate_rho": self.options.estimate_rho},
+            "options": asdict(self.options),
             "program": {"code": self.program.code, "origin": self.program.origin},
             "data": self.data.to_dict(),
             "diagnostics": self.diagnostics and self.diagnostics.to_dict(), "modes": [m.__dict__ for m in self.modes],
@@ -224,8 +238,7 @@ class CalibrationResult:
         return {
             "method": self.method,
             "backend": self.backend,
-            "options": {"discrepancy": self.options.discrepancy, "kernel": self.options.kernel,
-                        "estimate_rho": self.options.estimate_rho},
+            "options": asdict(self.options),
             "theta": self.theta_summary(),
             "modes": [m.to_dict() for m in self.modes],
             "parameters": json.loads(self.summary().reset_index().to_json(orient="records")),

@@ -9,6 +9,7 @@ import numpy as np
 import pandas as pd
 
 from .data import CalibrationData
+from .mean_terms import MeanTerms, build_mean_terms
 from .models import Kernel, Method
 
 
@@ -19,6 +20,8 @@ class ModelOptions:
     discrepancy: str = "gp"  # gp | none
     kernel: str = "se"  # se | matern52
     estimate_rho: bool = False
+    mean_formula: str | None = None  # discrepancy mean terms h(x, z)' beta, e.g. "I(v**2)"
+    mean_intercept: bool = False  # a constant term in the discrepancy mean
 
     def __post_init__(self) -> None:
         if self.discrepancy not in ("gp", "none"):
@@ -35,12 +38,18 @@ EMULATOR_HYPERPARAMETERS = ("emulator_mean", "emulator_sd", "emulator_length_sca
 
 
 def default_new_points(data: CalibrationData, size: int = 60) -> pd.DataFrame:
-    """A grid over the one input when there is one; otherwise the physical points."""
-    columns = data.discrepancy_inputs
-    if len(columns) == 1:
-        values = data.physical[columns[0]]
-        return pd.DataFrame({columns[0]: np.linspace(values.min(), values.max(), size)})
-    return data.physical[columns].reset_index(drop=True)
+    """A grid over the one input when there is one; otherwise the physical
+    points (every column, so that formulas over them can be evaluated)."""
+    if len(data.discrepancy_inputs) == 1:
+        values = data.physical[data.inputs[0]]
+        return pd.DataFrame({data.inputs[0]: np.linspace(values.min(), values.max(), size)})
+    return data.source.reset_index(drop=True)
+
+
+def mean_terms_of(data: CalibrationData, options: ModelOptions) -> MeanTerms | None:
+    if options.mean_formula is None and not options.mean_intercept:
+        return None
+    return build_mean_terms(options.mean_formula, data.source, intercept=options.mean_intercept)
 
 
 def _standardise(data: CalibrationData, values: np.ndarray) -> np.ndarray:
@@ -57,6 +66,8 @@ def build_stan_data(
 ) -> dict[str, Any]:
     method = Method(method)
     s = data.scaling
+    terms = mean_terms_of(data, options)
+    h_new = terms.at(new_points) if terms else np.zeros((len(new_points), 0))
     new_points = data.check_new_points(new_points)
     out: dict[str, Any] = dict(
         N=len(data.physical),
@@ -67,6 +78,9 @@ def build_stan_data(
         y=_standardise(data, data.physical[data.output].to_numpy()),
         y_center=s.y_center,
         y_scale=s.y_scale,
+        H=h_new.shape[1],
+        h=terms.h if terms else np.zeros((len(data.physical), 0)),
+        h_new=h_new,
         theta_lower=np.array([p.lower for p in data.parameters]),
         theta_upper=np.array([p.upper for p in data.parameters]),
         use_discrepancy=int(options.discrepancy == "gp"),

@@ -130,3 +130,57 @@ def test_round_trip_through_dict():
     again = CalibrationData.from_dict(d.to_dict())
     pd.testing.assert_frame_equal(again.physical, d.physical)
     assert again.parameters == d.parameters
+
+
+# ---- categorical covariates and formula mean terms ---------------------------
+def with_batch(labels=("a", "b", "a", "c", "b")):
+    return physical().assign(batch=list(labels))
+
+
+def test_categorical_covariate_enters_the_discrepancy_one_hot():
+    d = make(physical=with_batch(), covariates=["z", "batch"])
+    assert d.levels == {"batch": ["a", "b", "c"]}
+    assert d.discrepancy_variables == {"x": ["x"], "z": ["z"], "batch": ["batch[a]", "batch[b]", "batch[c]"]}
+    assert d.physical["batch[b]"].tolist() == [0, 1, 0, 0, 1]
+    again = CalibrationData.from_dict(d.to_dict())
+    assert again.levels == d.levels and again.discrepancy_inputs == d.discrepancy_inputs
+
+
+def test_column_mixing_numbers_and_text_is_named():
+    with pytest.raises(DataError, match=r"column 'batch' mixes numbers and text; numbers in rows \[1\]"):
+        make(physical=with_batch(("a", "2", "a", "c", "b")), covariates=["batch"])
+
+
+def test_unknown_level_at_new_points_is_named():
+    d = make(physical=with_batch(), covariates=["batch"])
+    new = pd.DataFrame({"x": [0.5, 0.2], "batch": ["a", "zz"]})
+    with pytest.raises(DataError, match=r"prediction points: column 'batch' has levels not in .* rows \[1\]"):
+        d.check_new_points(new)
+    assert d.check_new_points(new.iloc[:1]).columns.tolist() == ["x", "batch[a]", "batch[b]", "batch[c]"]
+
+
+def test_subset_keeps_every_level():
+    d = make(physical=with_batch(), covariates=["batch"])
+    assert d.subset([0, 2, 4]).discrepancy_inputs == d.discrepancy_inputs  # no level c
+
+
+def test_mean_terms_scaled_and_checked():
+    from stancal.mean_terms import FormulaError, build_mean_terms
+
+    frame = with_batch()
+    terms = build_mean_terms("I(x**2) + C(batch)", frame)
+    assert terms.names == ["I(x ** 2)", "C(batch)[T.b]", "C(batch)[T.c]"]
+    np.testing.assert_allclose(np.sqrt(np.mean(terms.h**2, axis=0)), 1)
+    np.testing.assert_allclose(terms.h[:, 0] * terms.scale[0], frame.x**2)
+    with pytest.raises(FormulaError, match="not seen"):
+        terms.at(pd.DataFrame({"x": [0.1], "batch": ["zz"]}))
+    with pytest.raises(FormulaError, match="zero at every physical point"):
+        build_mean_terms("I(x * 0)", frame)
+
+
+def test_intercept_only_mean_terms():
+    from stancal.mean_terms import build_mean_terms
+
+    terms = build_mean_terms(None, with_batch(), intercept=True)
+    assert terms.names == ["Intercept"] and np.all(terms.h == 1)
+    assert build_mean_terms("x", with_batch(), intercept=True).names == ["Intercept", "x"]

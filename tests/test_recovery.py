@@ -3,7 +3,6 @@
 import numpy as np
 import pandas as pd
 import pytest
-
 from conftest import COOLING, K_TRUE, fit, newton
 
 # Tolerance for agreement between methods: posterior medians of k within

@@ -6,6 +6,8 @@ import numpy as np
 import pytest
 from scipy import stats
 
+from stancal.kernels import ard_cross_cov
+from stancal.models import Kernel
 from stancal.stan_source import flatten
 
 HARNESS = Path(__file__).parent / "stan" / "function_harness.stan"
@@ -23,6 +25,12 @@ def se(a, b):
 def matern52(a, b):
     r = np.sqrt((((a[:, None, :] - b[None, :, :]) / LS) ** 2).sum(-1))
     return SD**2 * (1 + np.sqrt(5) * r + 5 * r**2 / 3) * np.exp(-np.sqrt(5) * r)
+
+
+def test_python_kernels_mirror_the_references():
+    # stancal.kernels is checked here against the same references as Stan's
+    assert np.allclose(ard_cross_cov(X1, X2, Kernel.SE, SD, LS), se(X1, X2), rtol=1e-12)
+    assert np.allclose(ard_cross_cov(X1, X2, Kernel.MATERN52, SD, LS), matern52(X1, X2), rtol=1e-12)
 
 
 @pytest.fixture(scope="module")
@@ -46,16 +54,23 @@ def test_matern52(gq):
     np.testing.assert_allclose(gq["m52_sym"], matern52(X1, X1), rtol=1e-10, atol=1e-12)
 
 
-def test_loo_log_lik_matches_brute_force_conditionals(gq):
+def test_loo_log_lik_and_mean_match_brute_force_conditionals(gq):
     K = se(X1, X1) + 0.1 * np.eye(6)
-    expected = []
+    expected, means = [], []
     for i in range(6):
         rest = np.delete(np.arange(6), i)
         w = np.linalg.solve(K[np.ix_(rest, rest)], K[rest, i])
         mean = w @ RESID[rest]
         var = K[i, i] - K[i, rest] @ w
         expected.append(stats.norm.logpdf(RESID[i], mean, np.sqrt(var)))
+        means.append(mean)
     np.testing.assert_allclose(gq["loo"], expected, rtol=1e-10)
+    np.testing.assert_allclose(gq["loo_mean"], means, rtol=1e-10)
+
+
+def test_gp_conditional_mean(gq):
+    K = se(X1, X1) + 0.1 * np.eye(6)
+    np.testing.assert_allclose(gq["conditional_mean"], se(X2, X1) @ np.linalg.solve(K, RESID), rtol=1e-10)
 
 
 def test_theta_from_unit(gq):

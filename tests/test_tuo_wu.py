@@ -4,7 +4,6 @@ import sys
 
 import numpy as np
 import pytest
-
 from conftest import ROOT, fit
 
 sys.path.insert(0, str(ROOT / "case_studies" / "tuo_wu"))

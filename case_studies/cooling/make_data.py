@@ -3,7 +3,9 @@ reproducible): python case_studies/cooling/make_data.py
 
 Reality cools faster than Newton's law at high temperature: besides
 convection (rate k) it loses heat by evaporation and radiation, modelled
-here as a quadratic term c * (T - T_amb)^2 that the simulator lacks.
+here as a quadratic term c * (T - T_amb)^2 that the simulator lacks. The
+variant simulator_quadratic_loss.stan has it; humidity and operator are
+measured but play no part (decoys for the gap diagnosis).
 """
 
 from pathlib import Path
@@ -45,6 +47,10 @@ def main(folder: Path = Path(__file__).parent) -> None:
     runs = pd.DataFrame({"t": 62 * u[:, 0], "T0": 55 + 40 * u[:, 1], "k": 0.01 + 0.19 * u[:, 2]})
     runs["temperature"] = newton(runs.t, runs.T0, runs.k)
     runs.round(5).to_csv(folder / "runs.csv", index=False)
+
+    # drawn last so that the columns above stay as first shipped
+    physical.insert(3, "operator", rng.choice(["ana", "ben", "chloe"], size=t.size))  # irrelevant
+    physical.to_csv(folder / "physical.csv", index=False)
 
 
 if __name__ == "__main__":

@@ -1,4 +1,18 @@
 /**
+ * Mean of GP values at new points given observed values
+ * (Rasmussen & Williams 2006, eq. 2.23).
+ *
+ * @param resid observed values minus their prior mean, size N
+ * @param L_obs Cholesky factor of the covariance of resid (N x N)
+ * @param K_cross covariance of the new values with the observed ones (P x N)
+ * @return the conditional mean of the new values minus their prior mean, size P
+ */
+vector gp_conditional_mean(vector resid, matrix L_obs, matrix K_cross) {
+  // K^-1 resid by two triangular solves: L \ resid, then L' \ (that)
+  return K_cross * mdivide_right_tri_low(mdivide_left_tri_low(L_obs, resid)', L_obs)';
+}
+
+/**
  * One draw of GP values at new points given observed values
  * (Rasmussen & Williams 2006, eqs. 2.23-2.24).
  *

@@ -41,6 +41,10 @@ class SampleOutput:
 class StanBackend(Protocol):
     name: str
 
+    def check(self, program: FlatProgram) -> None:
+        """Raise StanProgramError, with the user's file and line, if stanc rejects the program."""
+        ...
+
     def sample(
         self,
         program: FlatProgram,

@@ -49,6 +49,9 @@ class CmdStanPyBackend:
         except (ValueError, RuntimeError) as err:
             raise StanProgramError(program.explain(str(err))) from None
 
+    def check(self, program: FlatProgram) -> None:
+        self._model(program)
+
     def sample(
         self,
         program: FlatProgram,

@@ -37,7 +37,7 @@ class PyStanBackend:
         import stan
 
         if not _is_compiled(program.code):
-            self._check_with_stanc(program)
+            self.check(program)
             logger.warning(
                 "Compiling Stan program %s with PyStan; the first compile takes about a "
                 "minute, later runs use the cache.", program.origin[0][0] if program.origin else "?"
@@ -50,9 +50,9 @@ class PyStanBackend:
             raise StanRuntimeError(program.explain(str(err))) from None
 
     @staticmethod
-    def _check_with_stanc(program: FlatProgram) -> None:
-        """PyStan's build error keeps only 'Semantic error'; stanc alone (no C++,
-        a fraction of a second) gives the whole message."""
+    def check(program: FlatProgram) -> None:
+        """Run stanc alone (no C++, a fraction of a second). PyStan's build
+        error keeps only 'Semantic error'; stanc gives the whole message."""
         import httpstan.compile
 
         try:

@@ -29,6 +29,9 @@ generated quantities {
   matrix[n1, n1] se_sym = ard_cov(x1, 1, sd_, ls);
   matrix[n1, n1] m52_sym = ard_cov(x1, 2, sd_, ls);
   vector[n1] loo = mvn_loo_log_lik(resid, cholesky_decompose(add_diag(se_sym, 0.1)));
+  vector[n1] loo_mean = mvn_loo_mean(resid, cholesky_decompose(add_diag(se_sym, 0.1)));
+  vector[n2] conditional_mean = gp_conditional_mean(resid, cholesky_decompose(add_diag(se_sym, 0.1)),
+                                                    se_cross');
   vector[3] theta = theta_from_unit(unit, lo, hi);
   // joint KOH covariance: runs x2 (as (x, theta) with 1 input + 1 theta), physical x1 inputs
   matrix[n2 + n1, n2 + n1] joint = koh_joint_cov(

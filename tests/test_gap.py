@@ -1,0 +1,233 @@
+"""The gap diagnosis on two case studies whose effect is withheld from the
+simulator: cooling (the real effect is a simulator variant; run through the
+command line) and pipe flow (the real effect is a formula; run through the
+Python API with the joint emulator)."""
+
+import importlib.util
+import json
+import subprocess
+import sys
+import warnings
+
+import numpy as np
+import pandas as pd
+import pytest
+from conftest import COOLING, ROOT
+
+import stancal
+from stancal.backends import get_backend
+from stancal.config import ConfigError, load_config
+from stancal.gap import Candidate, CandidateError, check_candidates, diagnose_gap
+from stancal.gap_report import write_gap_report
+
+PIPE = ROOT / "case_studies" / "pipe_flow"
+# loaded under its own name: conftest already imported cooling's make_data
+_spec = importlib.util.spec_from_file_location("pipe_make_data", PIPE / "make_data.py")
+pipe_physics = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(pipe_physics)
+
+COOLING_K_TRUE = 0.05
+# more draws for the cheap simulator keep Pareto k estimates steady; the joint
+# emulator is slower per draw
+COOLING_SAMPLING = dict(chains=2, warmup=500, draws=1000, seed=3)
+PIPE_SAMPLING = dict(chains=2, warmup=400, draws=600, seed=3)
+
+
+@pytest.fixture(scope="module")
+def cooling_gap(tmp_path_factory):
+    out = tmp_path_factory.mktemp("gap") / "cooling"
+    done = subprocess.run(
+        [sys.executable, "-m", "stancal.cli", "gap", str(COOLING / "config.toml"), "--out", str(out),
+         *(str(a) for k, v in COOLING_SAMPLING.items() for a in (f"--{k}", v))],
+        capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr[-3000:]
+    return json.loads((out / "gap.json").read_text()), out
+
+
+@pytest.fixture(scope="module")
+def pipe_gap(tmp_path_factory):
+    problem = load_config(PIPE / "config.toml")
+    out = tmp_path_factory.mktemp("gap") / "pipe"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        analysis = diagnose_gap(problem.data, problem.candidates, simulator=problem.simulator,
+                                method=problem.model["method"], out_dir=out, **PIPE_SAMPLING)
+    return analysis, write_gap_report(analysis, out)
+
+
+def by_name(summary):
+    return {c["name"]: c for c in summary["candidates"]}
+
+
+# ---- cooling: the withheld effect is a simulator variant ---------------------
+def test_cooling_withheld_effect_ranks_first_and_shrinks_the_gap(cooling_gap):
+    summary, _ = cooling_gap
+    cands = by_name(summary)
+    assert summary["candidates"][0]["name"] == "quadratic_loss"
+    assert cands["quadratic_loss"]["elpd_diff"] > 2 * cands["quadratic_loss"]["elpd_diff_se"]
+    assert cands["quadratic_loss"]["shrinkage"]["mean"] > 0.5
+    for decoy in ("humidity", "operator", "humid_convection"):
+        assert cands[decoy]["shrinkage"]["mean"] < 0.2, decoy
+
+
+def test_cooling_theta_moves_to_the_truth(cooling_gap):
+    summary, _ = cooling_gap
+    before = summary["baseline"]["theta"]["k"]
+    after = by_name(summary)["quadratic_loss"]["theta"]["k"]
+    assert abs(after["mean"] - COOLING_K_TRUE) < abs(before["mean"] - COOLING_K_TRUE)
+    assert after["q05"] < COOLING_K_TRUE < after["q95"]
+    c = by_name(summary)["quadratic_loss"]["theta"]["c"]  # the variant's own parameter
+    assert c["q05"] < 4e-4 < c["q95"]
+
+
+def test_cooling_where(cooling_gap):
+    summary, _ = cooling_gap
+    importance = {v: e["mean"] for v, e in summary["where"]["importance"].items()}
+    # the loss has acted longer the later the reading: time drives the gap
+    assert max(importance, key=importance.get) == "t"
+    assert max(importance["humidity"], importance["operator"]) < 0.5 * importance["t"]
+    # the region must cover the end of the run, where the withheld loss has acted longest
+    t_regions = [r for r in summary["where"]["regions"] if r["variable"] == "t" and not r["whole_range"]]
+    assert any(r["from"] <= 55 <= r["to"] for r in t_regions)
+
+
+def test_cooling_report_folder(cooling_gap):
+    summary, out = cooling_gap
+    for name in ("gap.json", "report.md", "importance.png", "where.png", "candidates.png",
+                 "baseline/posterior.nc", "baseline/summary.json",
+                 "candidates/quadratic_loss/posterior.nc"):
+        assert (out / name).stat().st_size > 0, name
+    report = (out / "report.md").read_text()
+    assert "Best candidate: **quadratic_loss**" in report
+    assert set(summary["baseline"]) >= {"theta", "discrepancy_rms", "elpd_loo", "elpd_se"}
+    for c in summary["candidates"]:
+        assert set(c) >= {"name", "kind", "elpd_diff", "elpd_diff_se", "discrepancy_rms",
+                          "shrinkage", "theta", "holdout_rmse"}
+    diffs = [c["elpd_diff"] for c in summary["candidates"]]
+    assert diffs == sorted(diffs, reverse=True)
+
+
+# ---- pipe flow: the withheld effect is a formula, fitted with the emulator ---------
+def test_pipe_withheld_effect_ranks_first_and_shrinks_the_gap(pipe_gap):
+    _, summary = pipe_gap
+    cands = by_name(summary)
+    assert summary["baseline"]["method"] == "koh_emulator"
+    assert summary["candidates"][0]["name"] == "minor_loss"
+    assert cands["minor_loss"]["shrinkage"]["mean"] > 0.5
+    for decoy in ("batch", "humidity"):
+        assert cands[decoy]["shrinkage"]["mean"] < 0.2, decoy
+    assert cands["minor_loss"]["holdout_rmse"] < summary["baseline"]["holdout_rmse"]
+
+
+def least_squares_under_the_true_model():
+    """mu and beta fitted by least squares with the withheld term put back:
+    the best any method can do on this data (mu lands 2 se below its true
+    value in this realisation)."""
+    d = pd.read_csv(PIPE / "physical.csv")
+    design = np.column_stack([pipe_physics.poiseuille(d.v, d.L, 1.0), d.v**2])
+    coef, *_ = np.linalg.lstsq(design, d.dp, rcond=None)
+    resid = d.dp - design @ coef
+    cov = resid @ resid / (len(d) - 2) * np.linalg.inv(design.T @ design)
+    return coef, np.sqrt(np.diag(cov))
+
+
+def test_pipe_theta_moves_to_the_truth_and_beta_is_recovered(pipe_gap):
+    analysis, summary = pipe_gap
+    (mu_ls, beta_ls), (mu_se, beta_se) = least_squares_under_the_true_model()
+    before = summary["baseline"]["theta"]["mu"]["mean"]
+    after = by_name(summary)["minor_loss"]["theta"]["mu"]
+    assert abs(after["mean"] - pipe_physics.MU_TRUE) < abs(before - pipe_physics.MU_TRUE)
+    assert abs(after["mean"] - mu_ls) < 0.5 * mu_se
+    assert after["q05"] < mu_ls < after["q95"]
+    fit = next(f for f in analysis.candidates if f.candidate.name == "minor_loss")
+    beta = np.asarray(fit.result.idata["posterior"]["beta"].sel(mean_term="I(v ** 2)")).ravel()
+    true_beta = pipe_physics.MINOR_LOSS_K * pipe_physics.DENSITY / 2 / 1000  # kPa per (m/s)^2
+    assert np.quantile(beta, 0.05) < true_beta < np.quantile(beta, 0.95)
+    assert abs(np.mean(beta) - beta_ls) < beta_se
+
+
+def test_pipe_prediction_carries_the_added_effect(pipe_gap):
+    """predict() evaluates the formula at new points: fast flow in a long pipe,
+    where the minor loss is about 0.3 kPa of 2.5."""
+    analysis, _ = pipe_gap
+    fit = next(f for f in analysis.candidates if f.candidate.name == "minor_loss")
+    new = pd.DataFrame({"v": [0.45, 0.1], "L": [8.0, 2.0], "batch": ["B", "A"], "humidity": [50.0, 40.0]})
+    table = fit.result.predict(new)
+    truth = pipe_physics.reality(new.v, new.L).to_numpy()
+    assert (table.zeta_q05 < truth).all() and (truth < table.zeta_q95).all()
+    assert np.abs(table.zeta_q50 - truth).max() < 0.03  # kPa; noise sd is 0.02
+
+
+def test_pipe_where(pipe_gap):
+    _, summary = pipe_gap
+    importance = {v: e["mean"] for v, e in summary["where"]["importance"].items()}
+    assert max(importance, key=importance.get) == "v"
+    # the minor loss grows as v^2: the gap must be found at the fastest flows
+    v_regions = [r for r in summary["where"]["regions"] if r["variable"] == "v"]
+    assert any(r["to"] >= 0.45 for r in v_regions)
+
+
+# ---- bad candidates: errors that name the candidate ----------------------------
+@pytest.fixture(scope="module")
+def cooling_problem():
+    return load_config(COOLING / "config.toml")
+
+
+@pytest.mark.parametrize("candidate, message", [
+    (Candidate("wind", formula="I(wind**2)"), "candidate 'wind': formula 'I(wind**2)'"),
+    (Candidate("broken", formula="t +"), "candidate 'broken'"),
+    (Candidate("v2", stan=COOLING / "simulator_quadratic_loss.stan", inputs=("t", "pressure")),
+     "candidate 'v2': unknown input column(s) ['pressure']"),
+    (Candidate("gone", stan=COOLING / "nope.stan", inputs=("t",)), "candidate 'gone': Stan file not found"),
+])
+def test_bad_candidates_are_named(cooling_problem, candidate, message):
+    with pytest.raises(CandidateError) as err:
+        check_candidates(cooling_problem.data, [candidate], get_backend("pystan"))
+    assert message in str(err.value)
+
+
+def test_variant_that_does_not_compile_is_named(cooling_problem, tmp_path):
+    bad = tmp_path / "bad_variant.stan"
+    bad.write_text("vector simulator(matrix X, vector theta) {\n  return theta[1] * X[:, 1] + undefined_thing;\n}\n")
+    with pytest.raises(CandidateError) as err:
+        check_candidates(cooling_problem.data, [Candidate("bad", stan=bad, inputs=("t", "T0"))],
+                         get_backend("pystan"))
+    assert "candidate 'bad': the variant does not compile" in str(err.value)
+    assert "bad_variant.stan" in str(err.value) and "line 2" in str(err.value)
+
+
+@pytest.mark.parametrize("snippet, message", [
+    ('[candidates]\nx = 3\n', "candidate 'x': give a formula string or a table"),
+    ('[candidates.v]\nstan = "simulator.stan"\ninputs = ["t"]\ncolour = 1\n', "candidate 'v': unknown key(s) ['colour']"),
+    ('[candidates.v]\nstan = "missing.stan"\ninputs = ["t"]\n', "candidate 'v': Stan file not found"),
+    ('[candidates.v]\nstan = "simulator.stan"\n', "[candidates.v] needs 'inputs'"),
+])
+def test_bad_candidate_config(tmp_path, snippet, message):
+    config = tmp_path / "config.toml"
+    base = (COOLING / "config.toml").read_text().split("# Candidate unmodelled effects")[0]
+    base = base.replace('"physical.csv"', f'"{COOLING / "physical.csv"}"').replace(
+        '"runs.csv"', f'"{COOLING / "runs.csv"}"')
+    (tmp_path / "simulator.stan").write_text((COOLING / "simulator.stan").read_text())
+    config.write_text(base + snippet)
+    with pytest.raises(ConfigError) as err:
+        load_config(config)
+    assert message in str(err.value)
+
+
+# ---- K-fold, used when Pareto k is high --------------------------------------------
+def test_kfold_comparison(exact_cooling_data):
+    """Forced 3-fold on a small problem: every point gets a held-out density,
+    and a useless offset per half of the data does not beat the baseline."""
+    frame = exact_cooling_data.source.assign(half=np.where(np.arange(24) % 2, "odd", "even"))
+    data = stancal.CalibrationData(frame, ["t", "T0"], "temperature", {"k": (0.01, 0.2)})
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        analysis = diagnose_gap(data, [Candidate("half", formula="C(half)")],
+                                simulator=COOLING / "simulator.stan", kfold=3,
+                                chains=2, warmup=300, draws=300, seed=5)
+    summary = analysis.to_json()
+    assert summary["baseline"]["scheme"] == "kfold"
+    assert np.isfinite(analysis.baseline_score.elpd_i).all()
+    assert summary["candidates"][0]["elpd_diff"] < 2 * summary["candidates"][0]["elpd_diff_se"]
+    # the exact simulator with noise 0.3 predicts held-out points to about the noise
+    assert 0.2 < summary["baseline"]["holdout_rmse"] < 0.6
