@@ -37,9 +37,9 @@ def test_calibrate_writes_the_report_folder(cli_run):
         assert (out / name).stat().st_size > 0, name
 
 
-def write_config(tmp_path, physical_columns="t,T0,humidity,temperature", stan="simulator.stan"):
-    for name in ("simulator.stan", "runs.csv"):
-        shutil.copy(COOLING / name, tmp_path / name)
+def write_config(tmp_path, physical_columns="t,T0,humidity,operator,temperature", stan="simulator.stan"):
+    for path in [*COOLING.glob("*.stan"), COOLING / "runs.csv"]:  # the candidates' variants too
+        shutil.copy(path, tmp_path / path.name)
     rows = (COOLING / "physical.csv").read_text().splitlines()
     rows[0] = physical_columns
     (tmp_path / "physical.csv").write_text("\n".join(rows) + "\n")
@@ -49,7 +49,7 @@ def write_config(tmp_path, physical_columns="t,T0,humidity,temperature", stan="s
 
 
 def test_missing_column_exits_with_one_line(tmp_path):
-    config = write_config(tmp_path, physical_columns="t,T0,humidity,temp")
+    config = write_config(tmp_path, physical_columns="t,T0,humidity,operator,temp")
     done = run("calibrate", config, "--out", tmp_path / "out")
     assert done.returncode == 2
     lines = done.stderr.strip().splitlines()
