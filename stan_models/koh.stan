@@ -24,6 +24,7 @@ data {
   vector[N] y;                          // physical output, standardised
   int<lower=0> H;                       // number of discrepancy mean terms (0 = zero mean)
   matrix[N, H] h;                       // mean terms at the physical points, scaled to unit RMS
+  vector<lower=0>[H] beta_prior_sd;     // prior sd of each coefficient, standardised units
   real y_center;                        // original-scale y = y_center + y_scale * y
   real<lower=0> y_scale;                // see y_center
   vector[Q] theta_lower;                // lower bounds of theta, original units (uniform prior)
@@ -55,7 +56,7 @@ model {
   delta_sd ~ normal(0, 0.5);
   delta_length_scale ~ discrepancy_length_scale();
   rho_free ~ normal(1, 0.25);
-  beta ~ normal(0, 1);
+  beta ~ normal(0, beta_prior_sd);
   if (!prior_only) {
     vector[N] resid = y - rho * standardized_simulator(X, theta, y_center, y_scale) - h * beta;
     if (use_discrepancy) {

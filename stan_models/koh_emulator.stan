@@ -26,6 +26,7 @@ data {
   vector[N] y;                          // physical output, standardised
   int<lower=0> H;                       // number of discrepancy mean terms (0 = zero mean)
   matrix[N, H] h;                       // mean terms at the physical points, scaled to unit RMS
+  vector<lower=0>[H] beta_prior_sd;     // prior sd of each coefficient, standardised units
   array[M] vector[D] x_sim;             // simulator inputs of the runs, scaled to [0, 1]
   array[M] vector[Q] theta_sim;         // theta of the runs, scaled to [0, 1] within its bounds
   vector[M] y_sim;                      // simulator output of the runs, standardised like y
@@ -68,7 +69,7 @@ model {
   delta_sd ~ normal(0, 0.5);
   delta_length_scale ~ discrepancy_length_scale();
   rho_free ~ normal(1, 0.25);
-  beta ~ normal(0, 1);
+  beta ~ normal(0, beta_prior_sd);
   emulator_mean ~ normal(0, 1);
   emulator_sd ~ normal(0, 1);
   emulator_length_scale ~ emulator_length_scale();

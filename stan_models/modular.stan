@@ -25,6 +25,7 @@ data {
   vector[N] y;                          // physical output, standardised
   int<lower=0> H;                       // number of discrepancy mean terms (0 = zero mean)
   matrix[N, H] h;                       // mean terms at the physical points, scaled to unit RMS
+  vector<lower=0>[H] beta_prior_sd;     // prior sd of each coefficient, standardised units
   array[M] vector[D] x_sim;             // simulator inputs of the runs, scaled to [0, 1]
   array[M] vector[Q] theta_sim;         // theta of the runs, scaled to [0, 1] within its bounds
   vector[M] y_sim;                      // simulator output of the runs, standardised like y
@@ -72,7 +73,7 @@ model {
   delta_sd ~ normal(0, 0.5);
   delta_length_scale ~ discrepancy_length_scale();
   rho_free ~ normal(1, 0.25);
-  beta ~ normal(0, 1);
+  beta ~ normal(0, beta_prior_sd);
   if (!prior_only) {
     array[N] vector[D + Q] xt_obs = append_theta(x, theta_unit);
     matrix[N, M] K_obs_sim = ard_cross_cov(xt_obs, xt_sim, kernel_id, emulator_sd,

@@ -12,6 +12,9 @@ import numpy as np
 import pandas as pd
 
 
+INTERCEPT_PRIOR_SD = 10.0  # standardised output units: effectively flat
+
+
 class FormulaError(ValueError):
     """A mean formula that cannot be evaluated on the data."""
 
@@ -32,6 +35,13 @@ class MeanTerms:
     scale: np.ndarray  # root mean square of each raw column
     h: np.ndarray  # (N, H) scaled terms at the physical points
     _spec: object  # formulaic ModelSpec, to evaluate at new points
+
+    @property
+    def prior_sd(self) -> np.ndarray:
+        """N(0, 1) for each term. The intercept's prior is wide, so that the
+        level of the discrepancy goes to it rather than to a term that is
+        nearly constant (humidity in %, say) and would pass for an effect."""
+        return np.where(np.array(self.names) == "Intercept", INTERCEPT_PRIOR_SD, 1.0)
 
     def at(self, frame: pd.DataFrame) -> np.ndarray:
         """Scaled terms at other points (same encoding of categories)."""

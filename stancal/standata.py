@@ -80,6 +80,7 @@ def build_stan_data(
         y_scale=s.y_scale,
         H=h_new.shape[1],
         h=terms.h if terms else np.zeros((len(data.physical), 0)),
+        beta_prior_sd=terms.prior_sd if terms else np.zeros(0),
         h_new=h_new,
         theta_lower=np.array([p.lower for p in data.parameters]),
         theta_upper=np.array([p.upper for p in data.parameters]),
