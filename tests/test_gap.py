@@ -29,7 +29,7 @@ _spec.loader.exec_module(pipe_physics)
 COOLING_K_TRUE = 0.05
 # more draws for the cheap simulator keep Pareto k estimates steady; the joint
 # emulator is slower per draw
-COOLING_SAMPLING = dict(chains=2, warmup=500, draws=1000, seed=3)
+COOLING_SAMPLING = dict(chains=2, warmup=400, draws=700, seed=3)
 PIPE_SAMPLING = dict(chains=2, warmup=400, draws=600, seed=3)
 
 
