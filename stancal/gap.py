@@ -292,11 +292,12 @@ def diagnose_gap(
         fits.append(fitter(candidate, folder)(d, d.source.reset_index(drop=True)))
 
     scores = [psis_score(r) for r in fits]
-    worst = max(s.max_pareto_k for s in scores)
-    if kfold is None and worst > PARETO_K_LIMIT:
-        warnings.warn(f"Pareto k up to {worst:.2f} (> {PARETO_K_LIMIT}): PSIS-LOO is unreliable, "
-                      "so every fit is compared by 5-fold cross-validation instead", GapWarning,
-                      stacklevel=2)
+    worst = int(np.argmax([s.max_pareto_k for s in scores]))
+    if kfold is None and scores[worst].max_pareto_k > PARETO_K_LIMIT:
+        name = "the baseline" if worst == 0 else f"candidate '{candidates[worst - 1].name}'"
+        warnings.warn(f"Pareto k up to {scores[worst].max_pareto_k:.2f} (> {PARETO_K_LIMIT}) in "
+                      f"{name}: PSIS-LOO is unreliable, so every fit is compared by 5-fold "
+                      "cross-validation instead", GapWarning, stacklevel=2)
         kfold = 5
     if kfold is not None:
         scores = [kfold_score(data_for(c), fitter(c, None), kfold, seed, s.discrepancy_rms)

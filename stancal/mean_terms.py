@@ -11,7 +11,6 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-
 INTERCEPT_PRIOR_SD = 10.0  # standardised output units: effectively flat
 
 
