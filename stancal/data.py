@@ -34,8 +34,7 @@ def _rows(mask: np.ndarray, index: pd.Index, limit: int = 10) -> str:
     return "[" + ", ".join(labels) + (f", ... {more} more" if more > 0 else "") + "]"
 
 
-def _numeric_columns(frame: pd.DataFrame, columns: Sequence[str], what: str) -> pd.DataFrame:
-    """The named columns as floats, or a DataError naming the column and rows."""
+def _require_columns(frame: pd.DataFrame, columns: Sequence[str], what: str) -> None:
     if frame.columns.duplicated().any():
         dup = sorted(set(frame.columns[frame.columns.duplicated()]))
         raise DataError(f"{what}: duplicate column(s) {dup}")
@@ -44,6 +43,11 @@ def _numeric_columns(frame: pd.DataFrame, columns: Sequence[str], what: str) -> 
         raise DataError(
             f"{what}: missing column(s) {missing}; available: {list(frame.columns)}"
         )
+
+
+def _numeric_columns(frame: pd.DataFrame, columns: Sequence[str], what: str) -> pd.DataFrame:
+    """The named columns as floats, or a DataError naming the column and rows."""
+    _require_columns(frame, columns, what)
     out = {}
     for column in columns:
         raw = frame[column]
@@ -169,9 +173,7 @@ class CalibrationData:
         return [col for cols in self.discrepancy_variables.values() for col in cols]
 
     def _levels(self, physical: pd.DataFrame, given: Mapping[str, Sequence[str]]) -> dict[str, list[str]]:
-        missing = [c for c in self.covariates if c not in physical.columns]
-        if missing:
-            raise DataError(f"physical data: missing column(s) {missing}; available: {list(physical.columns)}")
+        _require_columns(physical, self.covariates, "physical data")
         out = {}
         for column in self.covariates:
             found = _category_levels(physical, column, "physical data")

@@ -240,15 +240,10 @@ def diagnose_gap(
     *,
     simulator: str | Path | None = None,
     method: str | None = None,
-    kernel: str = "se",
-    chains: int = 4,
-    warmup: int = 1000,
-    draws: int = 1000,
     seed: int | None = None,
-    backend: str | None = None,
-    adapt_delta: float = 0.9,
     out_dir: str | Path | None = None,
     kfold: int | None = None,
+    **calibrate_options: Any,
 ) -> GapAnalysis:
     """Fit the baseline (KOH with a GP discrepancy over the inputs and
     covariates) and every candidate, then locate, rank and measure the gap.
@@ -256,16 +251,17 @@ def diagnose_gap(
     ``kfold``: use K-fold cross-validation with this many folds instead of
     PSIS-LOO; by default K-fold (5 folds) is used only when a Pareto k
     exceeds 0.7. Posteriors are written under ``out_dir`` as they finish.
+    ``calibrate_options`` (kernel, chains, warmup, draws, backend,
+    adapt_delta, ...) go to every ``calibrate`` call.
     """
     chosen = choose_method(data, simulator, method)
-    stan_backend = get_backend(backend)
+    stan_backend = get_backend(calibrate_options.get("backend"))
     check_candidates(data, candidates, stan_backend)
     seed = int(np.random.default_rng().integers(2**31 - 1)) if seed is None else seed
     out = Path(out_dir) if out_dir is not None else None
     # every fit has a constant in the discrepancy mean, so that no candidate
     # term wins by standing in for the discrepancy's overall level
-    sampling = dict(kernel=kernel, chains=chains, warmup=warmup, draws=draws, backend=backend,
-                    adapt_delta=adapt_delta, mean_intercept=True)
+    sampling = {**calibrate_options, "mean_intercept": True}
 
     def fitter(candidate: Candidate | None, folder: Path | None):
         """fit(train_data, new_points) for the baseline or one candidate."""
