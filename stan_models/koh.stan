@@ -2,6 +2,9 @@
 // (review section 4.1, eq. 6):
 //   y_i = rho * f(x_i, theta) + delta(x_i, z_i) + eps_i,
 //   delta = h(x_i, z_i)' beta + GP(0, ARD kernel), eps_i ~ N(0, noise_sd^2).
+// The GP may be restricted for an identifiable theta (section 6.3): orthogonal
+// to df/dtheta (Plumlee 2017) or scaled (S-GaSP, Gu & Wang 2018); see
+// functions/restricted_gp.stan.
 // The mean terms h (H = 0 by default) carry a candidate unmodelled effect.
 // With use_discrepancy = 0 it is plain Bayesian parameter estimation.
 // Outputs are standardised inside: y = (y_original - y_center) / y_scale.
@@ -13,6 +16,7 @@ functions {
 #include loo.stan
 #include priors.stan
 #include scaling.stan
+#include restricted_gp.stan
 }
 data {
   int<lower=1> N;                       // number of physical observations
@@ -30,6 +34,12 @@ data {
   vector[Q] theta_lower;                // lower bounds of theta, original units (uniform prior)
   vector<lower=theta_lower>[Q] theta_upper;  // upper bounds of theta, original units
   int<lower=0, upper=1> use_discrepancy;     // 1 = GP discrepancy, 0 = none
+  int<lower=1, upper=3> discrepancy_form;    // 1 = GP, 2 = orthogonal GP, 3 = scaled GP
+  int<lower=0> R;                       // quadrature nodes on the input box (orthogonal GP)
+  matrix[R, D] X_quad;                  // the nodes, original units
+  array[R] vector[D_delta] x_quad;      // the nodes, scaled like x_delta
+  vector<lower=0>[R] w_quad;            // quadrature weights, summing to 1
+  real<lower=0> scaled_lambda;          // scaled GP: penalty lambda_z on delta's mean square
   int<lower=1, upper=2> kernel_id;      // discrepancy kernel: 1 = squared exponential, 2 = Matern 5/2
   int<lower=0, upper=1> estimate_rho;   // 1 = estimate the KOH scale rho, 0 = rho fixed at 1
   int<lower=0, upper=1> prior_only;     // 1 = ignore y: draws from the prior
@@ -37,6 +47,16 @@ data {
   matrix[P, D] X_new;                   // simulator inputs of the prediction points, original units
   array[P] vector[D_delta] x_delta_new; // discrepancy inputs of the prediction points, scaled to [0, 1]
   matrix[P, H] h_new;                   // mean terms at the prediction points, scaled like h
+}
+transformed data {
+  int orthogonal = use_discrepancy && discrepancy_form == 2;
+  int scaled = use_discrepancy && discrepancy_form == 3;
+  // nodes U and number of functionals the GP is conditioned on (restricted_gp.stan)
+  int U = orthogonal ? R : (scaled ? N : 0);
+  int n_functionals = orthogonal ? Q : U;
+  array[U] vector[D_delta] x_U;
+  if (orthogonal) x_U = x_quad;
+  if (scaled) x_U = x_delta;
 }
 parameters {
   vector<lower=0, upper=1>[Q] theta_unit;                // theta rescaled to [0, 1]
@@ -60,9 +80,17 @@ model {
   if (!prior_only) {
     vector[N] resid = y - rho * standardized_simulator(X, theta, y_center, y_scale) - h * beta;
     if (use_discrepancy) {
-      matrix[N, N] K = add_diag(ard_cov(x_delta, kernel_id, delta_sd[1], delta_length_scale),
-                                square(noise_sd));
-      resid ~ multi_normal_cholesky(rep_vector(0, N), cholesky_decompose(K));
+      matrix[N, N] K = ard_cov(x_delta, kernel_id, delta_sd[1], delta_length_scale);
+      if (U > 0) {
+        matrix[U, n_functionals] A = restriction_map(
+          orthogonal, X_quad, w_quad, theta, theta_lower, theta_upper, y_center, y_scale, N);
+        matrix[n_functionals, N] V = restriction_factor(
+          ard_cross_cov(x_U, x_delta, kernel_id, delta_sd[1], delta_length_scale), A,
+          restriction_cholesky(ard_cov(x_U, kernel_id, delta_sd[1], delta_length_scale), A,
+                               scaled ? square(delta_sd[1]) * N / scaled_lambda : 0));
+        K -= crossprod(V);
+      }
+      resid ~ multi_normal_cholesky(rep_vector(0, N), cholesky_decompose(add_diag(K, square(noise_sd))));
     } else {
       resid ~ normal(0, noise_sd);
     }
@@ -91,10 +119,24 @@ generated quantities {
     if (use_discrepancy) {
       delta_sd_original[1] = delta_sd[1] * y_scale;
       matrix[N, N] K_delta = ard_cov(x_delta, kernel_id, delta_sd[1], delta_length_scale);
-      matrix[N, N] L = cholesky_decompose(add_diag(K_delta, square(noise_sd)));
       matrix[P, N] K_cross = ard_cross_cov(x_delta_new, x_delta, kernel_id, delta_sd[1],
                                            delta_length_scale);
       matrix[P, P] K_new = ard_cov(x_delta_new, kernel_id, delta_sd[1], delta_length_scale);
+      if (U > 0) {
+        matrix[U, n_functionals] A = restriction_map(
+          orthogonal, X_quad, w_quad, theta, theta_lower, theta_upper, y_center, y_scale, N);
+        matrix[n_functionals, n_functionals] L_T = restriction_cholesky(
+          ard_cov(x_U, kernel_id, delta_sd[1], delta_length_scale), A,
+          scaled ? square(delta_sd[1]) * N / scaled_lambda : 0);
+        matrix[n_functionals, N] V = restriction_factor(
+          ard_cross_cov(x_U, x_delta, kernel_id, delta_sd[1], delta_length_scale), A, L_T);
+        matrix[n_functionals, P] V_new = restriction_factor(
+          ard_cross_cov(x_U, x_delta_new, kernel_id, delta_sd[1], delta_length_scale), A, L_T);
+        K_delta -= crossprod(V);
+        K_cross -= V_new' * V;
+        K_new -= crossprod(V_new);
+      }
+      matrix[N, N] L = cholesky_decompose(add_diag(K_delta, square(noise_sd)));
       log_lik = mvn_loo_log_lik(resid, L);
       resid_loo_mean = mvn_loo_mean(resid, L);
       if (prior_only) {

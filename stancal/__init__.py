@@ -3,6 +3,7 @@
 import logging
 
 from .calibrate import calibrate
+from .compare import Comparison, compare_methods, write_comparison
 from .data import CalibrationData, DataError, InputRangeWarning
 from .diagnostics import SamplerWarning
 from .gap import Candidate, CandidateError, GapWarning, diagnose_gap
@@ -18,9 +19,9 @@ logging.getLogger("stancal").addHandler(logging.NullHandler())
 load_result = CalibrationResult.load
 
 __all__ = [
-    "CalibrationData", "CalibrationResult", "Candidate", "CandidateError", "DataError",
+    "CalibrationData", "CalibrationResult", "Candidate", "CandidateError", "Comparison", "DataError",
     "FormulaError", "GapWarning", "InputRangeWarning", "Kernel", "MODELS", "Method",
     "MultimodalWarning", "SamplerWarning", "StanProgramError", "calibrate", "diagnose_gap",
-    "load_result", "write_gap_report",
+    "compare_methods", "load_result", "write_comparison", "write_gap_report",
 ]
 __version__ = "0.1.0"

@@ -14,7 +14,9 @@ from . import modes as mode_checks
 from .backends import get_backend
 from .data import CalibrationData
 from .inits import spread_theta_inits
+from .l2 import l2_result
 from .models import Method, model_spec
+from .quadrature import input_box_quadrature
 from .result import CalibrationResult, build_datatree
 from .stan_source import flatten
 from .standata import (
@@ -35,6 +37,7 @@ _PARAMETERS = {
     Method.MODULAR: _CALIBRATION_PARAMETERS,
     Method.KOH_EMULATOR: [*_CALIBRATION_PARAMETERS, *EMULATOR_HYPERPARAMETERS],
 }
+L2 = "l2"  # not a Stan program: the projection of another method's zeta draws
 _DIAGNOSED = ["theta", "noise_sd", "delta_sd", "delta_length_scale", "rho", "beta",
               *EMULATOR_HYPERPARAMETERS]
 
@@ -89,6 +92,7 @@ def calibrate(
     estimate_rho: bool = False,
     mean_formula: str | None = None,
     mean_intercept: bool = False,
+    scaled_lambda: float | None = None,
     new_points: pd.DataFrame | None = None,
     chains: int = 4,
     warmup: int = 1000,
@@ -103,9 +107,16 @@ def calibrate(
     """Calibrate theta (Kennedy & O'Hagan 2001) and return the posterior.
 
     ``simulator``: a Stan file defining ``vector simulator(matrix X, vector theta)``.
-    ``method``: koh (cheap simulator), koh_emulator (joint, from runs) or
-    modular (two-stage, from runs); by default koh with a simulator, else koh_emulator.
+    ``method``: koh (cheap simulator), koh_emulator (joint, from runs),
+    modular (two-stage, from runs) or l2 (L2 calibration, Tuo & Wu 2015: each
+    posterior draw of the real process zeta, from koh with a simulator or
+    koh_emulator from runs, projected onto the simulator over the input box);
+    by default koh with a simulator, else koh_emulator.
     ``program``: your own copy of the method's .stan file.
+    ``discrepancy``: gp (KOH), orthogonal (orthogonal to df/dtheta: theta
+    targets the L2 projection; Plumlee 2017), scaled (S-GaSP, Gu & Wang 2018,
+    penalty ``scaled_lambda``, default sqrt(N)) or none. orthogonal and scaled
+    need method koh.
     ``mean_formula``: terms h(x, z) of a discrepancy mean h' beta, a formula
     over the physical data's columns such as ``"I(v**2) + C(batch)"``;
     ``mean_intercept`` adds a constant term ``Intercept``.
@@ -113,21 +124,29 @@ def calibrate(
     ``prior``: also draw from the prior (same program, ``prior_only = 1``) into
     the ``prior`` and ``prior_predictive`` groups.
     """
-    options = ModelOptions(discrepancy, kernel, estimate_rho, mean_formula, mean_intercept)
-    chosen = choose_method(data, simulator, method)
+    options = ModelOptions(discrepancy, kernel, estimate_rho, mean_formula, mean_intercept, scaled_lambda)
+    l2 = method == L2
+    chosen = choose_method(data, simulator, None if l2 else method)
     spec = model_spec(chosen)
     aliases = {"simulator.stan": Path(simulator)} if simulator is not None else {}
     flat = flatten(Path(program) if program else spec.path, aliases=aliases)
     stan_backend = get_backend(backend)
     seed = int(np.random.default_rng().integers(2**31 - 1)) if seed is None else seed
     new_points = default_new_points(data) if new_points is None else new_points.reset_index(drop=True)
+    quadrature = None
+    if l2:  # zeta is drawn at the quadrature nodes too, with the sampler's own RNG
+        quadrature = input_box_quadrature(data)
+        new_points = new_points[data.inputs]
+        fit_points = pd.concat([new_points, quadrature.nodes], ignore_index=True)
+    else:
+        fit_points = new_points
 
     emulator: dict[str, Any] = {}
     if chosen is Method.MODULAR:
         logger.info("modular stage 1: fitting the emulator to %d runs", len(data.runs))
         emulator = fit_emulator(data, options, backend=stan_backend, chains=chains,
                                 warmup=warmup, draws=draws, seed=seed)
-    stan_data = build_stan_data(data, chosen, options, new_points,
+    stan_data = build_stan_data(data, chosen, options, fit_points,
                                 emulator_hyperparameters=emulator.get("hyperparameters"))
     inits = spread_theta_inits(chains, len(data.parameters), np.random.default_rng(seed))
     logger.info("sampling %s: %d chains x (%d warmup + %d draws) with %s",
@@ -135,13 +154,13 @@ def calibrate(
     sample = stan_backend.sample(flat, to_stan_json(stan_data), chains=chains, warmup=warmup,
                                  draws=draws, seed=seed, inits=inits, adapt_delta=adapt_delta,
                                  max_treedepth=max_treedepth)
-    tree = build_datatree(sample, data, new_points, _PARAMETERS[chosen], options)
+    tree = build_datatree(sample, data, fit_points, _PARAMETERS[chosen], options)
     if prior:
         prior_sample = stan_backend.sample(
             flat, to_stan_json({**stan_data, "prior_only": 1}), chains=chains, warmup=warmup,
             draws=draws, seed=seed + 1, inits=inits, adapt_delta=adapt_delta,
             max_treedepth=max_treedepth)
-        prior_tree = build_datatree(prior_sample, data, new_points, _PARAMETERS[chosen], options)
+        prior_tree = build_datatree(prior_sample, data, fit_points, _PARAMETERS[chosen], options)
         tree["prior"] = prior_tree["posterior"]
         tree["prior_predictive"] = prior_tree["posterior_predictive"]
     timing = {"compile_s": sample.compile_seconds + emulator.get("compile_s", 0.0),
@@ -153,6 +172,11 @@ def calibrate(
     )
     if out_dir is not None:  # nothing below may lose the draws
         result.save(Path(out_dir) / "posterior.nc")
+    if quadrature is not None:
+        logger.info("L2 calibration: projecting %d draws of zeta onto the simulator",
+                    tree["posterior"].sizes["chain"] * tree["posterior"].sizes["draw"])
+        result = l2_result(result, quadrature, len(new_points))
+        tree, posterior = result.idata, result.idata["posterior"].to_dataset()
     widths = np.array([p.upper - p.lower for p in data.parameters])
     result.modes = mode_checks.find_modes(np.asarray(posterior["theta"]),
                                           np.asarray(tree["sample_stats"]["lp"]),

@@ -1,5 +1,5 @@
-"""Command line: ``stancal calibrate CONFIG.toml --out DIR`` and
-``stancal gap CONFIG.toml --out DIR``."""
+"""Command line: ``stancal calibrate CONFIG.toml --out DIR``,
+``stancal gap CONFIG.toml --out DIR`` and ``stancal compare CONFIG.toml --out DIR``."""
 
 from __future__ import annotations
 
@@ -11,11 +11,13 @@ import warnings
 from pathlib import Path
 
 from .backends import BACKENDS, StanRuntimeError
-from .calibrate import calibrate
+from .calibrate import L2, calibrate
+from .compare import METHODS
 from .config import ConfigError, load_config
 from .data import DataError
 from .models import Method
 from .stan_source import StanProgramError
+from .standata import DISCREPANCIES
 
 logger = logging.getLogger("stancal")
 
@@ -25,15 +27,20 @@ def _parser() -> argparse.ArgumentParser:
     commands = parser.add_subparsers(dest="command", required=True)
     cal = commands.add_parser("calibrate", help="calibrate theta and write a report folder")
     gap = commands.add_parser("gap", help="diagnose the sim-to-real gap: where, which effect, how far")
-    for command in (cal, gap):
+    comp = commands.add_parser("compare", help="fit with koh, l2, orthogonal and scaled GP side by side")
+    for command in (cal, gap, comp):
         command.add_argument("config", type=Path, help="TOML config (paths inside are relative to it)")
         command.add_argument("--out", type=Path, required=True, help="output folder")
-        command.add_argument("--method", choices=[m.value for m in Method])
         command.add_argument("--chains", type=int, default=4)
         command.add_argument("--warmup", type=int, default=1000)
         command.add_argument("--draws", type=int, default=1000)
         command.add_argument("--seed", type=int, default=None)
         command.add_argument("--backend", choices=BACKENDS, default=None)
+    for command in (cal, gap):
+        command.add_argument("--method", choices=[*(m.value for m in Method), *([L2] if command is cal else [])])
+    cal.add_argument("--discrepancy", choices=list(DISCREPANCIES),
+                     help="gp (KOH), orthogonal (Plumlee 2017), scaled (S-GaSP) or none")
+    comp.add_argument("--methods", nargs="+", choices=METHODS, default=list(METHODS))
     gap.add_argument("--kfold", type=int, default=None,
                      help="compare by K-fold cross-validation instead of PSIS-LOO")
     return parser
@@ -73,6 +80,8 @@ def run_calibrate(args: argparse.Namespace) -> dict:
     model = dict(problem.model)
     configured_method = model.pop("method", None)
     method = args.method or configured_method
+    if args.discrepancy:
+        model["discrepancy"] = args.discrepancy
     args.out.mkdir(parents=True, exist_ok=True)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
@@ -81,6 +90,28 @@ def run_calibrate(args: argparse.Namespace) -> dict:
                            seed=args.seed, backend=args.backend, out_dir=args.out, **model)
     summary = write_calibration(result, args.out, _stancal_warnings(caught))
     for message in summary["warnings"]:
+        print(f"warning: {message}", file=sys.stderr)
+    return summary
+
+
+def run_compare(args: argparse.Namespace) -> dict:
+    from .compare import compare_methods, write_comparison
+
+    problem = load_config(args.config)
+    model = {k: v for k, v in problem.model.items() if k not in ("method", "discrepancy")}
+    args.out.mkdir(parents=True, exist_ok=True)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        comparison = compare_methods(problem.data, simulator=problem.simulator,
+                                     methods=tuple(args.methods), chains=args.chains,
+                                     warmup=args.warmup, draws=args.draws, seed=args.seed,
+                                     backend=args.backend, out_dir=args.out, **model)
+    for fit in comparison.fits:
+        if fit.result is not None:
+            write_calibration(fit.result, args.out / fit.name,
+                              fit.result.diagnostics.messages if fit.result.diagnostics else [])
+    summary = write_comparison(comparison, args.out)
+    for message in _stancal_warnings(caught):
         print(f"warning: {message}", file=sys.stderr)
     return summary
 
@@ -130,13 +161,17 @@ def _one_line(err: Exception) -> str:
     return lines[0] if len(lines) == 1 else f"{lines[0]} {lines[-1]}"
 
 
+def _theta_names(row: dict) -> list[str]:
+    return [k.removesuffix("_q50") for k in row if k.endswith("_q50") and not k.startswith("discrepancy")]
+
+
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="stancal: %(message)s")
     for noisy in ("httpstan", "aiohttp", "arviz"):
         logging.getLogger(noisy).setLevel(logging.WARNING)
     try:
-        summary = (run_gap if args.command == "gap" else run_calibrate)(args)
+        summary = {"gap": run_gap, "compare": run_compare, "calibrate": run_calibrate}[args.command](args)
     except (ConfigError, DataError, StanProgramError, StanRuntimeError, ValueError, RuntimeError) as err:
         print(f"stancal: error: {_one_line(err)}", file=sys.stderr)
         return 2
@@ -145,6 +180,16 @@ def main(argv: list[str] | None = None) -> int:
         print(f"gap: best candidate {best['name']} (ELPD {best['elpd_diff']:+.1f} ± "
               f"{best['elpd_diff_se']:.1f}, shrinkage {best['shrinkage']['mean']:.2f}); "
               f"report in {args.out / 'report.md'}")
+        return 0
+    if args.command == "compare":
+        for row in summary["methods"]:
+            if row.get("skipped"):
+                print(f"{row['method']}: skipped, {row['skipped']}")
+            else:
+                print(f"{row['method']}: " + ", ".join(
+                    f"{name} = {row[f'{name}_q50']:.4g} [{row[f'{name}_q05']:.4g}, {row[f'{name}_q95']:.4g}]"
+                    for name in _theta_names(row)) + f"; discrepancy RMS {row['discrepancy_rms_q50']:.3g}")
+        print(f"comparison in {args.out / 'report.md'}")
         return 0
     theta = ", ".join(f"{k} = {v['mean']:.4g} [{v['q05']:.4g}, {v['q95']:.4g}]" for k, v in summary["theta"].items())
     print(f"{summary['method']}: {theta}; results in {args.out}")

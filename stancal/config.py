@@ -26,7 +26,7 @@ class Problem:
 
 
 _MODEL_KEYS = {"method", "discrepancy", "kernel", "estimate_rho", "program", "mean_formula",
-               "mean_intercept"}
+               "mean_intercept", "scaled_lambda"}
 _VARIANT_KEYS = {"stan", "inputs", "theta"}
 
 

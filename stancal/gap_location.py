@@ -170,7 +170,7 @@ def locate_gap(result: CalibrationResult, *, max_draws: int = 200, base_points: 
                grid_size: int = 25, seed: int = 0) -> GapLocation:
     """Importance and main effects of the discrepancy of a fitted result
     (its GP part plus any constant mean term)."""
-    if result.options.discrepancy != "gp":
+    if not result.options.has_discrepancy:
         raise ValueError("locating the gap needs a GP discrepancy (discrepancy = 'gp')")
     data = result.data
     delta, constant = discrepancy_parts(result)

@@ -46,7 +46,7 @@ def build_datatree(sample: SampleOutput, data: CalibrationData,
 
     d = sample.draws
     posterior: Draws = {out: d[stan] for stan, out in _REPORTED.items() if stan in d}
-    if options.discrepancy == "gp":
+    if options.has_discrepancy:
         posterior["delta_sd"] = posterior["delta_sd"][..., 0]
         widths = np.array([data.scaling.width[c] for c in data.discrepancy_inputs])
         posterior["delta_length_scale"] = d["delta_length_scale"] * widths
@@ -116,6 +116,13 @@ class CalibrationResult:
     diagnostics: Diagnostics | None = None
     modes: list[Mode] = field(default_factory=list)
     emulator: dict[str, Any] = field(default_factory=dict)  # stage-1 results of modular
+    # L2 calibration (l2.py): theta is the projection of each zeta draw; empty otherwise
+    l2: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def estimator(self) -> str:
+        """What theta is: 'l2' (projection of the fit's zeta) or the fit's method."""
+        return "l2" if self.l2 else self.method
 
     # ---- summaries -------------------------------------------------------
     def _summary_of(self, posterior: xr.Dataset) -> pd.DataFrame:
@@ -189,6 +196,10 @@ class CalibrationResult:
             params = {k: np.asarray(v) for k, v in self.idata["stan_parameters"].data_vars.items()}
             draws = get_backend(backend or self.backend).generate_quantities(
                 self.program, to_stan_json(stan_data), params, seed)
+            if self.l2:
+                from .l2 import reproject
+
+                draws = reproject(self, points, draws)
         table = points.copy()
         for name in _PREDICTED:
             values = draws[name].reshape(-1, len(points))
@@ -207,7 +218,7 @@ class CalibrationResult:
             "program": {"code": self.program.code, "origin": self.program.origin},
             "data": self.data.to_dict(),
             "diagnostics": self.diagnostics and self.diagnostics.to_dict(), "modes": [m.__dict__ for m in self.modes],
-            "timing": self.timing, "emulator": self.emulator,
+            "timing": self.timing, "emulator": self.emulator, "l2": self.l2,
         }
 
     def save(self, path: str | Path) -> Path:
@@ -230,13 +241,13 @@ class CalibrationResult:
                                 tuple(tuple(o) for o in meta["program"]["origin"])),
             diagnostics=meta["diagnostics"] and Diagnostics(**meta["diagnostics"]),
             modes=[Mode(**m) for m in meta["modes"]], timing=meta["timing"],
-            emulator=meta["emulator"],
+            emulator=meta["emulator"], l2=meta.get("l2", {}),
         )
 
     def to_summary_json(self) -> dict[str, Any]:
         d = self.diagnostics
         return {
-            "method": self.method,
+            "method": self.estimator,
             "backend": self.backend,
             "options": asdict(self.options),
             "theta": self.theta_summary(),
@@ -247,4 +258,5 @@ class CalibrationResult:
                             "treedepth_hits": d.treedepth_hits, "warnings": d.messages},
             "timing": self.timing,
             "emulator": {k: v for k, v in self.emulator.items() if k != "hyperparameters"},
+            **({"l2": self.l2} if self.l2 else {}),
         }

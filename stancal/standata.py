@@ -11,27 +11,40 @@ import pandas as pd
 from .data import CalibrationData
 from .mean_terms import MeanTerms, build_mean_terms
 from .models import Kernel, Method
+from .quadrature import input_box_quadrature
 
 
 @dataclass(frozen=True)
 class ModelOptions:
     """Choices that change the model, not the sampler."""
 
-    discrepancy: str = "gp"  # gp | none
+    discrepancy: str = "gp"  # see DISCREPANCIES
     kernel: str = "se"  # se | matern52
     estimate_rho: bool = False
     mean_formula: str | None = None  # discrepancy mean terms h(x, z)' beta, e.g. "I(v**2)"
     mean_intercept: bool = False  # a constant term in the discrepancy mean
+    scaled_lambda: float | None = None  # scaled GP penalty lambda_z; None = sqrt(N)
 
     def __post_init__(self) -> None:
-        if self.discrepancy not in ("gp", "none"):
-            raise ValueError(f"discrepancy must be 'gp' or 'none'; got {self.discrepancy!r}")
+        if self.discrepancy not in DISCREPANCIES:
+            raise ValueError(f"discrepancy must be one of {', '.join(DISCREPANCIES)}; "
+                             f"got {self.discrepancy!r}")
         if self.kernel not in ("se", "matern52"):
             raise ValueError(f"kernel must be 'se' or 'matern52'; got {self.kernel!r}")
+        if self.scaled_lambda is not None and not (np.isfinite(self.scaled_lambda) and self.scaled_lambda > 0):
+            raise ValueError(f"scaled_lambda must be a positive number; got {self.scaled_lambda!r}")
 
     @property
     def kernel_id(self) -> int:
         return int(Kernel.SE if self.kernel == "se" else Kernel.MATERN52)
+
+    @property
+    def has_discrepancy(self) -> bool:
+        return self.discrepancy != "none"
+
+
+# discrepancy_form in koh.stan; "none" switches the discrepancy off
+DISCREPANCIES = {"gp": 1, "orthogonal": 2, "scaled": 3, "none": 1}
 
 
 EMULATOR_HYPERPARAMETERS = ("emulator_mean", "emulator_sd", "emulator_length_scale", "emulator_nugget")
@@ -84,7 +97,7 @@ def build_stan_data(
         h_new=h_new,
         theta_lower=np.array([p.lower for p in data.parameters]),
         theta_upper=np.array([p.upper for p in data.parameters]),
-        use_discrepancy=int(options.discrepancy == "gp"),
+        use_discrepancy=int(options.has_discrepancy),
         kernel_id=options.kernel_id,
         estimate_rho=int(options.estimate_rho),
         prior_only=int(prior_only),
@@ -94,7 +107,11 @@ def build_stan_data(
     if method is Method.KOH:
         out["X"] = data.physical[data.inputs].to_numpy()
         out["X_new"] = new_points[data.inputs].to_numpy()
+        out.update(restricted_gp_data(data, options))
         return out
+    if options.discrepancy in ("orthogonal", "scaled"):
+        raise ValueError(f"discrepancy '{options.discrepancy}' needs method 'koh' (a simulator "
+                         f"written in Stan); got method '{method}'")
     if data.runs is None:
         raise ValueError(f"method '{method}' needs simulator runs")
     out.update(emulator_run_data(data))
@@ -104,6 +121,21 @@ def build_stan_data(
         if emulator_hyperparameters is None:
             raise ValueError("method 'modular' needs the stage-1 emulator hyperparameters")
         out.update(emulator_hyperparameters)
+    return out
+
+
+def restricted_gp_data(data: CalibrationData, options: ModelOptions) -> dict[str, Any]:
+    """koh.stan's data for the orthogonal and scaled GPs (restricted_gp.stan)."""
+    n_inputs = len(data.inputs)
+    out: dict[str, Any] = dict(
+        discrepancy_form=DISCREPANCIES[options.discrepancy], R=0, X_quad=np.zeros((0, n_inputs)),
+        x_quad=np.zeros((0, len(data.discrepancy_inputs))), w_quad=np.zeros(0),
+        scaled_lambda=options.scaled_lambda or float(np.sqrt(len(data.physical))))
+    if options.discrepancy == "orthogonal":
+        quadrature = input_box_quadrature(data)
+        out.update(R=len(quadrature.weights), X_quad=quadrature.nodes.to_numpy(),
+                   x_quad=data.scaling.to_unit(quadrature.nodes, data.discrepancy_inputs),
+                   w_quad=quadrature.weights)
     return out
 
 

@@ -15,6 +15,8 @@ rng = np.random.default_rng(3)
 X1, X2 = rng.uniform(size=(6, 2)), rng.uniform(size=(4, 2))
 SD, LS = 1.7, np.array([0.3, 0.8])
 RESID = rng.standard_normal(6)
+A_RESTRICT = rng.standard_normal((6, 2))
+RIDGE = 0.3
 
 
 def se(a, b):
@@ -38,7 +40,8 @@ def gq():
     import stan
 
     data = dict(n1=6, n2=4, x1=X1.tolist(), x2=X2.tolist(), sd_=SD, ls=LS.tolist(),
-                resid=RESID.tolist(), unit=[0, 0.5, 1], lo=[-1, 0, 10], hi=[1, 2, 20])
+                resid=RESID.tolist(), unit=[0, 0.5, 1], lo=[-1, 0, 10], hi=[1, 2, 20],
+                A_restrict=A_RESTRICT.tolist(), ridge=RIDGE)
     model = stan.build(flatten(HARNESS).code, data=data, random_seed=1)
     fit = model.fixed_param(num_samples=1, num_chains=1)
     return {name: np.asarray(fit[name])[..., 0] for name in fit.param_names}
@@ -86,3 +89,21 @@ def test_koh_joint_covariance(gq):
     K_oo = rho**2 * se(xt_obs, xt_obs) + delta_sd**2 * np.exp(-0.5 * d2) + noise**2 * np.eye(6)
     expected = np.block([[K_ss, K_so], [K_so.T, K_oo]])
     np.testing.assert_allclose(gq["joint"], expected, rtol=1e-10)
+
+
+def test_orthogonal_gp_covariance(gq):
+    """K - K A (A'KA)^-1 A'K: the functionals A' delta have zero prior variance."""
+    K = se(X1, X1)
+    T = A_RESTRICT.T @ K @ A_RESTRICT
+    T += 1e-9 * np.mean(np.diag(T)) * np.eye(2)
+    expected = K - K @ A_RESTRICT @ np.linalg.solve(T, A_RESTRICT.T @ K)
+    np.testing.assert_allclose(gq["orthogonal_cov"], expected, rtol=1e-7, atol=1e-10)
+    np.testing.assert_allclose(A_RESTRICT.T @ gq["orthogonal_cov"] @ A_RESTRICT, 0, atol=1e-7)
+
+
+def test_scaled_gp_covariance(gq):
+    """S-GaSP: K - K (K + ridge I)^-1 K, smaller than K in every direction."""
+    K = se(X1, X1)
+    T = K + (RIDGE + 1e-9 * np.mean(np.diag(K))) * np.eye(6)
+    np.testing.assert_allclose(gq["scaled_cov"], K - K @ np.linalg.solve(T, K), rtol=1e-7, atol=1e-10)
+    assert np.all(np.linalg.eigvalsh(K - gq["scaled_cov"]) > -1e-10)

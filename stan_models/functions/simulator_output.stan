@@ -22,3 +22,44 @@ vector standardized_simulator(matrix X, vector theta, real y_center, real y_scal
   }
   return (f - y_center) / y_scale;
 }
+
+/**
+ * Derivatives of the standardised simulator with respect to theta, by
+ * one-sided differences that step into the theta box (Stan has no nested
+ * autodiff). Used by the orthogonal GP (review eq. 12).
+ *
+ * @param X inputs, one row per point, original units
+ * @param theta calibration parameters, original units
+ * @param theta_lower, theta_upper the theta box
+ * @return matrix of d f(x_r, theta) / d theta_j, rows(X) x rows(theta)
+ */
+matrix simulator_theta_derivatives(matrix X, vector theta, vector theta_lower, vector theta_upper,
+                          real y_center, real y_scale) {
+  int q = rows(theta);
+  matrix[rows(X), q] G;
+  vector[rows(X)] f0 = standardized_simulator(X, theta, y_center, y_scale);
+  for (j in 1:q) {
+    real width = theta_upper[j] - theta_lower[j];
+    // 1e-6 of the range: truncation error ~1e-6, round-off ~1e-10 relative
+    real step = (theta[j] - theta_lower[j] < 0.5 * width) ? 1e-6 * width : -1e-6 * width;
+    vector[q] stepped = theta;
+    stepped[j] += step;
+    G[:, j] = (standardized_simulator(X, stepped, y_center, y_scale) - f0) / step;
+  }
+  return G;
+}
+
+/**
+ * The weights A of the functionals a restricted GP is conditioned on
+ * (restricted_gp.stan): diag(w) * df/dtheta at the quadrature nodes for the
+ * orthogonal GP, the identity over the N physical points for the scaled GP.
+ */
+matrix restriction_map(int orthogonal, matrix X_quad, vector w_quad, vector theta,
+                       vector theta_lower, vector theta_upper, real y_center, real y_scale,
+                       int N) {
+  if (orthogonal) {
+    return diag_pre_multiply(w_quad, simulator_theta_derivatives(X_quad, theta, theta_lower, theta_upper,
+                                                        y_center, y_scale));
+  }
+  return identity_matrix(N);
+}

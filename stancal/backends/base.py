@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
@@ -67,4 +68,10 @@ class StanBackend(Protocol):
         seed: int,
     ) -> Draws:
         """Rerun generated quantities for given parameter draws (chain, draw, ...)."""
+        ...
+
+    def quantities_function(
+        self, program: FlatProgram, data: dict[str, Any], seed: int
+    ) -> Callable[[Draws], Draws]:
+        """generate_quantities with the program and data bound once, for many calls."""
         ...

@@ -97,6 +97,9 @@ class CmdStanPyBackend:
         # CmdStan's standalone generated quantities needs the fit's CSV files,
         # which a result loaded from netCDF no longer has; PyStan's write_array
         # runs the same program on any draws.
+        return self.quantities_function(program, data, seed)(parameters)
+
+    def quantities_function(self, program: FlatProgram, data: dict[str, Any], seed: int):
         from .pystan_backend import PyStanBackend
 
-        return PyStanBackend().generate_quantities(program, data, parameters, seed)
+        return PyStanBackend().quantities_function(program, data, seed)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -120,25 +121,42 @@ class PyStanBackend:
     def generate_quantities(
         self, program: FlatProgram, data: dict[str, Any], parameters: Draws, seed: int
     ) -> Draws:
+        return self.quantities_function(program, data, seed)(parameters)
+
+    def quantities_function(self, program: FlatProgram, data: dict[str, Any],
+                            seed: int) -> Callable[[Draws], Draws]:
+        """Build once, then run generated quantities for any parameter draws
+        (chain, draw, ...) in this process: PyStan's constrain_pars makes two
+        HTTP round trips per draw. httpstan seeds every call's RNG with 0, so
+        _rng draws repeat from one parameter draw to the next."""
+        import httpstan.models
+
         model = self._build(program, data, seed)
+        services = httpstan.models.import_services_extension_module(model.model_name)
         names = list(model.param_names)
         dims = [list(d) for d in model.dims]
-        sampled = set(parameters)
-        chains, draws = next(iter(parameters.values())).shape[:2]
-        flat_rows = []
-        for c in range(chains):
-            for d in range(draws):
-                point = {k: np.asarray(v[c, d]).tolist() for k, v in parameters.items()}
-                unconstrained = model.unconstrain_pars(point)
-                flat_rows.append(model.constrain_pars(unconstrained))
-        flat = np.asarray(flat_rows, dtype=float)  # (chain * draw, all constrained names)
-        out: Draws = {}
-        offset = 0
-        for name, shape in zip(names, dims):
-            size = int(np.prod(shape))
-            if name not in sampled:
-                block = flat[:, offset : offset + size].reshape(chains, draws, *reversed(shape))
-                # Stan flattens column-major: put the variable's axes back in order
-                out[name] = block.transpose(0, 1, *range(block.ndim - 1, 1, -1))
-            offset += size
-        return out
+
+        def run(parameters: Draws) -> Draws:
+            chains, draws = next(iter(parameters.values())).shape[:2]
+            flat_rows = []
+            try:
+                for c in range(chains):
+                    for d in range(draws):
+                        point = {k: np.asarray(v[c, d]).tolist() for k, v in parameters.items()}
+                        unconstrained = services.transform_inits(model.data, point)
+                        flat_rows.append(services.write_array(model.data, unconstrained, True, True))
+            except RuntimeError as err:
+                raise StanRuntimeError(program.explain(f"Stan failed in generated quantities: {err}")) from None
+            flat = np.asarray(flat_rows, dtype=float)  # (chain * draw, all constrained names)
+            out: Draws = {}
+            offset = 0
+            for name, shape in zip(names, dims):
+                size = int(np.prod(shape))
+                if name not in parameters:
+                    block = flat[:, offset : offset + size].reshape(chains, draws, *reversed(shape))
+                    # Stan flattens column-major: put the variable's axes back in order
+                    out[name] = block.transpose(0, 1, *range(block.ndim - 1, 1, -1))
+                offset += size
+            return out
+
+        return run

@@ -5,6 +5,7 @@ functions {
 #include koh_joint.stan
 #include loo.stan
 #include scaling.stan
+#include restricted_gp.stan
 array[] vector first_coordinate(array[] vector x) {
   array[size(x)] vector[1] out;
   for (i in 1:size(x)) out[i] = x[i][1:1];
@@ -22,6 +23,8 @@ data {
   vector[3] unit;
   vector[3] lo;
   vector[3] hi;
+  matrix[n1, 2] A_restrict;
+  real<lower=0> ridge;
 }
 generated quantities {
   matrix[n1, n2] se_cross = ard_cross_cov(x1, x2, 1, sd_, ls);
@@ -33,6 +36,11 @@ generated quantities {
   vector[n2] conditional_mean = gp_conditional_mean(resid, cholesky_decompose(add_diag(se_sym, 0.1)),
                                                     se_cross');
   vector[3] theta = theta_from_unit(unit, lo, hi);
+  // restricted GPs with the nodes U = x1: orthogonal to two functionals, and scaled
+  matrix[n1, n1] orthogonal_cov = se_sym - crossprod(restriction_factor(
+    se_sym, A_restrict, restriction_cholesky(se_sym, A_restrict, 0)));
+  matrix[n1, n1] scaled_cov = se_sym - crossprod(restriction_factor(
+    se_sym, identity_matrix(n1), restriction_cholesky(se_sym, identity_matrix(n1), ridge)));
   // joint KOH covariance: runs x2 (as (x, theta) with 1 input + 1 theta), physical x1 inputs
   matrix[n2 + n1, n2 + n1] joint = koh_joint_cov(
     x2, append_theta(first_coordinate(x1), [0.3]'), x1, 1, sd_, ls, 0.01, 1.3, {0.7}, {0.4, 0.6}, 0.2);

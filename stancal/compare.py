@@ -1,0 +1,171 @@
+"""One problem, several identifiable-calibration methods side by side
+(review section 6): KOH, L2 calibration, orthogonal GP and scaled GP."""
+
+from __future__ import annotations
+
+import json
+import time
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from .calibrate import L2, calibrate, choose_method
+from .data import CalibrationData
+from .gap import psis_score
+from .l2 import l2_result
+from .quadrature import Quadrature, input_box_quadrature
+from .result import CalibrationResult
+
+METHODS = ("koh", "l2", "orthogonal", "scaled")
+_NEEDS_STAN_SIMULATOR = ("orthogonal", "scaled")
+
+
+@dataclass
+class MethodFit:
+    name: str
+    result: CalibrationResult | None
+    seconds: float = 0.0
+    skipped: str | None = None  # why the method could not run on this problem
+
+
+@dataclass
+class Comparison:
+    fits: list[MethodFit]
+    quadrature: Quadrature
+
+    def table(self) -> pd.DataFrame:
+        """One row per method: theta (median, 90 %), the discrepancy's RMS over
+        the input box ||zeta - f(., theta)||, PSIS-LOO ELPD and held-out RMSE."""
+        return pd.DataFrame([self._row(fit) for fit in self.fits]).set_index("method")
+
+    def _row(self, fit: MethodFit) -> dict[str, Any]:
+        row: dict[str, Any] = {"method": fit.name}
+        if fit.result is None:
+            return {**row, "skipped": fit.skipped}
+        result = fit.result
+        for name, s in result.theta_summary().items():
+            row.update({f"{name}_q50": s["q50"], f"{name}_q05": s["q05"], f"{name}_q95": s["q95"]})
+        size = discrepancy_rms(result, self.quadrature)
+        row.update(discrepancy_rms_q50=np.median(size), discrepancy_rms_q05=np.quantile(size, 0.05),
+                   discrepancy_rms_q95=np.quantile(size, 0.95))
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # Pareto k is reported in the table
+            score = psis_score(result)
+        y = result.data.physical[result.data.output].to_numpy()
+        row.update(elpd=score.elpd_i.sum(), elpd_se=np.sqrt(len(y) * np.var(score.elpd_i)),
+                   loo_rmse=score.holdout_rmse(y),
+                   max_pareto_k=score.max_pareto_k,
+                   divergences=result.diagnostics.divergences if result.diagnostics else None,
+                   max_rhat=result.diagnostics.max_rhat if result.diagnostics else None,
+                   seconds=fit.seconds, skipped=None)
+        return row
+
+
+def discrepancy_rms(result: CalibrationResult, quadrature: Quadrature) -> np.ndarray:
+    """Per draw, sqrt(mean over the input box of (zeta - f(., theta))^2), from
+    the predictions at the quadrature nodes (the fit's last prediction points)."""
+    predictions = result.idata["predictions"]
+    r = len(quadrature.weights)
+    gap = np.asarray(predictions["zeta_new"])[..., -r:] - np.asarray(predictions["f_new"])[..., -r:]
+    return np.sqrt(quadrature.mean_square(gap.reshape(-1, r)))
+
+
+def compare_methods(data: CalibrationData, *, simulator: str | Path | None = None,
+                    methods: tuple[str, ...] = METHODS, seed: int | None = None,
+                    out_dir: str | Path | None = None, **calibrate_options) -> Comparison:
+    """Fit ``data`` with each method (same sampler settings and seed). L2
+    projects the KOH fit's zeta draws, so it adds no sampling when koh is also
+    compared. Methods that cannot run on this problem are listed as skipped.
+    ``calibrate_options`` go to every calibrate() call (chains, draws, kernel, ...)."""
+    unknown = set(methods) - set(METHODS)
+    if unknown:
+        raise ValueError(f"unknown methods {sorted(unknown)}; choose from {', '.join(METHODS)}")
+    quadrature = input_box_quadrature(data)
+    seed = int(np.random.default_rng().integers(2**31 - 1)) if seed is None else seed
+    base_method = str(choose_method(data, simulator, None))
+    fits: list[MethodFit] = []
+    koh: MethodFit | None = None
+
+    def run(name: str, **options) -> MethodFit:
+        started = time.perf_counter()
+        folder = None if out_dir is None else Path(out_dir) / name
+        result = calibrate(data, simulator=simulator, seed=seed, new_points=quadrature.nodes,
+                           out_dir=folder, **calibrate_options, **options)
+        return MethodFit(name, result, time.perf_counter() - started)
+
+    for name in methods:
+        if name in _NEEDS_STAN_SIMULATOR and simulator is None:
+            fits.append(MethodFit(name, None, skipped="needs a simulator written in Stan (method koh)"))
+        elif name == "koh":
+            koh = run("koh", method=base_method)
+            fits.append(koh)
+        elif name == L2 and koh is not None:
+            started = time.perf_counter()
+            result = l2_result(koh.result, quadrature, len(quadrature.weights))
+            if out_dir is not None:
+                result.save(Path(out_dir) / name / "posterior.nc")
+            fits.append(MethodFit(name, result, koh.seconds + time.perf_counter() - started))
+        elif name == L2:
+            fits.append(run(name, method=L2))
+        else:
+            fits.append(run(name, method="koh", discrepancy=name))
+    return Comparison(fits, quadrature)
+
+
+def plot_comparison(comparison: Comparison, path: str | Path | None = None):
+    """theta (median and 90 % interval) and discrepancy size per method."""
+    from .plots import _finish, _pyplot
+
+    plt = _pyplot()
+    fitted = [f for f in comparison.fits if f.result is not None]
+    names = fitted[0].result.data.theta_names if fitted else []
+    fig, axes = plt.subplots(1, len(names) + 1, figsize=(3.6 * (len(names) + 1), 0.5 * len(fitted) + 2))
+    rows = range(len(fitted))
+    for ax, name in zip(axes, names):
+        for i, fit in enumerate(fitted):
+            s = fit.result.theta_summary()[name]
+            ax.errorbar(s["q50"], i, xerr=[[s["q50"] - s["q05"]], [s["q95"] - s["q50"]]], fmt="o", capsize=3)
+        ax.set_yticks(list(rows), [f.name for f in fitted])
+        ax.set_xlabel(f"{name} (median, 90 %)")
+    ax = axes[-1]
+    for i, fit in enumerate(fitted):
+        size = discrepancy_rms(fit.result, comparison.quadrature)
+        q05, q50, q95 = np.quantile(size, [0.05, 0.5, 0.95])
+        ax.errorbar(q50, i, xerr=[[q50 - q05], [q95 - q50]], fmt="s", capsize=3, color="C3")
+    ax.set_yticks(list(rows), [f.name for f in fitted])
+    ax.set_xlabel("discrepancy RMS over the input box")
+    fig.suptitle("Calibration methods compared")
+    return _finish(fig, path)
+
+
+def write_comparison(comparison: Comparison, folder: str | Path) -> dict[str, Any]:
+    """comparison.csv, comparison.json, comparison.png and report.md."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    table = comparison.table()
+    table.to_csv(folder / "comparison.csv")
+    summary = {"methods": json.loads(table.reset_index().to_json(orient="records")),
+               "quadrature_nodes": len(comparison.quadrature.weights)}
+    (folder / "comparison.json").write_text(json.dumps(summary, indent=2))
+    figure = folder / "comparison.png"
+    plot_comparison(comparison, figure)
+    (folder / "report.md").write_text(_report(table, figure))
+    return summary
+
+
+def _report(table: pd.DataFrame, figure: Path) -> str:
+    return "\n".join([
+        "# Calibration methods compared", "",
+        "- **koh**: Kennedy & O'Hagan; theta's target depends on the discrepancy prior (review 6.1).",
+        "- **l2**: each posterior draw of zeta (from the koh fit) projected onto the simulator: "
+        "theta = argmin ||zeta - f(., theta)||_L2 (Tuo & Wu 2015).",
+        "- **orthogonal**: the discrepancy GP orthogonal to df/dtheta (Plumlee 2017): theta targets "
+        "the L2 projection.",
+        "- **scaled**: S-GaSP (Gu & Wang 2018): the discrepancy's mean square is penalised.",
+        "", "The discrepancy RMS is sqrt(mean over the input box of (zeta - f(x, theta))^2). "
+        "ELPD is PSIS-LOO on the exact conditional likelihood; l2 shares koh's predictive model.", "",
+        table.round(4).to_markdown(), "", f"![comparison]({figure.name})", ""])
