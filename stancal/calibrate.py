@@ -177,7 +177,7 @@ def calibrate(
                     tree["posterior"].sizes["chain"] * tree["posterior"].sizes["draw"])
         result = l2_result(result, quadrature, len(new_points))
         tree, posterior = result.idata, result.idata["posterior"].to_dataset()
-    widths = np.array([p.upper - p.lower for p in data.parameters])
+    widths = data.theta_upper - data.theta_lower
     result.modes = mode_checks.find_modes(np.asarray(posterior["theta"]),
                                           np.asarray(tree["sample_stats"]["lp"]),
                                           data.theta_names, widths)

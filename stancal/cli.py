@@ -161,10 +161,6 @@ def _one_line(err: Exception) -> str:
     return lines[0] if len(lines) == 1 else f"{lines[0]} {lines[-1]}"
 
 
-def _theta_names(row: dict) -> list[str]:
-    return [k.removesuffix("_q50") for k in row if k.endswith("_q50") and not k.startswith("discrepancy")]
-
-
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="stancal: %(message)s")
@@ -188,7 +184,7 @@ def main(argv: list[str] | None = None) -> int:
             else:
                 print(f"{row['method']}: " + ", ".join(
                     f"{name} = {row[f'{name}_q50']:.4g} [{row[f'{name}_q05']:.4g}, {row[f'{name}_q95']:.4g}]"
-                    for name in _theta_names(row)) + f"; discrepancy RMS {row['discrepancy_rms_q50']:.3g}")
+                    for name in summary["theta_names"]) + f"; discrepancy RMS {row['discrepancy_rms_q50']:.3g}")
         print(f"comparison in {args.out / 'report.md'}")
         return 0
     theta = ", ".join(f"{k} = {v['mean']:.4g} [{v['q05']:.4g}, {v['q95']:.4g}]" for k, v in summary["theta"].items())

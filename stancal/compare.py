@@ -19,9 +19,9 @@ from .gap import psis_score
 from .l2 import l2_result
 from .quadrature import Quadrature, input_box_quadrature
 from .result import CalibrationResult
+from .standata import RESTRICTED_DISCREPANCIES
 
-METHODS = ("koh", "l2", "orthogonal", "scaled")
-_NEEDS_STAN_SIMULATOR = ("orthogonal", "scaled")
+METHODS = ("koh", "l2", *RESTRICTED_DISCREPANCIES)
 
 
 @dataclass
@@ -36,6 +36,10 @@ class MethodFit:
 class Comparison:
     fits: list[MethodFit]
     quadrature: Quadrature
+
+    @property
+    def theta_names(self) -> list[str]:
+        return next((f.result.data.theta_names for f in self.fits if f.result is not None), [])
 
     def table(self) -> pd.DataFrame:
         """One row per method: theta (median, 90 %), the discrepancy's RMS over
@@ -56,7 +60,7 @@ class Comparison:
             warnings.simplefilter("ignore")  # Pareto k is reported in the table
             score = psis_score(result)
         y = result.data.physical[result.data.output].to_numpy()
-        row.update(elpd=score.elpd_i.sum(), elpd_se=np.sqrt(len(y) * np.var(score.elpd_i)),
+        row.update(elpd=score.elpd, elpd_se=score.elpd_se,
                    loo_rmse=score.holdout_rmse(y),
                    max_pareto_k=score.max_pareto_k,
                    divergences=result.diagnostics.divergences if result.diagnostics else None,
@@ -98,7 +102,7 @@ def compare_methods(data: CalibrationData, *, simulator: str | Path | None = Non
         return MethodFit(name, result, time.perf_counter() - started)
 
     for name in methods:
-        if name in _NEEDS_STAN_SIMULATOR and simulator is None:
+        if name in RESTRICTED_DISCREPANCIES and simulator is None:
             fits.append(MethodFit(name, None, skipped="needs a simulator written in Stan (method koh)"))
         elif name == "koh":
             koh = run("koh", method=base_method)
@@ -122,7 +126,7 @@ def plot_comparison(comparison: Comparison, path: str | Path | None = None):
 
     plt = _pyplot()
     fitted = [f for f in comparison.fits if f.result is not None]
-    names = fitted[0].result.data.theta_names if fitted else []
+    names = comparison.theta_names
     fig, axes = plt.subplots(1, len(names) + 1, figsize=(3.6 * (len(names) + 1), 0.5 * len(fitted) + 2))
     rows = range(len(fitted))
     for ax, name in zip(axes, names):
@@ -148,7 +152,8 @@ def write_comparison(comparison: Comparison, folder: str | Path) -> dict[str, An
     folder.mkdir(parents=True, exist_ok=True)
     table = comparison.table()
     table.to_csv(folder / "comparison.csv")
-    summary = {"methods": json.loads(table.reset_index().to_json(orient="records")),
+    summary = {"theta_names": comparison.theta_names,
+               "methods": json.loads(table.reset_index().to_json(orient="records")),
                "quadrature_nodes": len(comparison.quadrature.weights)}
     (folder / "comparison.json").write_text(json.dumps(summary, indent=2))
     figure = folder / "comparison.png"

@@ -159,6 +159,14 @@ class CalibrationData:
         return [p.name for p in self.parameters]
 
     @property
+    def theta_lower(self) -> np.ndarray:
+        return np.array([p.lower for p in self.parameters])
+
+    @property
+    def theta_upper(self) -> np.ndarray:
+        return np.array([p.upper for p in self.parameters])
+
+    @property
     def discrepancy_variables(self) -> dict[str, list[str]]:
         """Each simulator input and covariate -> its discrepancy GP columns
         (one per level for a categorical covariate)."""

@@ -81,6 +81,14 @@ class Score:
     scheme: str  # "psis-loo" or "kfold"
     discrepancy_rms: np.ndarray  # draws: RMS of the GP discrepancy over the physical points
 
+    @property
+    def elpd(self) -> float:
+        return float(self.elpd_i.sum())
+
+    @property
+    def elpd_se(self) -> float:
+        return float(np.sqrt(len(self.elpd_i) * np.var(self.elpd_i)))
+
     def holdout_rmse(self, y: np.ndarray) -> float:
         return float(np.sqrt(np.mean((y - self.heldout_mean) ** 2)))
 
@@ -109,8 +117,8 @@ class GapAnalysis:
                 "method": self.baseline.method,
                 "theta": base_theta,
                 "discrepancy_rms": interval(base.discrepancy_rms),
-                "elpd_loo": float(base.elpd_i.sum()),
-                "elpd_se": float(np.sqrt(len(y) * np.var(base.elpd_i))),
+                "elpd_loo": base.elpd,
+                "elpd_se": base.elpd_se,
                 "holdout_rmse": base.holdout_rmse(y),
                 "scheme": base.scheme,
                 "diagnostics": _sampler(self.baseline),

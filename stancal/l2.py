@@ -10,6 +10,7 @@ from a global design over the theta box and is refined by Gauss-Newton."""
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -46,20 +47,18 @@ def stan_simulator(result) -> SimulatorAt:
     """f through the fit's own koh program, without a discrepancy: the
     generated quantities' f_new for a batch of theta values."""
     data, backend = result.data, get_backend(result.backend)
-    lower = np.array([p.lower for p in data.parameters])
-    width = np.array([p.upper - p.lower for p in data.parameters])
     options = ModelOptions(discrepancy="none", kernel=result.options.kernel)
-    built: dict[int, tuple[pd.DataFrame, Callable]] = {}  # the program with these points' data
+    last: dict = {}  # the program bound to the last points' data: projection reuses one set
 
     def at(points: pd.DataFrame, theta: np.ndarray) -> np.ndarray:
-        if id(points) not in built:
+        if last.get("points") is not points:
             stan_data = to_stan_json(build_stan_data(data, Method.KOH, options, points))
-            built[id(points)] = (points, backend.quantities_function(result.program, stan_data, seed=1))
-        unit = np.clip((np.atleast_2d(theta) - lower) / width, 1e-12, 1 - 1e-12)
+            last.update(points=points, run=backend.quantities_function(result.program, stan_data, seed=1))
+        unit = np.clip(_theta_unit(data, theta), 1e-12, 1 - 1e-12)
         none = np.zeros((1, len(unit), 0))
         parameters = {"theta_unit": unit[None], "noise_sd": np.ones((1, len(unit))),
                       "delta_sd": none, "delta_length_scale": none, "rho_free": none, "beta": none}
-        return built[id(points)][1](parameters)["f_new"][0]
+        return last["run"](parameters)["f_new"][0]
 
     return at
 
@@ -81,18 +80,20 @@ def emulator_mean(result) -> SimulatorAt:
     k_runs = ard_cross_cov(runs_xt, runs_xt, kernel_id, sd, length)
     k_runs[np.diag_indices_from(k_runs)] += float(hyper["emulator_nugget"]) ** 2
     weights = np.linalg.solve(k_runs, y_runs - float(hyper["emulator_mean"]))
-    lower = np.array([p.lower for p in data.parameters])
-    width = np.array([p.upper - p.lower for p in data.parameters])
 
     def at(points: pd.DataFrame, theta: np.ndarray) -> np.ndarray:
         x_unit = s.to_unit(points, data.inputs)
-        theta_unit = (np.atleast_2d(theta) - lower) / width
+        theta_unit = _theta_unit(data, theta)
         S, P = len(theta_unit), len(x_unit)
         xt = np.hstack([np.repeat(x_unit, S, axis=0), np.tile(theta_unit, (P, 1))])
         f = float(hyper["emulator_mean"]) + ard_cross_cov(xt, runs_xt, kernel_id, sd, length) @ weights
         return s.y_center + s.y_scale * f.reshape(P, S).T
 
     return at
+
+
+def _theta_unit(data, theta: np.ndarray) -> np.ndarray:
+    return (np.atleast_2d(theta) - data.theta_lower) / (data.theta_upper - data.theta_lower)
 
 
 def simulator_of(result) -> SimulatorAt:
@@ -192,8 +193,7 @@ def l2_result(result, quadrature: Quadrature, n_points: int):
     import xarray as xr
 
     data = result.data
-    lower = np.array([p.lower for p in data.parameters])
-    upper = np.array([p.upper for p in data.parameters])
+    lower, upper = data.theta_lower, data.theta_upper
     predictions = result.idata["predictions"].to_dataset()
     chains, draws = predictions.sizes["chain"], predictions.sizes["draw"]
     r = len(quadrature.weights)
@@ -213,15 +213,13 @@ def l2_result(result, quadrature: Quadrature, n_points: int):
     tree["predictions_constant_data"] = xr.DataTree(points)
     tree["predictions"] = xr.DataTree(_with_projected_simulator(
         kept, points.to_dataframe().reset_index(drop=True), projection.theta, simulator))
-    out = result.__class__(**{**result.__dict__, "idata": tree})
-    out.l2 = {
+    return dataclasses.replace(result, idata=tree, l2={
         "base_method": result.method,
         "quadrature_nodes": len(quadrature.weights),
         # draws whose loss has another minimum within 10 %: the projection is nearly a tie there
         "draws_with_near_tie": float(np.mean(projection.runner_up_loss < 1.1 * projection.loss)),
         "discrepancy_rms_median": float(np.median(np.sqrt(projection.loss))),
-    }
-    return out
+    })
 
 
 def _first_points(dataset, n_points: int):

@@ -45,6 +45,7 @@ class ModelOptions:
 
 # discrepancy_form in koh.stan; "none" switches the discrepancy off
 DISCREPANCIES = {"gp": 1, "orthogonal": 2, "scaled": 3, "none": 1}
+RESTRICTED_DISCREPANCIES = ("orthogonal", "scaled")  # restricted_gp.stan, koh.stan only
 
 
 EMULATOR_HYPERPARAMETERS = ("emulator_mean", "emulator_sd", "emulator_length_scale", "emulator_nugget")
@@ -95,8 +96,8 @@ def build_stan_data(
         h=terms.h if terms else np.zeros((len(data.physical), 0)),
         beta_prior_sd=terms.prior_sd if terms else np.zeros(0),
         h_new=h_new,
-        theta_lower=np.array([p.lower for p in data.parameters]),
-        theta_upper=np.array([p.upper for p in data.parameters]),
+        theta_lower=data.theta_lower,
+        theta_upper=data.theta_upper,
         use_discrepancy=int(options.has_discrepancy),
         kernel_id=options.kernel_id,
         estimate_rho=int(options.estimate_rho),
@@ -109,7 +110,7 @@ def build_stan_data(
         out["X_new"] = new_points[data.inputs].to_numpy()
         out.update(restricted_gp_data(data, options))
         return out
-    if options.discrepancy in ("orthogonal", "scaled"):
+    if options.discrepancy in RESTRICTED_DISCREPANCIES:
         raise ValueError(f"discrepancy '{options.discrepancy}' needs method 'koh' (a simulator "
                          f"written in Stan); got method '{method}'")
     if data.runs is None:
