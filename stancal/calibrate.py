@@ -15,12 +15,13 @@ from .backends import get_backend
 from .data import CalibrationData
 from .inits import spread_theta_inits
 from .l2 import l2_result
-from .models import Method, model_spec
+from .models import LATENT_PROGRAM, Method, model_spec
 from .quadrature import input_box_quadrature
 from .result import CalibrationResult, build_datatree
 from .stan_source import flatten
 from .standata import (
     EMULATOR_HYPERPARAMETERS,
+    RESTRICTED_DISCREPANCIES,
     ModelOptions,
     build_emulator_data,
     build_stan_data,
@@ -32,17 +33,55 @@ logger = logging.getLogger("stancal")
 
 # parameters block of each program, for diagnostics and for predict()
 _CALIBRATION_PARAMETERS = ["theta_unit", "noise_sd", "delta_sd", "delta_length_scale", "rho_free", "beta"]
+_LATENT_PARAMETERS = ["theta_unit", "noise_sd", "inv_sqrt_phi", "delta_sd", "delta_length_scale",
+                      "delta_z", "theta_function_sd", "theta_function_length_scale", "theta_function_z"]
 _PARAMETERS = {
     Method.KOH: _CALIBRATION_PARAMETERS,
     Method.MODULAR: _CALIBRATION_PARAMETERS,
     Method.KOH_EMULATOR: [*_CALIBRATION_PARAMETERS, *EMULATOR_HYPERPARAMETERS],
+    Method.KOH_LATENT: _LATENT_PARAMETERS,
+    Method.KOH_LATENT_EMULATOR: [*_LATENT_PARAMETERS, *EMULATOR_HYPERPARAMETERS, "emulator_z"],
 }
 L2 = "l2"  # not a Stan program: the projection of another method's zeta draws
-_DIAGNOSED = ["theta", "noise_sd", "delta_sd", "delta_length_scale", "rho", "beta",
-              *EMULATOR_HYPERPARAMETERS]
+_DIAGNOSED = ["theta", "noise_sd", "delta_sd", "delta_length_scale", "rho", "beta", "phi",
+              "theta_function_sd", *EMULATOR_HYPERPARAMETERS]
 
 
-def choose_method(data: CalibrationData, simulator: str | Path | None, method: str | None) -> Method:
+def _latent_reason(data: CalibrationData, options: ModelOptions) -> str | None:
+    """Why the latent-GP programs are needed, or None."""
+    if not data.observations.is_gaussian:
+        return f"likelihood '{data.observations.likelihood.name.lower()}'"
+    if data.observations.any_censored:
+        return "censored outputs"
+    if options.functional:
+        return "functional theta"
+    return None
+
+
+def choose_method(data: CalibrationData, simulator: str | Path | None, method: str | None,
+                  options: ModelOptions | None = None) -> Method:
+    """The program to run: the user's method, or koh with a simulator and
+    koh_emulator from runs; their latent-GP versions when the outputs or
+    theta need them."""
+    base = _base_method(data, simulator, method)
+    reason = _latent_reason(data, options or ModelOptions())
+    if reason is not None:
+        if base not in LATENT_PROGRAM:
+            raise ValueError(f"{reason} needs method koh (a Stan simulator) or koh_emulator (runs); "
+                             f"method '{method}' has a Gaussian likelihood only")
+        options = options or ModelOptions()
+        unsupported = [name for name, used in (
+            (f"discrepancy '{options.discrepancy}'", options.discrepancy in RESTRICTED_DISCREPANCIES),
+            ("mean_formula / mean_intercept", options.mean_formula is not None or options.mean_intercept),
+            ("estimate_rho", options.estimate_rho)) if used]
+        if unsupported:
+            raise ValueError(f"{reason} runs on the latent-GP programs, which do not support "
+                             f"{', '.join(unsupported)}")
+        return LATENT_PROGRAM[base]
+    return base
+
+
+def _base_method(data: CalibrationData, simulator: str | Path | None, method: str | None) -> Method:
     if method is None:
         if simulator is None and not data.has_runs:
             raise ValueError("give a Stan simulator, simulator runs, or both")
@@ -87,12 +126,14 @@ def calibrate(
     simulator: str | Path | None = None,
     method: str | None = None,
     program: str | Path | None = None,
-    discrepancy: str = "gp",
+    discrepancy: str | None = None,
     kernel: str = "se",
     estimate_rho: bool = False,
     mean_formula: str | None = None,
     mean_intercept: bool = False,
     scaled_lambda: float | None = None,
+    functional: tuple[str, ...] | list[str] = (),
+    functional_inputs: tuple[str, ...] | list[str] = (),
     new_points: pd.DataFrame | None = None,
     chains: int = 4,
     warmup: int = 1000,
@@ -116,7 +157,12 @@ def calibrate(
     ``discrepancy``: gp (KOH), orthogonal (orthogonal to df/dtheta: theta
     targets the L2 projection; Plumlee 2017), scaled (S-GaSP, Gu & Wang 2018,
     penalty ``scaled_lambda``, default sqrt(N)) or none. orthogonal and scaled
-    need method koh.
+    need method koh. Default: gp, or none with functional theta.
+    ``functional``, ``functional_inputs``: theta that vary over inputs,
+    theta_j(x) = lo + (hi - lo) logistic(GP_j(x)) (review section 8.2).
+    Non-Gaussian (``CalibrationData(likelihood=...)``) or censored outputs and
+    functional theta run on the latent-GP programs koh_latent (simulator) and
+    koh_latent_emulator (runs).
     ``mean_formula``: terms h(x, z) of a discrepancy mean h' beta, a formula
     over the physical data's columns such as ``"I(v**2) + C(batch)"``;
     ``mean_intercept`` adds a constant term ``Intercept``.
@@ -124,9 +170,15 @@ def calibrate(
     ``prior``: also draw from the prior (same program, ``prior_only = 1``) into
     the ``prior`` and ``prior_predictive`` groups.
     """
-    options = ModelOptions(discrepancy, kernel, estimate_rho, mean_formula, mean_intercept, scaled_lambda)
+    if discrepancy is None:  # functional theta are flexible enough without one (review section 8.2)
+        discrepancy = "none" if functional else "gp"
+    options = ModelOptions(discrepancy, kernel, estimate_rho, mean_formula, mean_intercept, scaled_lambda,
+                           tuple(functional), tuple(functional_inputs))
     l2 = method == L2
-    chosen = choose_method(data, simulator, None if l2 else method)
+    if l2 and _latent_reason(data, options):
+        raise ValueError(f"method 'l2' needs Gaussian, uncensored outputs and scalar theta; "
+                         f"this problem has {_latent_reason(data, options)}")
+    chosen = choose_method(data, simulator, None if l2 else method, options)
     spec = model_spec(chosen)
     aliases = {"simulator.stan": Path(simulator)} if simulator is not None else {}
     flat = flatten(Path(program) if program else spec.path, aliases=aliases)

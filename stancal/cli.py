@@ -132,7 +132,8 @@ def write_calibration(result, folder: Path, warning_messages: list[str]) -> dict
 def _report(summary: dict, table, plots: list[Path]) -> str:
     d = summary["diagnostics"]
     lines = [
-        f"# Calibration report ({summary['method']}, {summary['backend']})", "",
+        f"# Calibration report ({summary['method']}, {summary['backend']}, "
+        f"{summary['likelihood']} likelihood)", "",
         "## Calibration parameters (original units; 90 % interval)", "",
         "| parameter | mean | 5 % | 50 % | 95 % | R-hat | bulk ESS |", "|---|---|---|---|---|---|---|",
         *(f"| {k} | {v['mean']:.4g} | {v['q05']:.4g} | {v['q50']:.4g} | {v['q95']:.4g} | "
@@ -144,6 +145,17 @@ def _report(summary: dict, table, plots: list[Path]) -> str:
         f"- compile {summary['timing']['compile_s']:.1f} s, sampling {summary['timing']['sample_s']:.1f} s",
         *(f"- **warning**: {w}" for w in summary.get("warnings", [])),
     ]
+    if "censoring" in summary:
+        counts = summary["censoring"]
+        lines += ["", "## Censored observations", "",
+                  f"- exact {counts['observed']}, left-censored {counts['left']}, "
+                  f"right-censored {counts['right']}, interval-censored {counts['interval']}"]
+    for name, curve in summary.get("theta_functions", {}).items():
+        column = next(iter(curve["inputs"]))
+        lines += ["", f"## Functional parameter {name}({', '.join(curve['inputs'])})", "",
+                  f"- over {column} from {min(curve['inputs'][column]):.4g} to {max(curve['inputs'][column]):.4g}: "
+                  f"posterior mean from {min(curve['mean']):.4g} to {max(curve['mean']):.4g}; "
+                  "the grid and its 90 % band are in summary.json (theta_functions)"]
     if len(summary["modes"]) > 1:
         lines += ["", "## Separate theta modes", "",
                   *(f"- mode {i + 1}: chains {m['chains']}, mean log density {m['mean_log_density']:.1f}, "

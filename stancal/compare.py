@@ -88,6 +88,9 @@ def compare_methods(data: CalibrationData, *, simulator: str | Path | None = Non
     unknown = set(methods) - set(METHODS)
     if unknown:
         raise ValueError(f"unknown methods {sorted(unknown)}; choose from {', '.join(METHODS)}")
+    if data.needs_latent_model:
+        raise ValueError("the method comparison needs Gaussian, uncensored outputs (its methods integrate "
+                         "the GP out); calibrate this problem with stancal calibrate")
     quadrature = input_box_quadrature(data)
     seed = int(np.random.default_rng().integers(2**31 - 1)) if seed is None else seed
     base_method = str(choose_method(data, simulator, None))

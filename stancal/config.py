@@ -25,8 +25,9 @@ class Problem:
     candidates: list[Candidate] = field(default_factory=list)  # for `stancal gap`
 
 
+_OBSERVATION_KEYS = {"likelihood", "trials", "lower", "upper"}  # go to CalibrationData
 _MODEL_KEYS = {"method", "discrepancy", "kernel", "estimate_rho", "program", "mean_formula",
-               "mean_intercept", "scaled_lambda"}
+               "mean_intercept", "scaled_lambda", "functional", "functional_inputs", *_OBSERVATION_KEYS}
 _VARIANT_KEYS = {"stan", "inputs", "theta"}
 
 
@@ -103,6 +104,12 @@ def load_config(path: str | Path) -> Problem:
         raise ConfigError(f"config: unknown key(s) {sorted(unknown)} in [model]; known: {sorted(_MODEL_KEYS)}")
     if "program" in model:
         model["program"] = base / model["program"]
+    for key in ("functional", "functional_inputs"):
+        if isinstance(model.get(key), str):
+            model[key] = [model[key]]
+        if key in model and not all(isinstance(v, str) for v in model[key]):
+            raise ConfigError(f"config: [model] {key} must be a list of names; got {model[key]!r}")
+    observation = {key: model.pop(key) for key in _OBSERVATION_KEYS if key in model}
     data = CalibrationData(
         _read_csv(base / _require(physical, "csv", "physical"), "physical.csv"),
         inputs=_require(physical, "inputs", "physical"),
@@ -110,6 +117,7 @@ def load_config(path: str | Path) -> Problem:
         theta={k: tuple(v) if isinstance(v, list) else v for k, v in theta.items()},
         covariates=physical.get("covariates", []),
         runs=runs,
+        **observation,
     )
     candidates = _candidates(raw.get("candidates", {}), base)
     return Problem(data=data, simulator=stan, model=model, candidates=candidates)

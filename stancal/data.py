@@ -10,9 +10,10 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-
-class DataError(ValueError):
-    """Input data that cannot be used, with the column and rows to fix."""
+from .models import Likelihood
+from .observations import read_observations
+from .validation import DataError
+from .validation import row_labels as _rows
 
 
 class InputRangeWarning(UserWarning):
@@ -26,12 +27,6 @@ class Parameter:
     name: str
     lower: float
     upper: float
-
-
-def _rows(mask: np.ndarray, index: pd.Index, limit: int = 10) -> str:
-    labels = [str(v) for v in index[mask][:limit]]
-    more = int(mask.sum()) - len(labels)
-    return "[" + ", ".join(labels) + (f", ... {more} more" if more > 0 else "") + "]"
 
 
 def _require_columns(frame: pd.DataFrame, columns: Sequence[str], what: str) -> None:
@@ -122,6 +117,14 @@ class CalibrationData:
     runs : simulator runs: the input columns, one column per theta, the output.
     levels : categories of categorical covariates, when they must not be
         taken from ``physical`` (a subset that lacks a level).
+    likelihood : gaussian (default), poisson, negbinomial (counts, log link)
+        or binomial (successes, logit link). The simulator returns the mean:
+        a positive count rate, or a success probability for binomial.
+    trials : binomial only: the column with the number of trials (without
+        it, the outputs are binary 0/1).
+    lower, upper : gaussian only: columns of censoring bounds. A row whose
+        output is empty is censored to [lower, upper] (an empty lower is
+        -inf, an empty upper +inf); rows with an output are exact.
     """
 
     def __init__(
@@ -133,6 +136,10 @@ class CalibrationData:
         covariates: Sequence[str] = (),
         runs: pd.DataFrame | None = None,
         levels: Mapping[str, Sequence[str]] | None = None,
+        likelihood: str = "gaussian",
+        trials: str | None = None,
+        lower: str | None = None,
+        upper: str | None = None,
     ) -> None:
         self.inputs = list(inputs)
         self.output = output
@@ -142,14 +149,18 @@ class CalibrationData:
         self.source = physical.copy()  # every column, for formulas over the physical data
         self.levels = self._levels(physical, levels or {})
         numeric = [c for c in self.covariates if c not in self.levels]
+        _require_columns(physical, [output], "physical data")
+        self.observations = read_observations(physical, output, likelihood, trials, lower, upper)
+        self.observation_columns = {"likelihood": likelihood, "trials": trials, "lower": lower, "upper": upper}
         self.physical = pd.concat([
-            _numeric_columns(physical, [*self.inputs, *numeric, output], "physical data"),
+            _numeric_columns(physical, [*self.inputs, *numeric], "physical data"),
+            pd.DataFrame({output: self.observations.value}, index=physical.index),
             self.one_hot(physical)], axis=1)
         if len(self.physical) < 3:
             raise DataError(
                 f"physical data: {len(self.physical)} rows; calibration needs at least 3"
             )
-        if np.ptp(self.physical[output].to_numpy()) == 0:
+        if np.ptp(self.observations.value[self.observations.observed]) == 0 and self.observations.is_gaussian:
             raise DataError(f"physical data: output column '{output}' is constant")
         self.runs = None if runs is None else self._check_runs(runs)
         self.scaling = self._scaling()
@@ -208,7 +219,13 @@ class CalibrationData:
         """The same problem on some physical rows (positions), same categories."""
         return CalibrationData(self.source.iloc[list(rows)], self.inputs, self.output,
                                {p.name: (p.lower, p.upper) for p in self.parameters},
-                               self.covariates, self.runs, levels=self.levels)
+                               self.covariates, self.runs, levels=self.levels,
+                               **self.observation_columns)
+
+    @property
+    def needs_latent_model(self) -> bool:
+        """Non-Gaussian or censored outputs: the GP cannot be integrated out."""
+        return not self.observations.is_gaussian or self.observations.any_censored
 
     @property
     def has_runs(self) -> bool:
@@ -250,6 +267,7 @@ class CalibrationData:
             raise DataError(f"simulator runs: {len(table)} rows; an emulator needs at least 3")
         if np.ptp(table[self.output].to_numpy()) == 0:
             raise DataError(f"simulator runs: output column '{self.output}' is constant")
+        self._check_runs_on_link_scale(table)
         for p in self.parameters:
             values = table[p.name].to_numpy()
             bad = (values < p.lower) | (values > p.upper)
@@ -272,6 +290,32 @@ class CalibrationData:
                 )
         return table
 
+    def _check_runs_on_link_scale(self, table: pd.DataFrame) -> None:
+        """The runs' output is the simulator's mean: positive under a log
+        link, a probability under a logit link."""
+        likelihood = self.observations.likelihood
+        values = table[self.output].to_numpy()
+        if likelihood in (Likelihood.POISSON, Likelihood.NEGBINOMIAL):
+            bad, need = values <= 0, "a mean count > 0 (log link)"
+        elif likelihood is Likelihood.BINOMIAL:
+            bad, need = (values <= 0) | (values >= 1), "a success probability strictly between 0 and 1 (logit link)"
+        else:
+            return
+        if bad.any():
+            raise DataError(f"simulator runs: output column '{self.output}' must be {need}; rows "
+                            f"{_rows(bad, table.index)} hold {values[bad][:5].tolist()}")
+
+    def runs_on_link_scale(self) -> np.ndarray:
+        """The runs' output on the likelihood's link scale."""
+        assert self.runs is not None
+        values = self.runs[self.output].to_numpy()
+        likelihood = self.observations.likelihood
+        if likelihood is Likelihood.BINOMIAL:
+            return np.log(values / (1 - values))
+        if likelihood is Likelihood.GAUSSIAN:
+            return values
+        return np.log(values)
+
     def _scaling(self) -> Scaling:
         low, width = {}, {}
         for column in self.discrepancy_inputs:
@@ -282,8 +326,14 @@ class CalibrationData:
             width[column] = float(np.ptp(values)) or 1.0
         for p in self.parameters:
             low[p.name], width[p.name] = p.lower, p.upper - p.lower
-        # With runs, the emulator sees mostly simulator output: standardise by it.
-        reference = (self.runs if self.runs is not None else self.physical)[self.output].to_numpy()
+        # With runs, the emulator sees mostly simulator output: standardise by it
+        # (on the link scale). A cheap simulator's link scale is left as it is.
+        if self.runs is not None:
+            reference = self.runs_on_link_scale()
+        elif self.observations.is_gaussian:
+            reference = self.observations.value[self.observations.observed]
+        else:
+            return Scaling(low, width, 0.0, 1.0)
         return Scaling(low, width, float(reference.mean()), float(reference.std()) or 1.0)
 
     def check_new_points(self, new: pd.DataFrame) -> pd.DataFrame:
@@ -302,6 +352,7 @@ class CalibrationData:
             "theta": {p.name: [p.lower, p.upper] for p in self.parameters},
             "runs": None if self.runs is None else self.runs.to_dict(orient="list"),
             "levels": self.levels,
+            **self.observation_columns,
         }
 
     @classmethod
@@ -309,4 +360,5 @@ class CalibrationData:
         runs = None if d["runs"] is None else pd.DataFrame(d["runs"])
         return cls(pd.DataFrame(d["physical"]), d["inputs"], d["output"],
                    {k: tuple(v) for k, v in d["theta"].items()}, d["covariates"], runs,
-                   levels=d.get("levels"))
+                   levels=d.get("levels"), likelihood=d.get("likelihood", "gaussian"),
+                   trials=d.get("trials"), lower=d.get("lower"), upper=d.get("upper"))

@@ -16,10 +16,37 @@ class Kernel(IntEnum):
     MATERN52 = 2
 
 
+class Likelihood(IntEnum):
+    """``likelihood_id`` in the latent programs (functions/observation_model.stan)."""
+
+    GAUSSIAN = 1
+    POISSON = 2
+    NEGBINOMIAL = 3
+    BINOMIAL = 4
+
+
+class Censoring(IntEnum):
+    """``censoring`` codes per observation (functions/observation_model.stan)."""
+
+    OBSERVED = 0
+    LEFT = 1  # y <= upper
+    RIGHT = 2  # y >= lower
+    INTERVAL = 3  # lower <= y <= upper
+
+
 class Method(StrEnum):
     KOH = "koh"
     KOH_EMULATOR = "koh_emulator"
     MODULAR = "modular"
+    KOH_LATENT = "koh_latent"
+    KOH_LATENT_EMULATOR = "koh_latent_emulator"
+
+
+# the latent-GP program that takes over a method's job when the outputs are
+# non-Gaussian or censored, or theta is functional
+LATENT_PROGRAM = {Method.KOH: Method.KOH_LATENT, Method.KOH_EMULATOR: Method.KOH_LATENT_EMULATOR,
+                  Method.KOH_LATENT: Method.KOH_LATENT,
+                  Method.KOH_LATENT_EMULATOR: Method.KOH_LATENT_EMULATOR}
 
 
 @dataclass(frozen=True)
@@ -48,6 +75,10 @@ MODELS: dict[str, ModelSpec] = {
                   "GP emulator of simulator runs (stage 1 of modular)"),
         ModelSpec("modular", "modular.stan", False, True,
                   "modular KOH: stage 2 with the stage-1 emulator fixed"),
+        ModelSpec("koh_latent", "koh_latent.stan", True, False,
+                  "KOH with latent GPs: counts, binomial, censored outputs, functional theta"),
+        ModelSpec("koh_latent_emulator", "koh_latent_emulator.stan", False, True,
+                  "koh_latent from simulator runs: emulator on the link scale, sampled jointly"),
     )
 }
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 
 from .result import CalibrationResult
 
@@ -66,6 +67,7 @@ def plot_fit(result: CalibrationResult, path: str | Path | None = None):
         ax.scatter(table[column], table["f_q50"], marker="x", color="C3", label="simulator f(x, theta)")
     ax.scatter(result.data.physical[column], result.data.physical[result.data.output],
                s=14, color="k", zorder=3, label="physical data")
+    _censored_ranges(ax, result, column)
     ax.set_xlabel(column)
     ax.set_ylabel(result.data.output)
     ax.legend(fontsize=8)
@@ -100,6 +102,51 @@ def plot_discrepancy(result: CalibrationResult, path: str | Path | None = None):
     return _finish(fig, path)
 
 
+def _censored_ranges(ax, result: CalibrationResult, column: str) -> None:
+    """Censored observations as the range they are known to lie in, with an
+    arrow where a side is open."""
+    obs = result.data.observations
+    if not obs.any_censored:
+        return
+    x = result.data.physical[column].to_numpy()
+    low, high = ax.get_ylim()
+    for i in np.flatnonzero(~obs.observed):
+        lower = obs.lower[i] if np.isfinite(obs.lower[i]) else low
+        upper = obs.upper[i] if np.isfinite(obs.upper[i]) else high
+        ax.plot([x[i], x[i]], [lower, upper], color="0.4", lw=1.2, alpha=0.7,
+                label="censored: known range" if i == np.flatnonzero(~obs.observed)[0] else None)
+        marker = "v" if not np.isfinite(obs.lower[i]) else ("^" if not np.isfinite(obs.upper[i]) else "_")
+        ax.scatter([x[i]], [obs.upper[i] if marker == "v" else obs.lower[i]], marker=marker,
+                   color="0.4", s=22, zorder=3)
+    ax.set_ylim(low, high)
+
+
+def plot_theta_functions(result: CalibrationResult, path: str | Path | None = None):
+    """Each functional theta against each input it varies over: posterior
+    mean and 90 % band (averaged over the other functional inputs)."""
+    plt = _pyplot()
+    curves = result.theta_functions()
+    inputs = list(result.options.functional_inputs)
+    fig, axes = plt.subplots(len(curves), len(inputs), figsize=(5.5 * len(inputs), 3.6 * len(curves)),
+                             squeeze=False)
+    for row, (name, curve) in enumerate(curves.items()):
+        table = pd.DataFrame({**curve["inputs"], "mean": curve["mean"], "q05": curve["q05"],
+                              "q95": curve["q95"]})
+        for ax, column in zip(axes[row], inputs):
+            along = table.groupby(column)[["mean", "q05", "q95"]].mean()
+            ax.fill_between(along.index, along["q05"], along["q95"], alpha=0.3, color="C4",
+                            label=f"{name}({column}), 90 %")
+            ax.plot(along.index, along["mean"], color="C4")
+            p = next(p for p in result.data.parameters if p.name == name)
+            ax.set_ylim(p.lower, p.upper)
+            ax.set_xlabel(column)
+            ax.set_ylabel(name)
+            ax.legend(fontsize=8)
+    fig.suptitle("functional calibration parameters")
+    fig.tight_layout()
+    return _finish(fig, path)
+
+
 def _finish(fig, path):
     if path is not None:
         fig.savefig(path, dpi=110)
@@ -116,4 +163,7 @@ def write_plots(result: CalibrationResult, folder: str | Path) -> list[Path]:
     if result.options.discrepancy != "none":
         paths.append(folder / "discrepancy.png")
         plot_discrepancy(result, paths[-1])
+    if result.options.functional:
+        paths.append(folder / "theta_functions.png")
+        plot_theta_functions(result, paths[-1])
     return paths

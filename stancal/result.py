@@ -15,6 +15,7 @@ import xarray as xr
 from .backends import Draws, SampleOutput, get_backend
 from .data import CalibrationData
 from .diagnostics import Diagnostics
+from .functional import functional_grid, theta_function_summary
 from .modes import Mode
 from .stan_source import FlatProgram
 from .standata import (
@@ -31,8 +32,12 @@ _REPORTED = {
     "noise_sd_original": "noise_sd",
     "delta_sd_original": "delta_sd",
     "rho": "rho",
+    "phi": "phi",
 }
+# the latent programs declare these as arrays of size 0 or 1 (present or not)
+_OPTIONAL_SCALARS = ("noise_sd", "delta_sd", "phi")
 _PREDICTED = ("f_new", "delta_new", "zeta_new")
+_NEW_OBSERVATION = "y_new"  # latent programs: a new observation from the likelihood
 # per physical point: the GP part of delta (a draw, and its mean given the
 # parameters), and E(y_i | y_-i) for held-out error
 _AT_OBSERVATIONS = ("delta_gp", "delta_gp_mean", "y_loo_mean")
@@ -46,12 +51,19 @@ def build_datatree(sample: SampleOutput, data: CalibrationData,
 
     d = sample.draws
     posterior: Draws = {out: d[stan] for stan, out in _REPORTED.items() if stan in d}
+    for name in _OPTIONAL_SCALARS:
+        if name in posterior and posterior[name].ndim == 3:
+            if posterior[name].shape[-1] == 0:
+                del posterior[name]
+            else:
+                posterior[name] = posterior[name][..., 0]
     if options.has_discrepancy:
-        posterior["delta_sd"] = posterior["delta_sd"][..., 0]
         widths = np.array([data.scaling.width[c] for c in data.discrepancy_inputs])
         posterior["delta_length_scale"] = d["delta_length_scale"] * widths
-    else:
-        posterior.pop("delta_sd", None)
+    if options.functional:
+        widths = np.array([data.scaling.width[c] for c in options.functional_inputs])
+        posterior["theta_function_sd"] = d["theta_function_sd"]
+        posterior["theta_function_length_scale"] = d["theta_function_length_scale"] * widths
     if not options.estimate_rho:
         posterior.pop("rho", None)
     for name in EMULATOR_HYPERPARAMETERS:
@@ -65,27 +77,43 @@ def build_datatree(sample: SampleOutput, data: CalibrationData,
         "posterior_predictive": {"y": d["y_rep"]},
         "log_likelihood": {"y": d["log_lik"]},
         "sample_stats": sample.sample_stats,
-        "predictions": {k: d[k] for k in _PREDICTED},
-        "at_observations": {k: d[k] for k in _AT_OBSERVATIONS},
+        "predictions": {k: d[k] for k in (*_PREDICTED, _NEW_OBSERVATION) if k in d},
+        "at_observations": {k: d[k] for k in _AT_OBSERVATIONS if k in d},
     }
+    if options.functional:
+        sampled["theta_functions"] = {"theta_function": d["theta_function_grid"]}
     dims = {
         "theta": ["theta_name"], "delta_length_scale": ["delta_input"],
         "emulator_length_scale": ["emulator_input"], "y": ["obs"], "beta": ["mean_term"],
         **{k: ["obs"] for k in _AT_OBSERVATIONS},
-        **{k: ["new_point"] for k in _PREDICTED},
+        **{k: ["new_point"] for k in (*_PREDICTED, _NEW_OBSERVATION)},
+        "theta_function_sd": ["functional_theta"],
+        "theta_function_length_scale": ["functional_theta", "functional_input"],
+        "theta_function": ["grid_point", "functional_theta"],
     }
+    grid = functional_grid(data, options.functional_inputs)
     coords = {
         "theta_name": data.theta_names, "delta_input": data.discrepancy_inputs,
         "emulator_input": [*data.inputs, *data.theta_names],
         "obs": np.arange(len(data.physical)), "new_point": np.arange(len(new_points)),
         "mean_term": terms.names if terms else [],
+        "functional_theta": list(options.functional), "functional_input": list(options.functional_inputs),
+        "grid_point": np.arange(len(grid)),
     }
     tree = ab.from_dict(sampled, dims=dims, coords=coords)
+    if options.functional:  # the grid's input values, for plotting theta(x)
+        tree["theta_functions"] = xr.DataTree(tree["theta_functions"].to_dataset().assign_coords(
+            {c: ("grid_point", grid[c].to_numpy()) for c in grid.columns}))
     obs = {"obs": coords["obs"]}
     tree["observed_data"] = xr.DataTree(xr.Dataset(
         {"y": ("obs", data.physical[data.output].to_numpy())}, coords=obs))
+    observations = data.observations
     tree["constant_data"] = xr.DataTree(xr.Dataset(
-        {c: ("obs", data.physical[c].to_numpy()) for c in data.discrepancy_inputs}, coords=obs))
+        {**{c: ("obs", data.physical[c].to_numpy()) for c in data.discrepancy_inputs},
+         **({"censoring": ("obs", observations.censoring), "lower": ("obs", observations.lower),
+             "upper": ("obs", observations.upper)} if observations.any_censored else {}),
+         **({"trials": ("obs", observations.trials)} if data.observation_columns["trials"] else {})},
+        coords=obs))
     tree["predictions_constant_data"] = xr.DataTree(xr.Dataset(
         {c: ("new_point", new_points[c].to_numpy()) for c in new_points},
         coords={"new_point": coords["new_point"]}))
@@ -186,7 +214,7 @@ class CalibrationResult:
         plus ``y`` with measurement noise. Without ``new_points``, the points
         stored with the fit."""
         if new_points is None:
-            draws = {k: np.asarray(self.idata["predictions"][k]) for k in _PREDICTED}
+            draws = {k: np.asarray(v) for k, v in self.idata["predictions"].data_vars.items()}
             points = self.idata["predictions_constant_data"].to_dataset().to_dataframe()
             points = points.reset_index(drop=True)
         else:
@@ -204,11 +232,13 @@ class CalibrationResult:
         for name in _PREDICTED:
             values = draws[name].reshape(-1, len(points))
             table = table.assign(**_interval_table(values, name.removesuffix("_new")))
-        noise = np.asarray(self.idata["posterior"]["noise_sd"]).reshape(-1, 1)
-        zeta = draws["zeta_new"].reshape(-1, len(points))
-        rng = np.random.default_rng(seed)
-        table = table.assign(**_interval_table(zeta + noise * rng.standard_normal(zeta.shape), "y"))
-        return table
+        if _NEW_OBSERVATION in draws:  # drawn by the program's own likelihood
+            new_y = draws[_NEW_OBSERVATION].reshape(-1, len(points))
+        else:
+            noise = np.asarray(self.idata["posterior"]["noise_sd"]).reshape(-1, 1)
+            zeta = draws["zeta_new"].reshape(-1, len(points))
+            new_y = zeta + noise * np.random.default_rng(seed).standard_normal(zeta.shape)
+        return table.assign(**_interval_table(new_y, "y"))
 
     # ---- persistence -----------------------------------------------------
     def _metadata(self) -> dict[str, Any]:
@@ -259,4 +289,16 @@ class CalibrationResult:
             "timing": self.timing,
             "emulator": {k: v for k, v in self.emulator.items() if k != "hyperparameters"},
             **({"l2": self.l2} if self.l2 else {}),
+            "likelihood": self.data.observations.likelihood.name.lower(),
+            **({"censoring": self.data.observations.counts_by_kind()}
+               if self.data.observations.any_censored else {}),
+            **({"theta_functions": self.theta_functions()} if self.options.functional else {}),
         }
+
+    def theta_functions(self) -> dict[str, dict]:
+        """Each functional theta on its grid: mean and 90 % band (original units)."""
+        group = self.idata["theta_functions"].to_dataset()
+        curves = np.asarray(group["theta_function"])
+        grid = pd.DataFrame({c: np.asarray(group[c]) for c in self.options.functional_inputs})
+        return theta_function_summary(curves.reshape(-1, *curves.shape[2:]), grid,
+                                      list(self.options.functional))

@@ -9,9 +9,11 @@ import numpy as np
 import pandas as pd
 
 from .data import CalibrationData
+from .functional import check_functional, functional_grid
 from .mean_terms import MeanTerms, build_mean_terms
 from .models import Kernel, Method
 from .quadrature import input_box_quadrature
+from .validation import DataError
 
 
 @dataclass(frozen=True)
@@ -24,8 +26,13 @@ class ModelOptions:
     mean_formula: str | None = None  # discrepancy mean terms h(x, z)' beta, e.g. "I(v**2)"
     mean_intercept: bool = False  # a constant term in the discrepancy mean
     scaled_lambda: float | None = None  # scaled GP penalty lambda_z; None = sqrt(N)
+    functional: tuple[str, ...] = ()  # theta that vary over functional_inputs (review section 8.2)
+    functional_inputs: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
+        # lists from a config or a saved result
+        object.__setattr__(self, "functional", tuple(self.functional))
+        object.__setattr__(self, "functional_inputs", tuple(self.functional_inputs))
         if self.discrepancy not in DISCREPANCIES:
             raise ValueError(f"discrepancy must be one of {', '.join(DISCREPANCIES)}; "
                              f"got {self.discrepancy!r}")
@@ -82,6 +89,7 @@ def build_stan_data(
     s = data.scaling
     terms = mean_terms_of(data, options)
     h_new = terms.at(new_points) if terms else np.zeros((len(new_points), 0))
+    trials_new = _trials_at(data, new_points)
     new_points = data.check_new_points(new_points)
     out: dict[str, Any] = dict(
         N=len(data.physical),
@@ -105,10 +113,14 @@ def build_stan_data(
         P=len(new_points),
         x_delta_new=s.to_unit(new_points, data.discrepancy_inputs),
     )
-    if method is Method.KOH:
+    if method in (Method.KOH_LATENT, Method.KOH_LATENT_EMULATOR):
+        del out["y"]  # the observation model's own data replace it
+        out.update(latent_data(data, options, new_points, trials_new))
+    if method in (Method.KOH, Method.KOH_LATENT):
         out["X"] = data.physical[data.inputs].to_numpy()
         out["X_new"] = new_points[data.inputs].to_numpy()
-        out.update(restricted_gp_data(data, options))
+        if method is Method.KOH:
+            out.update(restricted_gp_data(data, options))
         return out
     if options.discrepancy in RESTRICTED_DISCREPANCIES:
         raise ValueError(f"discrepancy '{options.discrepancy}' needs method 'koh' (a simulator "
@@ -123,6 +135,50 @@ def build_stan_data(
             raise ValueError("method 'modular' needs the stage-1 emulator hyperparameters")
         out.update(emulator_hyperparameters)
     return out
+
+
+def _trials_at(data: CalibrationData, new_points: pd.DataFrame) -> np.ndarray:
+    """Binomial trials of a new observation: the trials column where the new
+    points have it, else one (a binary outcome)."""
+    column = data.observation_columns["trials"]
+    if column is None or column not in new_points:
+        return np.ones(len(new_points), dtype=int)
+    values = pd.to_numeric(new_points[column], errors="coerce").to_numpy()
+    bad = ~(values >= 1) | (values != np.round(values))
+    if bad.any():
+        raise DataError(f"prediction points: column '{column}' must hold positive whole numbers "
+                        f"of trials; rows {np.flatnonzero(bad)[:10].tolist()}")
+    return values.astype(int)
+
+
+def latent_data(data: CalibrationData, options: ModelOptions, new_points: pd.DataFrame,
+                trials_new: np.ndarray) -> dict[str, Any]:
+    """The observation model and functional theta of koh_latent*.stan."""
+    obs = data.observations
+    check_functional(data, options.functional, options.functional_inputs)
+    observed = obs.observed & obs.is_gaussian
+    grid = functional_grid(data, options.functional_inputs)
+    slots = [options.functional.index(name) + 1 if name in options.functional else 0
+             for name in data.theta_names]
+    fun_inputs = list(options.functional_inputs)
+    return dict(
+        likelihood_id=int(obs.likelihood),
+        y_real=np.where(observed, _standardise(data, np.nan_to_num(obs.value)), 0.0),
+        y_int=np.where(obs.is_gaussian, 0, np.nan_to_num(obs.value)).astype(int),
+        trials=obs.trials,
+        censoring=obs.censoring,
+        # infinite bounds are never read (the censoring code says which side is used)
+        lower_bound=np.nan_to_num(_standardise(data, obs.lower), posinf=0.0, neginf=0.0),
+        upper_bound=np.nan_to_num(_standardise(data, obs.upper), posinf=0.0, neginf=0.0),
+        F=len(options.functional),
+        functional_slot=slots,
+        D_fun=len(fun_inputs),
+        x_fun=data.scaling.to_unit(data.physical, fun_inputs),
+        G=len(grid),
+        x_fun_grid=data.scaling.to_unit(grid, fun_inputs).reshape(len(grid), len(fun_inputs)),
+        x_fun_new=data.scaling.to_unit(new_points, fun_inputs),
+        trials_new=trials_new,
+    )
 
 
 def restricted_gp_data(data: CalibrationData, options: ModelOptions) -> dict[str, Any]:
@@ -148,7 +204,7 @@ def emulator_run_data(data: CalibrationData) -> dict[str, Any]:
         M=len(data.runs),
         x_sim=s.to_unit(data.runs, data.inputs),
         theta_sim=s.to_unit(data.runs, data.theta_names),
-        y_sim=_standardise(data, data.runs[data.output].to_numpy()),
+        y_sim=_standardise(data, data.runs_on_link_scale()),
     )
 
 

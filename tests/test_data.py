@@ -43,8 +43,15 @@ def test_duplicate_column():
 
 def test_nan_names_column_and_rows():
     frame = physical()
+    frame.loc[[1, 3], "x"] = np.nan
+    with pytest.raises(DataError, match=r"column 'x' has NaN or inf in rows \[1, 3\]"):
+        make(physical=frame)
+
+
+def test_empty_output_without_bounds_names_rows():
+    frame = physical()
     frame.loc[[1, 3], "y"] = np.nan
-    with pytest.raises(DataError, match=r"column 'y' has NaN or inf in rows \[1, 3\]"):
+    with pytest.raises(DataError, match=r"output column 'y' is empty in rows \[1, 3\].*lower/upper"):
         make(physical=frame)
 
 

@@ -21,3 +21,15 @@ real discrepancy_length_scale_lpdf(array[] real length_scale) {
 real emulator_length_scale_lpdf(array[] real length_scale) {
   return inv_gamma_lpdf(length_scale | 2, 1);
 }
+
+/**
+ * Prior for ARD length scales of a functional theta's GP on unit-cube
+ * inputs: inverse gamma(3, 1), as for the discrepancy, so theta(x) varies
+ * smoothly over a fraction of an input's range at the shortest.
+ *
+ * @param length_scale one per functional input
+ * @return log density
+ */
+real functional_length_scale_lpdf(vector length_scale) {
+  return inv_gamma_lpdf(length_scale | 3, 1);
+}

@@ -63,3 +63,19 @@ matrix restriction_map(int orthogonal, matrix X_quad, vector w_quad, vector thet
   }
   return identity_matrix(N);
 }
+
+/**
+ * The user's simulator at points that may each have their own theta,
+ * standardised like y: one call when theta is shared (one row), one call
+ * per point otherwise.
+ */
+vector simulator_at_rows(matrix X, matrix theta_rows, real y_center, real y_scale) {
+  if (rows(theta_rows) == 1) {
+    return standardized_simulator(X, theta_rows[1]', y_center, y_scale);
+  }
+  vector[rows(X)] f;
+  for (i in 1:rows(X)) {
+    f[i] = standardized_simulator(X[i:i, :], theta_rows[i]', y_center, y_scale)[1];
+  }
+  return f;
+}

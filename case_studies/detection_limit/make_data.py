@@ -1,0 +1,47 @@
+"""Lab concentrations with the usual reporting limits: below the limit of
+detection (0.8 mg/L) the lab reports "< 0.8" (left-censored); between it and
+the limit of quantification (1.5 mg/L) it reports "detected, not quantified"
+(interval-censored); above the calibrated range (15 mg/L) it reports "> 15"
+(right-censored). About a third of the rows are censored. Writes physical.csv:
+an empty concentration with the bounds in lower/upper marks a censored row."""
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+K_TRUE = 0.15  # 1/h
+NOISE_SD = 0.2  # mg/L
+DETECTION_LIMIT, QUANTIFICATION_LIMIT, UPPER_LIMIT = 0.8, 1.5, 15.0
+
+
+def simulator(t, c0, k):
+    return c0 * np.exp(-k * t)
+
+
+def censor(values: np.ndarray) -> pd.DataFrame:
+    """The lab's report of true values: exact, or a range."""
+    value = values.copy()
+    lower = np.full(values.size, np.nan)
+    upper = np.full(values.size, np.nan)
+    left = values < DETECTION_LIMIT
+    between = (values >= DETECTION_LIMIT) & (values < QUANTIFICATION_LIMIT)
+    right = values > UPPER_LIMIT
+    value[left | between | right] = np.nan
+    upper[left] = DETECTION_LIMIT
+    lower[between], upper[between] = DETECTION_LIMIT, QUANTIFICATION_LIMIT
+    lower[right] = UPPER_LIMIT
+    return pd.DataFrame({"concentration": value, "lower": lower, "upper": upper})
+
+
+def main(folder: Path = Path(__file__).parent) -> None:
+    rng = np.random.default_rng(11)
+    t, c0 = np.meshgrid([0.5, 1, 2, 3, 4, 6, 8, 10, 12, 16, 20, 24], [5.0, 10.0, 20.0])
+    t, c0 = t.ravel(), c0.ravel()
+    measured = simulator(t, c0, K_TRUE) + NOISE_SD * rng.standard_normal(t.size)
+    table = pd.concat([pd.DataFrame({"t": t, "c0": c0}), censor(measured)], axis=1)
+    table.round(4).to_csv(folder / "physical.csv", index=False)
+
+
+if __name__ == "__main__":
+    main()

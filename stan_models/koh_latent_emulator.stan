@@ -1,0 +1,195 @@
+// Kennedy-O'Hagan calibration from simulator runs with latent GPs, for
+// non-Gaussian or censored outputs and functional theta (see koh_latent.stan
+// for the cheap-simulator version of the same model):
+//   g(E[y_i]) = f(x_i, theta(x_i)) + delta(x_i, z_i),
+//   f ~ GP(emulator_mean, ARD kernel over (x, theta)) on the link scale,
+//   trained on the runs g(y_sim_j) = f(x_sim_j, theta_sim_j) + nugget_j.
+// The emulator at the physical points is a latent draw given the runs
+// (functions/latent_gp.stan), so theta, the emulator and the discrepancy are
+// sampled together, as in the joint program koh_emulator.stan.
+// Inputs and theta are scaled to [0, 1]; the runs' link-scale outputs are
+// standardised, and so are Gaussian physical outputs.
+functions {
+#include gp_kernels.stan
+#include gp_conditional.stan
+#include koh_joint.stan
+#include latent_gp.stan
+#include observation_model.stan
+#include functional_theta.stan
+#include priors.stan
+#include scaling.stan
+}
+data {
+  int<lower=1> N;                       // number of physical observations
+  int<lower=1> M;                       // number of simulator runs
+  int<lower=1> D;                       // number of simulator inputs
+  int<lower=1> D_delta;                 // number of discrepancy inputs: simulator inputs, then covariates
+  int<lower=1> Q;                       // number of calibration parameters
+  array[N] vector[D] x;                 // simulator inputs of the physical points, scaled to [0, 1]
+  array[N] vector[D_delta] x_delta;     // discrepancy inputs of the physical points, scaled to [0, 1]
+  array[M] vector[D] x_sim;             // simulator inputs of the runs, scaled to [0, 1]
+  array[M] vector[Q] theta_sim;         // theta of the runs, scaled to [0, 1] within its bounds
+  vector[M] y_sim;                      // runs' output on the link scale, standardised: (g(y) - y_center) / y_scale
+  int<lower=1, upper=4> likelihood_id;  // 1 = gaussian, 2 = poisson, 3 = negbinomial, 4 = binomial
+  vector[N] y_real;                     // gaussian: output, standardised like y_sim (0 where censored or not gaussian)
+  array[N] int<lower=0> y_int;          // poisson, negbinomial: counts; binomial: successes (else 0)
+  array[N] int<lower=0> trials;         // binomial: number of trials (else 0)
+  array[N] int<lower=0, upper=3> censoring;  // 0 = observed, 1 = left, 2 = right, 3 = interval
+  vector[N] lower_bound;                // censoring bounds, standardised like y_real (used where censored)
+  vector[N] upper_bound;                // see lower_bound
+  real y_center;                        // link-scale runs output = y_center + y_scale * y_sim
+  real<lower=0> y_scale;                // see y_center
+  vector[Q] theta_lower;                // lower bounds of theta, original units (uniform prior)
+  vector<lower=theta_lower>[Q] theta_upper;  // upper bounds of theta, original units
+  int<lower=0, upper=1> use_discrepancy;     // 1 = GP discrepancy on the link scale, 0 = none
+  int<lower=1, upper=2> kernel_id;      // kernel of every GP: 1 = squared exponential, 2 = Matern 5/2
+  int<lower=0, upper=Q> F;              // number of functional theta
+  array[Q] int<lower=0, upper=F> functional_slot;  // 0 = scalar theta, k = the k-th functional one
+  int<lower=0> D_fun;                   // number of inputs the functional theta vary over
+  array[N] vector[D_fun] x_fun;         // those inputs at the physical points, scaled to [0, 1]
+  int<lower=0> G;                       // number of grid points for the theta(x) curves
+  array[G] vector[D_fun] x_fun_grid;    // the grid, scaled like x_fun
+  int<lower=0, upper=1> prior_only;     // 1 = ignore y (the runs still train the emulator)
+  int<lower=0> P;                       // number of prediction points
+  array[P] vector[D] x_new;             // simulator inputs of the prediction points, scaled to [0, 1]
+  array[P] vector[D_delta] x_delta_new; // discrepancy inputs of the prediction points, scaled to [0, 1]
+  array[P] vector[D_fun] x_fun_new;     // functional inputs of the prediction points, scaled like x_fun
+  array[P] int<lower=0> trials_new;     // binomial: trials of a new observation at each prediction point
+}
+transformed data {
+  array[M] vector[D + Q] xt_sim;
+  for (j in 1:M) xt_sim[j] = append_row(x_sim[j], theta_sim[j]);
+  array[0] real no_discrepancy;         // koh_joint_predict_rng draws f alone with it
+}
+parameters {
+  vector<lower=0, upper=1>[Q] theta_unit;   // theta on [0, 1]; a functional theta's level
+  array[likelihood_id == 1] real<lower=0> noise_sd;       // gaussian, standardised units
+  array[likelihood_id == 3] real<lower=0> inv_sqrt_phi;   // negbinomial overdispersion
+  array[use_discrepancy] real<lower=0> delta_sd;          // model-scale units
+  array[use_discrepancy ? D_delta : 0] real<lower=0> delta_length_scale;  // fraction of input range
+  vector[use_discrepancy ? N : 0] delta_z;                // non-centred discrepancy
+  vector<lower=0>[F] theta_function_sd;                   // logit scale
+  array[F] vector<lower=0>[D_fun] theta_function_length_scale;  // fraction of input range
+  matrix[N, F] theta_function_z;                          // non-centred functional theta
+  real emulator_mean;
+  real<lower=0> emulator_sd;
+  array[D + Q] real<lower=0> emulator_length_scale;       // inputs first, then theta
+  real<lower=0> emulator_nugget;
+  vector[N] emulator_z;                                   // non-centred emulator at the physical points
+}
+transformed parameters {
+  // theta at each physical point on [0, 1] (one row when none is functional)
+  matrix[F > 0 ? N : 1, Q] theta_points_unit = theta_unit_rows(
+    theta_unit, functional_slot,
+    functional_deviation(x_fun, kernel_id, theta_function_sd, theta_function_length_scale,
+                         theta_function_z));
+  vector[Q] theta;                      // scalar theta; a functional one's mean over the points
+  for (j in 1:Q) {
+    theta[j] = theta_lower[j] + (theta_upper[j] - theta_lower[j]) * mean(theta_points_unit[:, j]);
+  }
+  array[N] vector[D + Q] xt_obs;        // emulator inputs of the physical points
+  for (i in 1:N) xt_obs[i] = append_row(x[i], theta_points_unit[F > 0 ? i : 1]');
+  // the emulator at the physical points, standardised
+  vector[N] f_std = emulator_latent(xt_sim, y_sim, xt_obs, kernel_id, emulator_mean, emulator_sd,
+                                    emulator_length_scale, emulator_nugget, emulator_z);
+  vector[N] delta = rep_vector(0, N);   // discrepancy at the physical points, model scale
+  if (use_discrepancy) {
+    delta = latent_gp(x_delta, kernel_id, delta_sd[1], delta_length_scale, delta_z);
+  }
+}
+model {
+  noise_sd ~ normal(0, 1);
+  inv_sqrt_phi ~ normal(0, 1);
+  delta_sd ~ normal(0, 0.5);
+  delta_length_scale ~ discrepancy_length_scale();
+  delta_z ~ std_normal();
+  theta_function_sd ~ normal(0, 1.5);
+  for (k in 1:F) theta_function_length_scale[k] ~ functional_length_scale();
+  to_vector(theta_function_z) ~ std_normal();
+  emulator_mean ~ normal(0, 1);
+  emulator_sd ~ normal(0, 1);
+  emulator_length_scale ~ emulator_length_scale();
+  emulator_nugget ~ normal(0, 0.05);
+  emulator_z ~ std_normal();
+  // the runs train the emulator (emulator_latent conditions f on them)
+  y_sim ~ multi_normal_cholesky(rep_vector(emulator_mean, M), cholesky_decompose(
+    add_diag(ard_cov(xt_sim, kernel_id, emulator_sd, emulator_length_scale), square(emulator_nugget))));
+  if (!prior_only) {
+    vector[N] eta = link_from_standardised(likelihood_id, f_std, y_center, y_scale) + delta;
+    target += sum(observation_log_lik(
+      likelihood_id, eta, likelihood_id == 1 ? noise_sd[1] : 1, likelihood_id == 3 ? inv_square(inv_sqrt_phi[1]) : 1,
+      y_real, y_int, trials, censoring, lower_bound, upper_bound));
+  }
+}
+generated quantities {
+  array[likelihood_id == 1] real noise_sd_original;
+  array[likelihood_id == 3] real phi;   // negbinomial precision: Var = mu + mu^2 / phi
+  array[use_discrepancy] real delta_sd_original;
+  vector[N] log_lik;      // log p(y_i | latent values, parameters), original units
+  vector[N] y_rep;        // replicated data, original units
+  vector[N] delta_gp;     // discrepancy at the physical points, original units (link scale)
+  matrix[G, F] theta_function_grid;  // functional theta on the grid, original units
+  vector[P] f_new;        // emulated simulator mean at the prediction points, response scale
+  vector[P] delta_new;    // discrepancy at the prediction points (link scale)
+  vector[P] zeta_new;     // mean of the real process g^-1(g(f) + delta), response scale
+  vector[P] y_new;        // a new observation at each prediction point
+  {
+    real sd_obs = likelihood_id == 1 ? noise_sd[1] : 1;
+    real precision = likelihood_id == 3 ? inv_square(inv_sqrt_phi[1]) : 1;
+    real units = discrepancy_units(likelihood_id, y_scale);
+    if (likelihood_id == 1) noise_sd_original[1] = noise_sd[1] * y_scale;
+    if (likelihood_id == 3) phi[1] = precision;
+    if (use_discrepancy) delta_sd_original[1] = delta_sd[1] * units;
+    vector[N] eta = link_from_standardised(likelihood_id, f_std, y_center, y_scale) + delta;
+    log_lik = observation_log_lik(likelihood_id, eta, sd_obs, precision, y_real, y_int, trials,
+                                  censoring, lower_bound, upper_bound);
+    y_rep = observation_rng(likelihood_id, eta, sd_obs, precision, trials);
+    if (likelihood_id == 1) {
+      for (i in 1:N) {
+        if (censoring[i] == 0) log_lik[i] -= log(y_scale);  // a density in original units
+      }
+      y_rep = y_center + y_scale * y_rep;
+    }
+    delta_gp = units * delta;
+
+    matrix[N, F] deviation = functional_deviation(x_fun, kernel_id, theta_function_sd,
+                                                  theta_function_length_scale, theta_function_z);
+    matrix[F > 0 ? P : 1, Q] theta_new_unit = rep_matrix(theta_unit', F > 0 ? P : 1);
+    for (j in 1:Q) {
+      int k = functional_slot[j];
+      if (k > 0) {
+        vector[P + G] curve = inv_logit(logit(theta_unit[j]) + latent_gp_predict_rng(
+          deviation[:, k], x_fun, append_array(x_fun_new, x_fun_grid), kernel_id,
+          theta_function_sd[k], to_array_1d(theta_function_length_scale[k])));
+        if (P > 0) theta_new_unit[:, j] = curve[1:P];
+        theta_function_grid[:, k] = theta_lower[j] + (theta_upper[j] - theta_lower[j]) * curve[(P + 1):(P + G)];
+      }
+    }
+    array[P] vector[D + Q] xt_new;
+    for (i in 1:P) xt_new[i] = append_row(x_new[i], theta_new_unit[F > 0 ? i : 1]');
+    // f at the new points given the runs and its latent values at the physical points,
+    // which koh_joint_cov stacks with a noise sd equal to the latent jitter
+    vector[P] f_std_new = rep_vector(emulator_mean, P);
+    if (P > 0) {
+      vector[M + N] resid = append_row(y_sim, f_std) - emulator_mean;
+      matrix[M + N, M + N] L = cholesky_decompose(koh_joint_cov(
+        xt_sim, xt_obs, x_delta, kernel_id, emulator_sd, emulator_length_scale, emulator_nugget,
+        1.0, no_discrepancy, no_discrepancy, 1e-3 * emulator_sd));
+      f_std_new += koh_joint_predict_rng(resid, L, xt_sim, xt_obs, x_delta, xt_new, x_delta_new,
+                                         kernel_id, emulator_sd, emulator_length_scale, 1.0,
+                                         no_discrepancy, no_discrepancy)[1:P];
+    }
+    vector[P] f_link_new = link_from_standardised(likelihood_id, f_std_new, y_center, y_scale);
+    vector[P] delta_new_model = rep_vector(0, P);
+    if (use_discrepancy && P > 0) {
+      delta_new_model = latent_gp_predict_rng(delta, x_delta, x_delta_new, kernel_id, delta_sd[1],
+                                              delta_length_scale);
+    }
+    vector[P] eta_new = f_link_new + delta_new_model;
+    f_new = response_scale(likelihood_id, f_link_new, y_center, y_scale);
+    delta_new = units * delta_new_model;
+    zeta_new = response_scale(likelihood_id, eta_new, y_center, y_scale);
+    y_new = observation_rng(likelihood_id, eta_new, sd_obs, precision, trials_new);
+    if (likelihood_id == 1) y_new = y_center + y_scale * y_new;
+  }
+}

@@ -1,0 +1,134 @@
+"""The physical output as the likelihood sees it: Gaussian values (some of
+them censored to a range), counts, or binomial successes out of trials."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from .models import Censoring, Likelihood
+from .validation import DataError
+from .validation import row_labels as _rows
+
+LIKELIHOODS = {likelihood.name.lower(): likelihood for likelihood in Likelihood}
+
+
+def likelihood_of(name: str) -> Likelihood:
+    try:
+        return LIKELIHOODS[name]
+    except KeyError:
+        raise DataError(f"likelihood must be one of {', '.join(LIKELIHOODS)}; got {name!r}") from None
+
+
+@dataclass(frozen=True)
+class Observations:
+    """One entry per physical row. ``value`` is NaN where censored;
+    ``lower``/``upper`` are -inf/+inf where a side is open."""
+
+    likelihood: Likelihood
+    value: np.ndarray
+    trials: np.ndarray  # binomial trials; zeros otherwise
+    censoring: np.ndarray  # Censoring codes
+    lower: np.ndarray
+    upper: np.ndarray
+
+    @property
+    def is_gaussian(self) -> bool:
+        return self.likelihood is Likelihood.GAUSSIAN
+
+    @property
+    def observed(self) -> np.ndarray:
+        return self.censoring == Censoring.OBSERVED
+
+    @property
+    def any_censored(self) -> bool:
+        return not self.observed.all()
+
+    def counts_by_kind(self) -> dict[str, int]:
+        """How many observations are exact and how many censored of each kind."""
+        return {kind.name.lower(): int(np.sum(self.censoring == kind)) for kind in Censoring}
+
+
+def _numeric(frame: pd.DataFrame, column: str, what: str) -> np.ndarray:
+    """A column as floats with NaN for empty cells; text is an error."""
+    raw = frame[column]
+    values = pd.to_numeric(raw, errors="coerce")
+    bad = values.isna().to_numpy() & raw.notna().to_numpy()
+    if bad.any():
+        raise DataError(f"{what}: column '{column}' has non-numeric values in rows {_rows(bad, frame.index)}")
+    values = values.to_numpy(dtype=float)
+    if np.isinf(values).any():
+        raise DataError(f"{what}: column '{column}' has inf in rows "
+                               f"{_rows(np.isinf(values), frame.index)}; leave the cell empty for an open bound")
+    return values
+
+
+def _require_whole(values: np.ndarray, column: str, index: pd.Index, what: str, minimum: int) -> None:
+    bad = np.isnan(values) | (values < minimum) | (values != np.round(values))
+    if bad.any():
+        kind = "non-negative" if minimum == 0 else "positive"
+        raise DataError(f"{what}: column '{column}' must hold {kind} whole numbers; rows "
+                               f"{_rows(bad, index)} hold {values[bad][:5].tolist()}")
+
+
+def read_observations(frame: pd.DataFrame, output: str, likelihood: str = "gaussian",
+                      trials: str | None = None, lower: str | None = None,
+                      upper: str | None = None, what: str = "physical data") -> Observations:
+    """Validate the output (and trials or censoring bounds) for the likelihood."""
+    kind = likelihood_of(likelihood)
+    for key, column in (("trials", trials), ("lower", lower), ("upper", upper)):
+        if column is not None and column not in frame.columns:
+            raise DataError(f"{what}: the {key} column '{column}' is missing; available: {list(frame.columns)}")
+    if trials is not None and kind is not Likelihood.BINOMIAL:
+        raise DataError(f"trials = '{trials}' is for likelihood 'binomial'; got '{likelihood}'")
+    if (lower is not None or upper is not None) and kind is not Likelihood.GAUSSIAN:
+        raise DataError(f"censoring bounds (lower/upper) need likelihood 'gaussian'; got '{likelihood}'")
+    value = _numeric(frame, output, what)
+    n = len(frame)
+    censoring = np.zeros(n, dtype=int)
+    low, high = np.full(n, -np.inf), np.full(n, np.inf)
+    n_trials = np.zeros(n)
+    if kind is Likelihood.GAUSSIAN:
+        if lower is not None:
+            low = np.where(np.isnan(given := _numeric(frame, lower, what)), -np.inf, given)
+        if upper is not None:
+            high = np.where(np.isnan(given := _numeric(frame, upper, what)), np.inf, given)
+        empty = np.isnan(value)
+        unbounded = empty & np.isneginf(low) & np.isposinf(high)
+        if unbounded.any():
+            hint = ("give a lower or upper bound for a censored value, or drop the rows"
+                    if lower or upper else "fill them, drop the rows, or name bound columns (lower/upper)")
+            raise DataError(f"{what}: output column '{output}' is empty in rows "
+                                   f"{_rows(unbounded, frame.index)}; {hint}")
+        crossed = empty & (low >= high)
+        if crossed.any():
+            raise DataError(f"{what}: censored rows {_rows(crossed, frame.index)} have lower >= upper "
+                                   f"('{lower}' >= '{upper}'); an exact value belongs in '{output}'")
+        censoring[empty & np.isneginf(low)] = Censoring.LEFT
+        censoring[empty & np.isposinf(high)] = Censoring.RIGHT
+        censoring[empty & np.isfinite(low) & np.isfinite(high)] = Censoring.INTERVAL
+        low[~empty], high[~empty] = -np.inf, np.inf  # rows with a value are exact
+    else:
+        _require_whole(value, output, frame.index, what, 0)
+        if kind is Likelihood.BINOMIAL:
+            if trials is None:  # binary outcomes
+                n_trials = np.ones(n)
+                above = value > 1
+                if above.any():
+                    raise DataError(f"{what}: output column '{output}' must be 0 or 1 without a trials "
+                                           f"column; rows {_rows(above, frame.index)} exceed 1 "
+                                           "(name the trials column with trials = ...)")
+            else:
+                n_trials = _numeric(frame, trials, what)
+                _require_whole(n_trials, trials, frame.index, what, 1)
+                above = value > n_trials
+                if above.any():
+                    raise DataError(f"{what}: successes '{output}' exceed trials '{trials}' in rows "
+                                           f"{_rows(above, frame.index)}")
+    observed = censoring == Censoring.OBSERVED
+    if observed.sum() < 2:
+        raise DataError(f"{what}: only {int(observed.sum())} rows have an exact '{output}'; "
+                               "calibration needs at least 2")
+    return Observations(kind, value, n_trials.astype(int), censoring, low, high)
