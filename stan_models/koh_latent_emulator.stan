@@ -46,7 +46,9 @@ data {
   int<lower=0, upper=Q> F;              // number of functional theta
   array[Q] int<lower=0, upper=F> functional_slot;  // 0 = scalar theta, k = the k-th functional one
   int<lower=0> D_fun;                   // number of inputs the functional theta vary over
-  array[N] vector[D_fun] x_fun;         // those inputs at the physical points, scaled to [0, 1]
+  int<lower=0> N_fun;                   // number of distinct values of those inputs among the physical points
+  array[N_fun] vector[D_fun] x_fun;     // the distinct values, scaled to [0, 1]
+  array[F > 0 ? N : 0] int<lower=1, upper=N_fun> fun_point;  // which of them each physical point has
   int<lower=0> G;                       // number of grid points for the theta(x) curves
   array[G] vector[D_fun] x_fun_grid;    // the grid, scaled like x_fun
   int<lower=0, upper=1> prior_only;     // 1 = ignore y (the runs still train the emulator)
@@ -70,7 +72,7 @@ parameters {
   vector[use_discrepancy ? N : 0] delta_z;                // non-centred discrepancy
   vector<lower=0>[F] theta_function_sd;                   // logit scale
   array[F] vector<lower=0>[D_fun] theta_function_length_scale;  // fraction of input range
-  matrix[N, F] theta_function_z;                          // non-centred functional theta
+  matrix[N_fun, F] theta_function_logit;                  // logit of functional theta (unit scale) at x_fun
   real emulator_mean;
   real<lower=0> emulator_sd;
   array[D + Q] real<lower=0> emulator_length_scale;       // inputs first, then theta
@@ -80,9 +82,7 @@ parameters {
 transformed parameters {
   // theta at each physical point on [0, 1] (one row when none is functional)
   matrix[F > 0 ? N : 1, Q] theta_points_unit = theta_unit_rows(
-    theta_unit, functional_slot,
-    functional_deviation(x_fun, kernel_id, theta_function_sd, theta_function_length_scale,
-                         theta_function_z));
+    theta_unit, functional_slot, theta_function_logit[fun_point]);
   vector[Q] theta;                      // scalar theta; a functional one's mean over the points
   for (j in 1:Q) {
     theta[j] = theta_lower[j] + (theta_upper[j] - theta_lower[j]) * mean(theta_points_unit[:, j]);
@@ -105,7 +105,8 @@ model {
   delta_z ~ std_normal();
   theta_function_sd ~ normal(0, 1.5);
   for (k in 1:F) theta_function_length_scale[k] ~ functional_length_scale();
-  to_vector(theta_function_z) ~ std_normal();
+  theta_function_logit ~ functional_theta(theta_unit, functional_slot, x_fun, kernel_id, theta_function_sd,
+                                          theta_function_length_scale);
   emulator_mean ~ normal(0, 1);
   emulator_sd ~ normal(0, 1);
   emulator_length_scale ~ emulator_length_scale();
@@ -152,15 +153,13 @@ generated quantities {
     }
     delta_gp = units * delta;
 
-    matrix[N, F] deviation = functional_deviation(x_fun, kernel_id, theta_function_sd,
-                                                  theta_function_length_scale, theta_function_z);
     matrix[F > 0 ? P : 1, Q] theta_new_unit = rep_matrix(theta_unit', F > 0 ? P : 1);
     for (j in 1:Q) {
       int k = functional_slot[j];
       if (k > 0) {
-        vector[P + G] curve = inv_logit(logit(theta_unit[j]) + latent_gp_predict_rng(
-          deviation[:, k], x_fun, append_array(x_fun_new, x_fun_grid), kernel_id,
-          theta_function_sd[k], to_array_1d(theta_function_length_scale[k])));
+        vector[P + G] curve = functional_theta_predict_rng(
+          theta_function_logit[:, k], theta_unit[j], x_fun, append_array(x_fun_new, x_fun_grid),
+          kernel_id, theta_function_sd[k], theta_function_length_scale[k]);
         if (P > 0) theta_new_unit[:, j] = curve[1:P];
         theta_function_grid[:, k] = theta_lower[j] + (theta_upper[j] - theta_lower[j]) * curve[(P + 1):(P + G)];
       }

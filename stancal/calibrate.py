@@ -34,7 +34,7 @@ logger = logging.getLogger("stancal")
 # parameters block of each program, for diagnostics and for predict()
 _CALIBRATION_PARAMETERS = ["theta_unit", "noise_sd", "delta_sd", "delta_length_scale", "rho_free", "beta"]
 _LATENT_PARAMETERS = ["theta_unit", "noise_sd", "inv_sqrt_phi", "delta_sd", "delta_length_scale",
-                      "delta_z", "theta_function_sd", "theta_function_length_scale", "theta_function_z"]
+                      "delta_z", "theta_function_sd", "theta_function_length_scale", "theta_function_logit"]
 _PARAMETERS = {
     Method.KOH: _CALIBRATION_PARAMETERS,
     Method.MODULAR: _CALIBRATION_PARAMETERS,

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 from dataclasses import asdict, dataclass, field
+from itertools import product
 from pathlib import Path
 from typing import Any
 
@@ -161,7 +162,9 @@ class CalibrationResult:
         for name, da in posterior.data_vars.items():
             flat = np.asarray(da).reshape(da.sizes["chain"] * da.sizes["draw"], -1)
             extra_dims = [dim for dim in da.dims if dim not in ("chain", "draw")]
-            labels = ([str(v) for v in da[extra_dims[0]].values] if extra_dims else [None])
+            # ArviZ's labels: name[a] or name[a, b], in C order like the reshape
+            labels = [", ".join(str(v) for v in combo)
+                      for combo in product(*(da[dim].values for dim in extra_dims))] if extra_dims else [None]
             for k, label in enumerate(labels):
                 key = name if label is None else f"{name}[{label}]"
                 v = flat[:, k]

@@ -161,6 +161,9 @@ def latent_data(data: CalibrationData, options: ModelOptions, new_points: pd.Dat
     slots = [options.functional.index(name) + 1 if name in options.functional else 0
              for name in data.theta_names]
     fun_inputs = list(options.functional_inputs)
+    # theta(x) is a latent GP over the distinct values only: replicates share them
+    distinct, fun_point = np.unique(data.scaling.to_unit(data.physical, fun_inputs), axis=0,
+                                    return_inverse=True)
     return dict(
         likelihood_id=int(obs.likelihood),
         y_real=np.where(observed, _standardise(data, np.nan_to_num(obs.value)), 0.0),
@@ -173,7 +176,9 @@ def latent_data(data: CalibrationData, options: ModelOptions, new_points: pd.Dat
         F=len(options.functional),
         functional_slot=slots,
         D_fun=len(fun_inputs),
-        x_fun=data.scaling.to_unit(data.physical, fun_inputs),
+        N_fun=len(distinct) if fun_inputs else 0,
+        x_fun=distinct if fun_inputs else np.zeros((0, 0)),
+        fun_point=(fun_point.ravel() + 1) if fun_inputs else np.zeros(0, dtype=int),
         G=len(grid),
         x_fun_grid=data.scaling.to_unit(grid, fun_inputs).reshape(len(grid), len(fun_inputs)),
         x_fun_new=data.scaling.to_unit(new_points, fun_inputs),

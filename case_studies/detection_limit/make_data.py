@@ -1,7 +1,7 @@
 """Lab concentrations with the usual reporting limits: below the limit of
-detection (0.8 mg/L) the lab reports "< 0.8" (left-censored); between it and
+detection (1.0 mg/L) the lab reports "< 1.0" (left-censored); between it and
 the limit of quantification (1.5 mg/L) it reports "detected, not quantified"
-(interval-censored); above the calibrated range (15 mg/L) it reports "> 15"
+(interval-censored); above the calibrated range (7 mg/L) it reports "> 7"
 (right-censored). About a third of the rows are censored. Writes physical.csv:
 an empty concentration with the bounds in lower/upper marks a censored row."""
 
@@ -11,8 +11,8 @@ import numpy as np
 import pandas as pd
 
 K_TRUE = 0.15  # 1/h
-NOISE_SD = 0.2  # mg/L
-DETECTION_LIMIT, QUANTIFICATION_LIMIT, UPPER_LIMIT = 0.8, 1.5, 15.0
+NOISE_SD = 0.5  # mg/L
+DETECTION_LIMIT, QUANTIFICATION_LIMIT, UPPER_LIMIT = 1.0, 1.5, 7.0
 
 
 def simulator(t, c0, k):
@@ -34,13 +34,17 @@ def censor(values: np.ndarray) -> pd.DataFrame:
     return pd.DataFrame({"concentration": value, "lower": lower, "upper": upper})
 
 
-def main(folder: Path = Path(__file__).parent) -> None:
-    rng = np.random.default_rng(11)
-    t, c0 = np.meshgrid([0.5, 1, 2, 3, 4, 6, 8, 10, 12, 16, 20, 24], [5.0, 10.0, 20.0])
+def measurements(seed: int) -> pd.DataFrame:
+    """Samples at 30 times over 14 h from three doses, as the lab reports them."""
+    rng = np.random.default_rng(seed)
+    t, c0 = np.meshgrid(np.linspace(0.5, 14, 30), [4.0, 6.0, 8.0])
     t, c0 = t.ravel(), c0.ravel()
     measured = simulator(t, c0, K_TRUE) + NOISE_SD * rng.standard_normal(t.size)
-    table = pd.concat([pd.DataFrame({"t": t, "c0": c0}), censor(measured)], axis=1)
-    table.round(4).to_csv(folder / "physical.csv", index=False)
+    return pd.concat([pd.DataFrame({"t": t, "c0": c0}), censor(measured)], axis=1).round(4)
+
+
+def main(folder: Path = Path(__file__).parent) -> None:
+    measurements(seed=11).to_csv(folder / "physical.csv", index=False)
 
 
 if __name__ == "__main__":

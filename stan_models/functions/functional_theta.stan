@@ -1,9 +1,10 @@
 /**
  * Functional calibration parameters theta_j(x) (review section 8.2;
  * Plumlee et al. 2016, Brown & Atamturktur 2018). On the unit scale of its
- * box, theta_j(x) = logistic(logit(level_j) + GP_j(x)), GP_j zero-mean: the
- * level has the same uniform prior as a scalar theta, and the GP moves
- * theta_j over the functional inputs without leaving its box.
+ * box, theta_j(x) = logistic(g_j(x)) with g_j ~ GP(logit(level_j), K_j): the
+ * level has the same uniform prior as a scalar theta, and theta_j(x) never
+ * leaves its box. g_j is sampled at the distinct functional-input values
+ * (centred: the data pin theta(x) closely, where a non-centred GP mixes slowly).
  * functional_slot[j] = k > 0 when theta_j is the k-th functional one.
  */
 
@@ -12,18 +13,18 @@
  *
  * @param theta_unit levels of all Q parameters on [0, 1]
  * @param functional_slot 0 for a scalar theta, k for the k-th functional one
- * @param deviation GP_k values at the points (n x F); with F = 0, one row is returned
+ * @param logit_values g_k at the points (n x F); with F = 0, one row is returned
  * @return theta on the unit scale, one row per point (n x Q), or 1 x Q when none is functional
  */
-matrix theta_unit_rows(vector theta_unit, array[] int functional_slot, matrix deviation) {
+matrix theta_unit_rows(vector theta_unit, array[] int functional_slot, matrix logit_values) {
   int q = rows(theta_unit);
-  int n = cols(deviation) == 0 ? 1 : rows(deviation);
+  int n = cols(logit_values) == 0 ? 1 : rows(logit_values);
   matrix[n, q] out;
   for (j in 1:q) {
     if (functional_slot[j] == 0) {
       out[:, j] = rep_vector(theta_unit[j], n);
     } else {
-      out[:, j] = inv_logit(logit(theta_unit[j]) + deviation[:, functional_slot[j]]);
+      out[:, j] = inv_logit(logit_values[:, functional_slot[j]]);
     }
   }
   return out;
@@ -41,18 +42,36 @@ matrix theta_rows_original(matrix unit_rows, vector lower_bound, vector upper_bo
 }
 
 /**
- * The GP deviations of the functional theta at the points (non-centred).
+ * GP prior of the functional theta's logit values at the distinct points.
  *
- * @param x_fun functional inputs of the points, on the unit cube
+ * @param logit_values g_k at the distinct functional-input values (n x F)
+ * @param theta_unit levels of all parameters; the GP mean of g_k is logit(level)
+ * @param x_fun the distinct functional-input values, on the unit cube
  * @param marginal_sd, length_scale one GP per functional theta
- * @param z standard normals (n x F)
- * @return deviations (n x F)
+ * @return log density
  */
-matrix functional_deviation(array[] vector x_fun, int kernel_id, vector marginal_sd,
-                            array[] vector length_scale, matrix z) {
-  matrix[rows(z), cols(z)] out;
-  for (k in 1:cols(z)) {
-    out[:, k] = latent_gp(x_fun, kernel_id, marginal_sd[k], to_array_1d(length_scale[k]), z[:, k]);
+real functional_theta_lpdf(matrix logit_values, vector theta_unit, array[] int functional_slot,
+                           array[] vector x_fun, int kernel_id, vector marginal_sd,
+                           array[] vector length_scale) {
+  real lp = 0;
+  for (j in 1:rows(theta_unit)) {
+    int k = functional_slot[j];
+    if (k > 0) {
+      lp += multi_normal_cholesky_lpdf(logit_values[:, k] | rep_vector(logit(theta_unit[j]), rows(logit_values)),
+                                       latent_gp_cholesky(x_fun, kernel_id, marginal_sd[k],
+                                                          to_array_1d(length_scale[k])));
+    }
   }
-  return out;
+  return lp;
+}
+
+/**
+ * One posterior draw of theta_j(x) on the unit scale at new points, given
+ * its logit values at the distinct points.
+ */
+vector functional_theta_predict_rng(vector logit_values, real level, array[] vector x_fun,
+                                    array[] vector x_new, int kernel_id, real marginal_sd,
+                                    vector length_scale) {
+  return inv_logit(logit(level) + latent_gp_predict_rng(logit_values - logit(level), x_fun, x_new,
+                                                        kernel_id, marginal_sd, to_array_1d(length_scale)));
 }

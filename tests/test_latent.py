@@ -1,0 +1,423 @@
+"""The latent-GP programs: counts and binomial outputs (review section 8.1.4),
+censored outputs (8.1.5) and functional theta (8.2), each recovering a known
+truth, and the validation of each new input kind."""
+
+from __future__ import annotations
+
+import importlib.util
+import warnings
+
+import numpy as np
+import pandas as pd
+import pytest
+from conftest import ROOT, fit
+from scipy.stats import qmc
+
+import stancal
+from stancal.models import Censoring, Likelihood
+from stancal.stan_source import shipped_models_dir
+
+COUNTS = ROOT / "case_studies" / "detector_counts"
+CENSORED = ROOT / "case_studies" / "detection_limit"
+BEAM = ROOT / "case_studies" / "beam_stiffness"
+
+
+def case_study_module(folder):
+    """A case study's make_data.py (every case study has one: load by path)."""
+    spec = importlib.util.spec_from_file_location(f"{folder.name}_make_data", folder / "make_data.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+detector = case_study_module(COUNTS)
+decay = case_study_module(CENSORED)
+beam = case_study_module(BEAM)
+
+
+def interval(result, name):
+    summary = result.theta_summary()[name]
+    return summary["q05"], summary["q95"]
+
+
+def predictive_coverage(result, observed) -> float:
+    """Share of observations inside the 90 % posterior predictive interval."""
+    y_rep = np.asarray(result.idata["posterior_predictive"]["y"]).reshape(-1, len(observed))
+    low, high = np.quantile(y_rep, [0.05, 0.95], axis=0)
+    return float(np.mean((observed >= low) & (observed <= high)))
+
+
+# ---- counts ----------------------------------------------------------------
+
+def exact_counts(likelihood: str, seed: int, phi: float | None = None) -> stancal.CalibrationData:
+    """Counts drawn from the detector simulator itself at mu = 0.35."""
+    rng = np.random.default_rng(seed)
+    d, s = np.meshgrid([0.5, 0.75, 1.0, 1.5, 2.0, 2.5, 3.0], [0.0, 1.0, 2.5, 4.0, 5.0])
+    mean = detector.simulator(d.ravel(), s.ravel(), detector.MU_TRUE)
+    counts = rng.poisson(mean) if phi is None else rng.negative_binomial(phi, phi / (phi + mean))
+    frame = pd.DataFrame({"d": d.ravel(), "s": s.ravel(), "counts": counts})
+    return stancal.CalibrationData(frame, ["d", "s"], "counts", {"mu": (0.05, 1.0)}, likelihood=likelihood)
+
+
+@pytest.fixture(scope="session")
+def poisson_fit():
+    return fit(exact_counts("poisson", seed=1), simulator=COUNTS / "simulator.stan")
+
+
+@pytest.fixture(scope="session")
+def negbinomial_fit():
+    return fit(exact_counts("negbinomial", seed=2, phi=15.0), simulator=COUNTS / "simulator.stan",
+               discrepancy="none")
+
+
+def test_poisson_recovers_mu_and_covers_the_counts(poisson_fit):
+    assert poisson_fit.method == "koh_latent"
+    low, high = interval(poisson_fit, "mu")
+    assert low < detector.MU_TRUE < high
+    observed = poisson_fit.data.observations.value
+    # nominal 90 %, within 10 points
+    assert 0.80 <= predictive_coverage(poisson_fit, observed) <= 1.0
+    # counts are replicated as whole numbers on the count scale
+    y_rep = np.asarray(poisson_fit.idata["posterior_predictive"]["y"])
+    assert np.all(y_rep == np.round(y_rep)) and y_rep.min() >= 0
+    assert poisson_fit.diagnostics.divergences <= 0.02 * poisson_fit.diagnostics.draws
+
+
+def test_negative_binomial_recovers_mu_and_overdispersion(negbinomial_fit):
+    low, high = interval(negbinomial_fit, "mu")
+    assert low < detector.MU_TRUE < high
+    phi = np.asarray(negbinomial_fit.idata["posterior"]["phi"]).ravel()
+    assert np.quantile(phi, 0.05) < 15.0 < np.quantile(phi, 0.95)
+    observed = negbinomial_fit.data.observations.value
+    assert 0.80 <= predictive_coverage(negbinomial_fit, observed) <= 1.0
+    # Poisson noise alone cannot cover overdispersed counts: the check has teeth
+    assert "noise_sd" not in negbinomial_fit.idata["posterior"]
+
+
+def test_count_predictions_at_new_points(poisson_fit):
+    new = pd.DataFrame({"d": [1.0, 2.0], "s": [2.0, 4.0]})
+    table = poisson_fit.predict(new)
+    truth = detector.simulator(new.d, new.s, detector.MU_TRUE).to_numpy()
+    assert np.all(table["zeta_q05"] < truth) and np.all(truth < table["zeta_q95"])
+    # a new count is a count, spread at least as wide as its mean's uncertainty
+    assert np.all(table["y_q95"] - table["y_q05"] >= table["zeta_q95"] - table["zeta_q05"])
+
+
+def test_counts_case_study_from_runs():
+    """The shipped case study (a finite-size detector the simulator lacks)
+    from the simulator runs alone: the emulator on the log scale."""
+    physical, runs = pd.read_csv(COUNTS / "physical.csv"), pd.read_csv(COUNTS / "runs.csv")
+    data = stancal.CalibrationData(physical, ["d", "s"], "counts", {"mu": (0.05, 1.0)},
+                                   likelihood="poisson", runs=runs)
+    result = fit(data)
+    assert result.method == "koh_latent_emulator"
+    low, high = interval(result, "mu")
+    # the finite-size effect is partly confounded with mu: measured 0.380 [0.349, 0.411]
+    assert low < detector.MU_TRUE < high + 0.01
+    # the discrepancy found is the solid-angle factor: below zero close to the source
+    delta = np.asarray(result.idata["at_observations"]["delta_gp"]).reshape(-1, len(physical))
+    close, far = physical.d.to_numpy() <= 0.5, physical.d.to_numpy() >= 2.5
+    assert delta[:, close].mean() < delta[:, far].mean() - 0.1
+
+
+def dose_response(dose, ed50):
+    """Hill curve with slope 2: the probability of a response at a dose."""
+    return 1 / (1 + (ed50 / dose) ** 2)
+
+
+def test_binomial_from_runs_recovers_ed50():
+    rng = np.random.default_rng(1)
+    dose = np.linspace(0.2, 4, 15)
+    trials = np.full(15, 20)
+    physical = pd.DataFrame({"dose": dose, "n": trials, "responders": rng.binomial(trials, dose_response(dose, 1.6))})
+    design = qmc.scale(qmc.LatinHypercube(d=2, seed=2).random(40), [0.2, 0.5], [4.0, 3.0])
+    runs = pd.DataFrame(design, columns=["dose", "ed50"])
+    runs["responders"] = dose_response(runs.dose, runs.ed50)  # the simulator's probability
+    data = stancal.CalibrationData(physical, ["dose"], "responders", {"ed50": (0.5, 3.0)},
+                                   likelihood="binomial", trials="n", runs=runs)
+    result = fit(data, discrepancy="none")
+    low, high = interval(result, "ed50")
+    assert low < 1.6 < high
+    assert 0.80 <= predictive_coverage(result, physical.responders.to_numpy()) <= 1.0
+    table = result.predict(pd.DataFrame({"dose": [1.6], "n": [100]}))
+    assert 0.35 < table["zeta_q50"].iloc[0] < 0.65  # P(response) at the ED50 is 1/2
+    assert 30 < table["y_q50"].iloc[0] < 70  # responders out of 100
+
+
+# ---- censored ----------------------------------------------------------------
+
+def censored_data(frame: pd.DataFrame, bounds: bool = True) -> stancal.CalibrationData:
+    extra = dict(lower="lower", upper="upper") if bounds else {}
+    return stancal.CalibrationData(frame, ["t", "c0"], "concentration", {"k": (0.01, 0.5)}, **extra)
+
+
+def naive_frames(frame: pd.DataFrame) -> dict[str, pd.DataFrame]:
+    """The censored rows dropped, or imputed at the limit (the interval's midpoint)."""
+    value, low, high = (frame[c].to_numpy() for c in ("concentration", "lower", "upper"))
+    imputed = np.where(np.isnan(value),
+                       np.where(np.isnan(low), high, np.where(np.isnan(high), low, (low + high) / 2)), value)
+    return {"drop": frame[frame.concentration.notna()], "impute": frame.assign(concentration=imputed)}
+
+
+def fit_censoring_three_ways(frame: pd.DataFrame, seed: int) -> dict[str, stancal.CalibrationResult]:
+    """Same program (koh_latent) and settings for the censored and naive fits."""
+    options = dict(simulator=CENSORED / "simulator.stan", method="koh_latent", discrepancy="none", seed=seed)
+    fits = {"censored": fit(censored_data(frame), **options)}
+    for name, naive in naive_frames(frame).items():
+        fits[name] = fit(censored_data(naive, bounds=False), **options)
+    return fits
+
+
+@pytest.fixture(scope="session")
+def censored_case_study():
+    return fit_censoring_three_ways(pd.read_csv(CENSORED / "physical.csv"), seed=11)
+
+
+def test_censored_model_recovers_k_and_beats_naive_fits(censored_case_study):
+    fits = censored_case_study
+    censored = fits["censored"]
+    counts = censored.data.observations.counts_by_kind()
+    assert 0.25 < 1 - counts["observed"] / sum(counts.values()) < 0.45  # about a third censored
+    assert min(counts["left"], counts["right"], counts["interval"]) > 0
+    low, high = interval(censored, "k")
+    assert low < decay.K_TRUE < high
+    error = {name: abs(result.theta_summary()["k"]["q50"] - decay.K_TRUE) for name, result in fits.items()}
+    assert error["censored"] < error["drop"] and error["censored"] < error["impute"], error
+
+
+def test_censoring_beats_naive_fits_over_seeds():
+    """Over 6 noise seeds the censored model's mean error is below both naive
+    fits'. (Maximum-likelihood study of this design over 100 seeds: mean
+    absolute error 0.0035 against 0.0084 dropping and 0.0056 imputing; the
+    censored estimate is the closest of the three in 76 % of datasets.)"""
+    errors = {"censored": [], "drop": [], "impute": []}
+    for seed in range(6):
+        fits = fit_censoring_three_ways(decay.measurements(seed=100 + seed), seed=seed)
+        for name, result in fits.items():
+            errors[name].append(abs(result.theta_summary()["k"]["q50"] - decay.K_TRUE))
+    mean = {name: float(np.mean(e)) for name, e in errors.items()}
+    assert mean["censored"] < mean["drop"] and mean["censored"] < mean["impute"], mean
+
+
+def test_censored_summary_and_prediction(censored_case_study, tmp_path):
+    censored = censored_case_study["censored"]
+    summary = censored.to_summary_json()
+    assert summary["censoring"] == censored.data.observations.counts_by_kind()
+    assert summary["likelihood"] == "gaussian"
+    log_lik = np.asarray(censored.idata["log_likelihood"]["y"])
+    assert np.all(np.isfinite(log_lik))
+    # a censored row's log-likelihood is the log probability of its range: <= 0
+    rows = ~censored.data.observations.observed
+    assert np.all(log_lik[..., rows] <= 0)
+    table = censored.predict(pd.DataFrame({"t": [2.0, 10.0], "c0": [6.0, 6.0]}))
+    truth = decay.simulator(np.array([2.0, 10.0]), 6.0, decay.K_TRUE)
+    assert np.all(np.abs(table["zeta_q50"] - truth) < 0.1)
+    again = stancal.load_result(censored.save(tmp_path / "censored.nc"))
+    assert again.data.observations.counts_by_kind() == censored.data.observations.counts_by_kind()
+
+
+# ---- functional theta ----------------------------------------------------------
+
+def beam_data(runs: bool = False) -> stancal.CalibrationData:
+    return stancal.CalibrationData(pd.read_csv(BEAM / "physical.csv"), ["load", "temperature"], "deflection",
+                                   {"E": beam.E_BOUNDS},
+                                   runs=pd.read_csv(BEAM / "runs.csv") if runs else None)
+
+
+@pytest.fixture(scope="session")
+def functional_fit():
+    return fit(beam_data(), simulator=BEAM / "simulator.stan", functional=["E"],
+               functional_inputs=["temperature"])
+
+
+def band_coverage(result) -> float:
+    curve = result.theta_functions()["E"]
+    truth = beam.modulus(np.array(curve["inputs"]["temperature"]))
+    return float(np.mean((np.array(curve["q05"]) <= truth) & (truth <= np.array(curve["q95"]))))
+
+
+def test_functional_theta_recovers_the_ramp(functional_fit):
+    assert functional_fit.options.discrepancy == "none"  # the default with functional theta
+    curve = functional_fit.theta_functions()["E"]
+    assert len(curve["mean"]) == 50 and len(curve["inputs"]["temperature"]) == 50
+    assert band_coverage(functional_fit) >= 0.85
+    # the band is informative: it separates the glassy from the rubbery modulus
+    assert curve["q95"][-1] < curve["q05"][0]
+
+
+def test_scalar_theta_misfits_where_the_functional_one_fits(functional_fit):
+    data = beam_data()
+    scalar = fit(data, simulator=BEAM / "simulator.stan", method="koh_latent", discrepancy="none")
+    observed = data.observations.value
+
+    def residual_rms(result):
+        return float(np.sqrt(np.mean((result.predict()["zeta_mean"].to_numpy() - observed) ** 2)))
+
+    # the functional fit is at the noise level (0.1 mm); one E cannot be
+    assert residual_rms(functional_fit) < 1.5 * beam.NOISE_SD
+    assert residual_rms(scalar) > 5 * beam.NOISE_SD
+    # and the scalar E's interval misses the true E(T) over most of the range
+    low, high = interval(scalar, "E")
+    temperature = np.linspace(20, 90, 50)
+    assert np.mean((beam.modulus(temperature) > low) & (beam.modulus(temperature) < high)) < 0.2
+
+
+def test_functional_theta_from_runs():
+    result = fit(beam_data(runs=True), method="koh_emulator", functional=["E"],
+                 functional_inputs=["temperature"])
+    assert result.method == "koh_latent_emulator"
+    assert band_coverage(result) >= 0.85
+
+
+# ---- validation ------------------------------------------------------------------
+
+def frame(**columns) -> pd.DataFrame:
+    base = {"x": np.linspace(0, 1, 6), "y": [3, 1, 4, 1, 5, 9]}
+    base.update(columns)
+    return pd.DataFrame(base)
+
+
+def make(frame_, **kwargs):
+    return stancal.CalibrationData(frame_, ["x"], "y", {"a": (0, 1)}, **kwargs)
+
+
+@pytest.mark.parametrize("likelihood", ["poisson", "negbinomial"])
+def test_negative_or_fractional_counts(likelihood):
+    with pytest.raises(stancal.DataError, match=r"column 'y' must hold non-negative whole numbers; rows \[2\]"):
+        make(frame(y=[3, 1, -4, 1, 5, 9]), likelihood=likelihood)
+    with pytest.raises(stancal.DataError, match=r"column 'y' must hold non-negative whole numbers; rows \[1, 4\]"):
+        make(frame(y=[3, 1.5, 4, 1, 5.2, 9]), likelihood=likelihood)
+
+
+def test_successes_above_trials():
+    with pytest.raises(stancal.DataError, match=r"successes 'y' exceed trials 'n' in rows \[5\]"):
+        make(frame(n=[10, 10, 10, 10, 10, 8]), likelihood="binomial", trials="n")
+    with pytest.raises(stancal.DataError, match=r"column 'n' must hold positive whole numbers; rows \[0\]"):
+        make(frame(n=[0, 10, 10, 10, 10, 10]), likelihood="binomial", trials="n")
+    with pytest.raises(stancal.DataError, match=r"must be 0 or 1 without a trials column; rows \[0, 2, 4, 5\]"):
+        make(frame(), likelihood="binomial")
+
+
+def test_unknown_likelihood_and_misplaced_columns():
+    with pytest.raises(stancal.DataError, match="likelihood must be one of gaussian, poisson, negbinomial, binomial"):
+        make(frame(), likelihood="gamma")
+    with pytest.raises(stancal.DataError, match="trials = 'n' is for likelihood 'binomial'"):
+        make(frame(n=[10] * 6), likelihood="poisson", trials="n")
+    with pytest.raises(stancal.DataError, match="censoring bounds .* need likelihood 'gaussian'"):
+        make(frame(lo=[0.0] * 6), likelihood="poisson", lower="lo")
+    with pytest.raises(stancal.DataError, match="the trials column 'm' is missing"):
+        make(frame(), likelihood="binomial", trials="m")
+
+
+def test_censoring_bounds_are_checked():
+    y = [3.0, np.nan, 4.0, np.nan, 5.0, 9.0]
+    with pytest.raises(stancal.DataError, match=r"empty in rows \[3\]; give a lower or upper bound"):
+        make(frame(y=y, lo=[np.nan, 1.0, np.nan, np.nan, np.nan, np.nan]), lower="lo")
+    with pytest.raises(stancal.DataError, match=r"censored rows \[1\] have lower >= upper"):
+        make(frame(y=y, lo=[np.nan, 2.0, np.nan, 0.0, np.nan, np.nan],
+                   hi=[np.nan, 1.0, np.nan, np.nan, np.nan, np.nan]), lower="lo", upper="hi")
+    with pytest.raises(stancal.DataError, match=r"column 'lo' has non-numeric values in rows \[1\]"):
+        make(frame(y=y, lo=[None, "<1", None, 0.0, None, None]), lower="lo")
+    data = make(frame(y=y, lo=[np.nan, np.nan, np.nan, 2.0, np.nan, np.nan],
+                      hi=[np.nan, 1.0, np.nan, 3.0, 7.0, np.nan]), lower="lo", upper="hi")
+    # row 4 has a value: exact, whatever its bounds say
+    assert list(data.observations.censoring) == [Censoring.OBSERVED, Censoring.LEFT, Censoring.OBSERVED,
+                                                 Censoring.INTERVAL, Censoring.OBSERVED, Censoring.OBSERVED]
+
+
+def test_runs_must_be_a_valid_mean_on_the_link_scale():
+    runs = pd.DataFrame({"x": [0.0, 0.5, 1.0, 0.2], "a": [0.1, 0.5, 0.9, 0.3], "y": [2.0, 0.0, 3.0, 1.0]})
+    with pytest.raises(stancal.DataError, match=r"simulator runs: output column 'y' must be a mean count > 0 .* rows \[1\]"):
+        make(frame(), likelihood="poisson", runs=runs)
+    with pytest.raises(stancal.DataError, match=r"must be a success probability strictly between 0 and 1 .* rows \[0, 2, 3\]"):
+        make(frame(y=[0, 1, 0, 1, 1, 0]), likelihood="binomial", runs=runs)
+
+
+def test_simulator_mean_not_positive_under_log_link():
+    """The decay simulator returns c0 exp(-k t): zero where c0 = 0."""
+    data = stancal.CalibrationData(pd.DataFrame({"t": [1.0, 2.0, 3.0, 4.0], "c0": [5.0, 0.0, 5.0, 5.0],
+                                                 "n": [4, 0, 3, 2]}),
+                                   ["t", "c0"], "n", {"k": (0.01, 0.5)}, likelihood="poisson")
+    with pytest.raises(stancal.backends.StanRuntimeError, match=r"returned the mean 0 at row 2 .* log link"):
+        fit(data, simulator=CENSORED / "simulator.stan", chains=1, warmup=20, draws=20)
+
+
+def test_functional_options_are_checked():
+    data = make(frame(z=np.linspace(5, 9, 6), g=list("aabbcc")), covariates=["z", "g"])
+    simulator = COUNTS / "simulator.stan"
+    with pytest.raises(stancal.DataError, match=r"functional: \['b'\] are not calibration parameters"):
+        fit(data, simulator=simulator, functional=["b"], functional_inputs=["x"])
+    with pytest.raises(stancal.DataError, match=r"functional_inputs: \['g'\] are not numeric .* choose from \['x', 'z'\]"):
+        fit(data, simulator=simulator, functional=["a"], functional_inputs=["g"])
+    with pytest.raises(stancal.DataError, match="name the inputs theta"):
+        fit(data, simulator=simulator, functional=["a"])
+    with pytest.raises(stancal.DataError, match="functional_inputs given without functional"):
+        fit(data, simulator=simulator, functional_inputs=["x"])
+
+
+def test_latent_problems_reject_gaussian_only_methods():
+    counts = make(frame(), likelihood="poisson")
+    with pytest.raises(ValueError, match="likelihood 'poisson' needs method koh .* or koh_emulator"):
+        stancal.calibrate(counts, method="modular")
+    with pytest.raises(ValueError, match="method 'l2' needs Gaussian, uncensored outputs"):
+        stancal.calibrate(counts, simulator=COUNTS / "simulator.stan", method="l2")
+    with pytest.raises(ValueError, match="do not support discrepancy 'orthogonal'"):
+        stancal.calibrate(counts, simulator=COUNTS / "simulator.stan", discrepancy="orthogonal")
+    with pytest.raises(ValueError, match="do not support mean_formula"):
+        stancal.calibrate(counts, simulator=COUNTS / "simulator.stan", mean_formula="I(x**2)")
+    with pytest.raises(ValueError, match="gap diagnosis needs Gaussian, uncensored outputs"):
+        stancal.diagnose_gap(counts, [stancal.Candidate("q", formula="I(x**2)")],
+                             simulator=COUNTS / "simulator.stan")
+
+
+def test_codes_agree_with_stan():
+    text = (shipped_models_dir() / "functions" / "observation_model.stan").read_text()
+    likelihoods = ", ".join(f"{c.value} = {c.name.lower()}" for c in Likelihood)
+    censoring = ", ".join(f"{c.value} = {c.name.lower()}" for c in Censoring)
+    assert likelihoods in text
+    assert censoring.replace("left", "left (y <= upper)").replace("right", "right (y >= lower)") in text
+    for name in ("koh_latent.stan", "koh_latent_emulator.stan"):
+        program = (shipped_models_dir() / name).read_text()
+        assert likelihoods in program and censoring in program
+
+
+def test_config_reaches_the_new_model_keys(tmp_path):
+    from stancal.config import ConfigError, load_config
+
+    problem = load_config(CENSORED / "config.toml")
+    assert problem.data.observations.any_censored
+    assert load_config(COUNTS / "config.toml").data.observations.likelihood is Likelihood.POISSON
+    assert load_config(BEAM / "config.toml").model["functional"] == ["E"]
+    bad = tmp_path / "bad.toml"
+    bad.write_text((COUNTS / "config.toml").read_text().replace('likelihood = "poisson"', 'likelihood = "poison"')
+                   .replace('"physical.csv"', f'"{COUNTS / "physical.csv"}"')
+                   .replace('"simulator.stan"', f'"{COUNTS / "simulator.stan"}"')
+                   .replace('"runs.csv"', f'"{COUNTS / "runs.csv"}"'))
+    with pytest.raises(stancal.DataError, match="likelihood must be one of"):
+        load_config(bad)
+    bad.write_text((BEAM / "config.toml").read_text().replace('functional = ["E"]', "functional = 3")
+                   .replace('"physical.csv"', f'"{BEAM / "physical.csv"}"')
+                   .replace('"simulator.stan"', f'"{BEAM / "simulator.stan"}"')
+                   .replace('"runs.csv"', f'"{BEAM / "runs.csv"}"'))
+    with pytest.raises(ConfigError, match=r"\[model\] functional must be a list of names"):
+        load_config(bad)
+
+
+def test_cli_writes_censoring_and_theta_functions(tmp_path):
+    import json
+
+    from stancal.cli import main
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        assert main(["calibrate", str(CENSORED / "config.toml"), "--out", str(tmp_path / "c"),
+                     "--chains", "2", "--warmup", "300", "--draws", "300", "--seed", "4"]) == 0
+        assert main(["calibrate", str(BEAM / "config.toml"), "--out", str(tmp_path / "b"),
+                     "--chains", "2", "--warmup", "300", "--draws", "300", "--seed", "4"]) == 0
+    censored = json.loads((tmp_path / "c" / "summary.json").read_text())
+    assert censored["censoring"]["left"] > 0 and censored["method"] == "koh_latent"
+    assert "Censored observations" in (tmp_path / "c" / "report.md").read_text()
+    functional = json.loads((tmp_path / "b" / "summary.json").read_text())
+    curve = functional["theta_functions"]["E"]
+    assert set(curve) == {"inputs", "mean", "q05", "q95"} and len(curve["inputs"]["temperature"]) == 50
+    assert (tmp_path / "b" / "theta_functions.png").is_file()
