@@ -4,9 +4,12 @@
 //   g(E[y_i]) = f(x_i, theta(x_i)) + delta(x_i, z_i),
 //   f ~ GP(emulator_mean, ARD kernel over (x, theta)) on the link scale,
 //   trained on the runs g(y_sim_j) = f(x_sim_j, theta_sim_j) + nugget_j.
-// The emulator at the physical points is a latent draw given the runs
-// (functions/latent_gp.stan), so theta, the emulator and the discrepancy are
-// sampled together, as in the joint program koh_emulator.stan.
+// As in modular.stan, the emulator's hyperparameters come fixed from stage 1
+// (emulator.stan): sampled with latent GPs they leave a geometry NUTS cannot
+// follow (a vanishing nugget, unbounded length scales of inputs the simulator
+// ignores). The emulator's values at the physical points are a latent draw
+// given the runs (functions/latent_gp.stan), sampled with theta and delta, so
+// its uncertainty there is carried into the fit.
 // Inputs and theta are scaled to [0, 1]; the runs' link-scale outputs are
 // standardised, and so are Gaussian physical outputs.
 functions {
@@ -37,6 +40,10 @@ data {
   array[N] int<lower=0, upper=3> censoring;  // 0 = observed, 1 = left, 2 = right, 3 = interval
   vector[N] lower_bound;                // censoring bounds, standardised like y_real (used where censored)
   vector[N] upper_bound;                // see lower_bound
+  real emulator_mean;                   // stage-1 emulator hyperparameters, standardised units
+  real<lower=0> emulator_sd;            // see emulator_mean
+  array[D + Q] real<lower=0> emulator_length_scale;  // inputs first, then theta; unit-cube units
+  real<lower=0> emulator_nugget;        // see emulator_mean
   real y_center;                        // link-scale runs output = y_center + y_scale * y_sim
   real<lower=0> y_scale;                // see y_center
   vector[Q] theta_lower;                // lower bounds of theta, original units (uniform prior)
@@ -51,7 +58,7 @@ data {
   array[F > 0 ? N : 0] int<lower=1, upper=N_fun> fun_point;  // which of them each physical point has
   int<lower=0> G;                       // number of grid points for the theta(x) curves
   array[G] vector[D_fun] x_fun_grid;    // the grid, scaled like x_fun
-  int<lower=0, upper=1> prior_only;     // 1 = ignore y (the runs still train the emulator)
+  int<lower=0, upper=1> prior_only;     // 1 = ignore y (the runs still inform the emulator)
   int<lower=0> P;                       // number of prediction points
   array[P] vector[D] x_new;             // simulator inputs of the prediction points, scaled to [0, 1]
   array[P] vector[D_delta] x_delta_new; // discrepancy inputs of the prediction points, scaled to [0, 1]
@@ -62,6 +69,11 @@ transformed data {
   array[M] vector[D + Q] xt_sim;
   for (j in 1:M) xt_sim[j] = append_row(x_sim[j], theta_sim[j]);
   array[0] real no_discrepancy;         // koh_joint_predict_rng draws f alone with it
+  // the relative 1e-6 floor (as in latent_gp_cholesky) keeps K positive definite when
+  // stage 1 found a vanishing nugget and long length scales
+  matrix[M, M] L_sim = cholesky_decompose(
+    add_diag(ard_cov(xt_sim, kernel_id, emulator_sd, emulator_length_scale),
+             square(emulator_nugget) + 1e-6 * square(emulator_sd)));
 }
 parameters {
   vector<lower=0, upper=1>[Q] theta_unit;   // theta on [0, 1]; a functional theta's level
@@ -73,10 +85,6 @@ parameters {
   vector<lower=0>[F] theta_function_sd;                   // logit scale
   array[F] vector<lower=0>[D_fun] theta_function_length_scale;  // fraction of input range
   matrix[N_fun, F] theta_function_logit;                  // logit of functional theta (unit scale) at x_fun
-  real emulator_mean;
-  real<lower=0> emulator_sd;
-  array[D + Q] real<lower=0> emulator_length_scale;       // inputs first, then theta
-  real<lower=0> emulator_nugget;
   vector[N] emulator_z;                                   // non-centred emulator at the physical points
 }
 transformed parameters {
@@ -90,8 +98,8 @@ transformed parameters {
   array[N] vector[D + Q] xt_obs;        // emulator inputs of the physical points
   for (i in 1:N) xt_obs[i] = append_row(x[i], theta_points_unit[F > 0 ? i : 1]');
   // the emulator at the physical points, standardised
-  vector[N] f_std = emulator_latent(xt_sim, y_sim, xt_obs, kernel_id, emulator_mean, emulator_sd,
-                                    emulator_length_scale, emulator_nugget, emulator_z);
+  vector[N] f_std = emulator_latent(L_sim, xt_sim, y_sim, xt_obs, kernel_id, emulator_mean, emulator_sd,
+                                    emulator_length_scale, emulator_z);
   vector[N] delta = rep_vector(0, N);   // discrepancy at the physical points, model scale
   if (use_discrepancy) {
     delta = latent_gp(x_delta, kernel_id, delta_sd[1], delta_length_scale, delta_z);
@@ -107,14 +115,7 @@ model {
   for (k in 1:F) theta_function_length_scale[k] ~ functional_length_scale();
   theta_function_logit ~ functional_theta(theta_unit, functional_slot, x_fun, kernel_id, theta_function_sd,
                                           theta_function_length_scale);
-  emulator_mean ~ normal(0, 1);
-  emulator_sd ~ normal(0, 1);
-  emulator_length_scale ~ emulator_length_scale();
-  emulator_nugget ~ normal(0, 0.05);
   emulator_z ~ std_normal();
-  // the runs train the emulator (emulator_latent conditions f on them)
-  y_sim ~ multi_normal_cholesky(rep_vector(emulator_mean, M), cholesky_decompose(
-    add_diag(ard_cov(xt_sim, kernel_id, emulator_sd, emulator_length_scale), square(emulator_nugget))));
   if (!prior_only) {
     vector[N] eta = link_from_standardised(likelihood_id, f_std, y_center, y_scale) + delta;
     target += sum(observation_log_lik(
@@ -172,8 +173,9 @@ generated quantities {
     if (P > 0) {
       vector[M + N] resid = append_row(y_sim, f_std) - emulator_mean;
       matrix[M + N, M + N] L = cholesky_decompose(koh_joint_cov(
-        xt_sim, xt_obs, x_delta, kernel_id, emulator_sd, emulator_length_scale, emulator_nugget,
-        1.0, no_discrepancy, no_discrepancy, 1e-3 * emulator_sd));
+        xt_sim, xt_obs, x_delta, kernel_id, emulator_sd, emulator_length_scale,
+        sqrt(square(emulator_nugget) + 1e-6 * square(emulator_sd)), 1.0, no_discrepancy,
+        no_discrepancy, 1e-3 * emulator_sd));
       f_std_new += koh_joint_predict_rng(resid, L, xt_sim, xt_obs, x_delta, xt_new, x_delta_new,
                                          kernel_id, emulator_sd, emulator_length_scale, 1.0,
                                          no_discrepancy, no_discrepancy)[1:P];

@@ -13,6 +13,7 @@ from . import diagnostics as sampler_checks
 from . import modes as mode_checks
 from .backends import get_backend
 from .data import CalibrationData
+from .functional import check_functional
 from .inits import spread_theta_inits
 from .l2 import l2_result
 from .models import LATENT_PROGRAM, Method, model_spec
@@ -40,7 +41,7 @@ _PARAMETERS = {
     Method.MODULAR: _CALIBRATION_PARAMETERS,
     Method.KOH_EMULATOR: [*_CALIBRATION_PARAMETERS, *EMULATOR_HYPERPARAMETERS],
     Method.KOH_LATENT: _LATENT_PARAMETERS,
-    Method.KOH_LATENT_EMULATOR: [*_LATENT_PARAMETERS, *EMULATOR_HYPERPARAMETERS, "emulator_z"],
+    Method.KOH_LATENT_EMULATOR: [*_LATENT_PARAMETERS, "emulator_z"],
 }
 L2 = "l2"  # not a Stan program: the projection of another method's zeta draws
 _DIAGNOSED = ["theta", "noise_sd", "delta_sd", "delta_length_scale", "rho", "beta", "phi",
@@ -63,12 +64,9 @@ def choose_method(data: CalibrationData, simulator: str | Path | None, method: s
     """The program to run: the user's method, or koh with a simulator and
     koh_emulator from runs; their latent-GP versions when the outputs or
     theta need them."""
-    base = _base_method(data, simulator, method)
     reason = _latent_reason(data, options or ModelOptions())
-    if reason is not None:
-        if base not in LATENT_PROGRAM:
-            raise ValueError(f"{reason} needs method koh (a Stan simulator) or koh_emulator (runs); "
-                             f"method '{method}' has a Gaussian likelihood only")
+    base = _base_method(data, simulator, method)
+    if reason is not None:  # every method has a latent version
         options = options or ModelOptions()
         unsupported = [name for name, used in (
             (f"discrepancy '{options.discrepancy}'", options.discrepancy in RESTRICTED_DISCREPANCIES),
@@ -114,7 +112,7 @@ def fit_emulator(data: CalibrationData, options: ModelOptions, *, backend, chain
     return {
         "hyperparameters": hyper,
         "loo_rmse": float(np.sqrt(np.mean(loo_error**2))),
-        "runs_sd": float(data.runs[data.output].std()),
+        "runs_sd": float(data.runs_on_link_scale().std(ddof=1)),  # the scale the emulator works on
         "compile_s": sample.compile_seconds,
         "sample_s": sample.sample_seconds,
     }
@@ -174,6 +172,7 @@ def calibrate(
         discrepancy = "none" if functional else "gp"
     options = ModelOptions(discrepancy, kernel, estimate_rho, mean_formula, mean_intercept, scaled_lambda,
                            tuple(functional), tuple(functional_inputs))
+    check_functional(data, options.functional, options.functional_inputs)
     l2 = method == L2
     if l2 and _latent_reason(data, options):
         raise ValueError(f"method 'l2' needs Gaussian, uncensored outputs and scalar theta; "
@@ -194,8 +193,8 @@ def calibrate(
         fit_points = new_points
 
     emulator: dict[str, Any] = {}
-    if chosen is Method.MODULAR:
-        logger.info("modular stage 1: fitting the emulator to %d runs", len(data.runs))
+    if chosen in (Method.MODULAR, Method.KOH_LATENT_EMULATOR):  # both fix stage 1's hyperparameters
+        logger.info("stage 1: fitting the emulator to %d runs", len(data.runs))
         emulator = fit_emulator(data, options, backend=stan_backend, chains=chains,
                                 warmup=warmup, draws=draws, seed=seed)
     stan_data = build_stan_data(data, chosen, options, fit_points,

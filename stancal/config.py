@@ -107,7 +107,7 @@ def load_config(path: str | Path) -> Problem:
     for key in ("functional", "functional_inputs"):
         if isinstance(model.get(key), str):
             model[key] = [model[key]]
-        if key in model and not all(isinstance(v, str) for v in model[key]):
+        if key in model and not (isinstance(model[key], list) and all(isinstance(v, str) for v in model[key])):
             raise ConfigError(f"config: [model] {key} must be a list of names; got {model[key]!r}")
     observation = {key: model.pop(key) for key in _OBSERVATION_KEYS if key in model}
     data = CalibrationData(

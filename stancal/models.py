@@ -45,6 +45,7 @@ class Method(StrEnum):
 # the latent-GP program that takes over a method's job when the outputs are
 # non-Gaussian or censored, or theta is functional
 LATENT_PROGRAM = {Method.KOH: Method.KOH_LATENT, Method.KOH_EMULATOR: Method.KOH_LATENT_EMULATOR,
+                  Method.MODULAR: Method.KOH_LATENT_EMULATOR,
                   Method.KOH_LATENT: Method.KOH_LATENT,
                   Method.KOH_LATENT_EMULATOR: Method.KOH_LATENT_EMULATOR}
 
@@ -78,7 +79,7 @@ MODELS: dict[str, ModelSpec] = {
         ModelSpec("koh_latent", "koh_latent.stan", True, False,
                   "KOH with latent GPs: counts, binomial, censored outputs, functional theta"),
         ModelSpec("koh_latent_emulator", "koh_latent_emulator.stan", False, True,
-                  "koh_latent from simulator runs: emulator on the link scale, sampled jointly"),
+                  "koh_latent from simulator runs: stage-1 emulator on the link scale, latent at the data"),
     )
 }
 

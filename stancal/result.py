@@ -17,6 +17,7 @@ from .backends import Draws, SampleOutput, get_backend
 from .data import CalibrationData
 from .diagnostics import Diagnostics
 from .functional import functional_grid, theta_function_summary
+from .models import Likelihood
 from .modes import Mode
 from .stan_source import FlatProgram
 from .standata import (
@@ -25,6 +26,7 @@ from .standata import (
     build_stan_data,
     mean_terms_of,
     to_stan_json,
+    trials_at,
 )
 
 # Stan program variables -> names in the posterior group (original units)
@@ -235,13 +237,26 @@ class CalibrationResult:
         for name in _PREDICTED:
             values = draws[name].reshape(-1, len(points))
             table = table.assign(**_interval_table(values, name.removesuffix("_new")))
-        if _NEW_OBSERVATION in draws:  # drawn by the program's own likelihood
+        if new_points is None and _NEW_OBSERVATION in draws:  # drawn by the sampler's own RNG
             new_y = draws[_NEW_OBSERVATION].reshape(-1, len(points))
-        else:
-            noise = np.asarray(self.idata["posterior"]["noise_sd"]).reshape(-1, 1)
-            zeta = draws["zeta_new"].reshape(-1, len(points))
-            new_y = zeta + noise * np.random.default_rng(seed).standard_normal(zeta.shape)
+        else:  # PyStan reruns generated quantities with one fixed RNG seed: draw the noise here
+            new_y = self._observe(draws["zeta_new"].reshape(-1, len(points)), points, seed)
         return table.assign(**_interval_table(new_y, "y"))
+
+    def _observe(self, zeta: np.ndarray, points: pd.DataFrame, seed: int) -> np.ndarray:
+        """New observations given draws (samples, points) of the mean response."""
+        rng = np.random.default_rng(seed)
+        likelihood = self.data.observations.likelihood
+        posterior = self.idata["posterior"]
+        if likelihood is Likelihood.POISSON:
+            return rng.poisson(zeta).astype(float)
+        if likelihood is Likelihood.NEGBINOMIAL:
+            phi = np.asarray(posterior["phi"]).reshape(-1, 1)
+            return rng.negative_binomial(phi, phi / (phi + zeta)).astype(float)
+        if likelihood is Likelihood.BINOMIAL:
+            return rng.binomial(trials_at(self.data, points), zeta).astype(float)
+        noise = np.asarray(posterior["noise_sd"]).reshape(-1, 1)
+        return zeta + noise * rng.standard_normal(zeta.shape)
 
     # ---- persistence -----------------------------------------------------
     def _metadata(self) -> dict[str, Any]:

@@ -89,7 +89,7 @@ def build_stan_data(
     s = data.scaling
     terms = mean_terms_of(data, options)
     h_new = terms.at(new_points) if terms else np.zeros((len(new_points), 0))
-    trials_new = _trials_at(data, new_points)
+    trials_new = trials_at(data, new_points)
     new_points = data.check_new_points(new_points)
     out: dict[str, Any] = dict(
         N=len(data.physical),
@@ -130,14 +130,14 @@ def build_stan_data(
     out.update(emulator_run_data(data))
     out["x"] = s.to_unit(data.physical, data.inputs)
     out["x_new"] = s.to_unit(new_points, data.inputs)
-    if method is Method.MODULAR:
+    if method in (Method.MODULAR, Method.KOH_LATENT_EMULATOR):
         if emulator_hyperparameters is None:
-            raise ValueError("method 'modular' needs the stage-1 emulator hyperparameters")
+            raise ValueError(f"method '{method}' needs the stage-1 emulator hyperparameters")
         out.update(emulator_hyperparameters)
     return out
 
 
-def _trials_at(data: CalibrationData, new_points: pd.DataFrame) -> np.ndarray:
+def trials_at(data: CalibrationData, new_points: pd.DataFrame) -> np.ndarray:
     """Binomial trials of a new observation: the trials column where the new
     points have it, else one (a binary outcome)."""
     column = data.observation_columns["trials"]

@@ -17,6 +17,10 @@ SD, LS = 1.7, np.array([0.3, 0.8])
 RESID = rng.standard_normal(6)
 A_RESTRICT = rng.standard_normal((6, 2))
 RIDGE = 0.3
+# one observation per censoring code (observed, left, right, interval), and counts
+OBSERVATIONS = dict(eta=[0.3, -1.2, 2.0, 0.1], y_real=[0.5, 0, 0, 0], y_int=[3, 0, 12, 7],
+                    trials=[5, 4, 20, 9], censoring=[0, 1, 2, 3], lower_bound=[0, 0, 1.5, -0.4],
+                    upper_bound=[0, -0.8, 0, 0.9])
 
 
 def se(a, b):
@@ -41,7 +45,7 @@ def gq():
 
     data = dict(n1=6, n2=4, x1=X1.tolist(), x2=X2.tolist(), sd_=SD, ls=LS.tolist(),
                 resid=RESID.tolist(), unit=[0, 0.5, 1], lo=[-1, 0, 10], hi=[1, 2, 20],
-                A_restrict=A_RESTRICT.tolist(), ridge=RIDGE)
+                A_restrict=A_RESTRICT.tolist(), ridge=RIDGE, **OBSERVATIONS)
     model = stan.build(flatten(HARNESS).code, data=data, random_seed=1)
     fit = model.fixed_param(num_samples=1, num_chains=1)
     return {name: np.asarray(fit[name])[..., 0] for name in fit.param_names}
@@ -107,3 +111,31 @@ def test_scaled_gp_covariance(gq):
     T = K + (RIDGE + 1e-9 * np.mean(np.diag(K))) * np.eye(6)
     np.testing.assert_allclose(gq["scaled_cov"], K - K @ np.linalg.solve(T, K), rtol=1e-7, atol=1e-10)
     assert np.all(np.linalg.eigvalsh(K - gq["scaled_cov"]) > -1e-10)
+
+
+def test_observation_models(gq):
+    eta, sd = np.array(OBSERVATIONS["eta"]), 0.7
+    lower, upper = OBSERVATIONS["lower_bound"], OBSERVATIONS["upper_bound"]
+    censored = [stats.norm.logpdf(0.5, eta[0], sd), stats.norm.logcdf(upper[1], eta[1], sd),
+                stats.norm.logsf(lower[2], eta[2], sd),
+                np.log(stats.norm.cdf(upper[3], eta[3], sd) - stats.norm.cdf(lower[3], eta[3], sd))]
+    np.testing.assert_allclose(gq["gaussian_censored"], censored, rtol=1e-10)
+    y, n, mu, phi = np.array(OBSERVATIONS["y_int"]), np.array(OBSERVATIONS["trials"]), np.exp(eta), 3.5
+    np.testing.assert_allclose(gq["poisson"], stats.poisson.logpmf(y, mu), rtol=1e-10)
+    np.testing.assert_allclose(gq["negbinomial"], stats.nbinom.logpmf(y, phi, phi / (phi + mu)), rtol=1e-10)
+    p = 1 / (1 + np.exp(-eta))
+    np.testing.assert_allclose(gq["binomial"], stats.binom.logpmf(y, n, p), rtol=1e-10)
+    np.testing.assert_allclose(gq["response"], p, rtol=1e-12)
+
+
+def test_latent_emulator_mean_is_the_gp_conditional_mean(gq):
+    xt_obs = np.column_stack([X1[:, 0], np.full(6, 0.3)])
+    K = se(X2, X2) + 0.01 * np.eye(4)
+    expected = 0.2 + se(xt_obs, X2) @ np.linalg.solve(K, RESID[:4] - 0.2)
+    np.testing.assert_allclose(gq["emulator_mean_at"], expected, rtol=1e-9)
+
+
+def test_functional_theta_rows(gq):
+    # theta 1 is scalar (0.25 of [0, 1]); theta 2 is logistic(g) of [10, 20] at g = 0 and 2
+    expected = [[0.25, 15.0], [0.25, 10 + 10 / (1 + np.exp(-2.0))]]
+    np.testing.assert_allclose(gq["theta_rows"], expected, rtol=1e-12)

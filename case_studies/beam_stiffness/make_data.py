@@ -2,8 +2,9 @@
 transition: the modulus E falls from about 3.5 GPa to 1.2 GPa around 55 deg C,
 a logistic ramp. The simulator takes one E; functional calibration recovers
 E(temperature). Writes physical.csv and runs.csv (simulator runs over
-load, temperature and E, for the emulator)."""
+load and E, for the emulator)."""
 
+from itertools import product
 from pathlib import Path
 
 import numpy as np
@@ -23,6 +24,13 @@ def simulator(load, E):
     return 1e3 * load * 0.125 / (3 * E * 1e9 * 2e-7)
 
 
+def design_with_corners(lower, upper, seed: int, runs: int = 60) -> np.ndarray:
+    """A Latin hypercube plus the box's corners, so the runs span the whole box."""
+    corners = np.array(list(product(*zip(lower, upper))))
+    inner = qmc.scale(qmc.LatinHypercube(d=len(lower), seed=seed).random(runs - len(corners)), lower, upper)
+    return np.vstack([corners, inner])
+
+
 def main(folder: Path = Path(__file__).parent) -> None:
     rng = np.random.default_rng(3)
     temperature, load = np.meshgrid(np.linspace(20, 90, 15), [50.0, 100.0, 150.0])
@@ -30,9 +38,8 @@ def main(folder: Path = Path(__file__).parent) -> None:
     deflection = simulator(load, modulus(temperature)) + NOISE_SD * rng.standard_normal(load.size)
     pd.DataFrame({"load": load, "temperature": temperature, "deflection": deflection.round(4)}).to_csv(
         folder / "physical.csv", index=False)
-    design = qmc.scale(qmc.LatinHypercube(d=3, seed=8).random(60), [50.0, 20.0, E_BOUNDS[0]],
-                       [150.0, 90.0, E_BOUNDS[1]])
-    runs = pd.DataFrame(design, columns=["load", "temperature", "E"]).round(4)
+    runs = pd.DataFrame(design_with_corners([50.0, E_BOUNDS[0]], [150.0, E_BOUNDS[1]], seed=8, runs=30),
+                        columns=["load", "E"]).round(4)
     runs["deflection"] = simulator(runs.load, runs.E).round(5)
     runs.to_csv(folder / "runs.csv", index=False)
 

@@ -43,6 +43,15 @@ def measurements(seed: int) -> pd.DataFrame:
     return pd.concat([pd.DataFrame({"t": t, "c0": c0}), censor(measured)], axis=1).round(4)
 
 
+def naive_frames(frame: pd.DataFrame) -> dict[str, pd.DataFrame]:
+    """What people do without a censored likelihood: drop the censored rows,
+    or impute them at the limit (an interval at its midpoint)."""
+    value, low, high = (frame[c].to_numpy() for c in ("concentration", "lower", "upper"))
+    imputed = np.where(np.isnan(value),
+                       np.where(np.isnan(low), high, np.where(np.isnan(high), low, (low + high) / 2)), value)
+    return {"drop": frame[frame.concentration.notna()], "impute": frame.assign(concentration=imputed)}
+
+
 def main(folder: Path = Path(__file__).parent) -> None:
     measurements(seed=11).to_csv(folder / "physical.csv", index=False)
 

@@ -37,17 +37,16 @@ vector latent_gp_predict_rng(vector values, array[] vector x, array[] vector x_n
  * draw: f = mean + K_os K_ss^-1 (y_sim - mean) + chol(K_oo - K_os K_ss^-1 K_so) z.
  * The runs carry the nugget; f at the physical points does not.
  *
+ * @param L_sim Cholesky factor of the runs' covariance, nugget included
  * @param xt_sim, y_sim emulator inputs (x, theta on the unit cube) and standardised outputs of the runs
  * @param xt_obs emulator inputs of the physical points at their theta
  * @param z standard normals, one per physical point
  * @return f at the physical points, standardised like y_sim
  */
-vector emulator_latent(array[] vector xt_sim, vector y_sim, array[] vector xt_obs,
+vector emulator_latent(matrix L_sim, array[] vector xt_sim, vector y_sim, array[] vector xt_obs,
                        int kernel_id, real emulator_mean, real emulator_sd,
-                       array[] real emulator_length_scale, real emulator_nugget, vector z) {
+                       array[] real emulator_length_scale, vector z) {
   int n = size(xt_obs);
-  matrix[size(xt_sim), size(xt_sim)] L_sim = cholesky_decompose(
-    add_diag(ard_cov(xt_sim, kernel_id, emulator_sd, emulator_length_scale), square(emulator_nugget)));
   matrix[size(xt_sim), n] A = mdivide_left_tri_low(
     L_sim, ard_cross_cov(xt_sim, xt_obs, kernel_id, emulator_sd, emulator_length_scale));
   vector[n] mean_obs = emulator_mean + A' * mdivide_left_tri_low(L_sim, y_sim - emulator_mean);

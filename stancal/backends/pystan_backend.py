@@ -112,8 +112,12 @@ class PyStanBackend:
         evaluating the log density at the first init usually recovers it."""
         message = str(err)
         if inits:
+            # variables the init leaves to Stan get 0.5, inside every constraint stancal's
+            # programs use (transformed parameters and generated quantities are ignored)
+            point = {name: np.full(dims, 0.5).tolist() for name, dims in zip(model.param_names, model.dims)}
+            point.update(inits[0])
             try:
-                model.log_prob(model.unconstrain_pars(inits[0]))
+                model.log_prob(model.unconstrain_pars(point))
             except Exception as inner:  # the recovered Stan message
                 message = f"{inner}"
         return program.explain(f"Stan failed while sampling: {message.strip()}")

@@ -6,6 +6,9 @@ functions {
 #include loo.stan
 #include scaling.stan
 #include restricted_gp.stan
+#include latent_gp.stan
+#include observation_model.stan
+#include functional_theta.stan
 array[] vector first_coordinate(array[] vector x) {
   array[size(x)] vector[1] out;
   for (i in 1:size(x)) out[i] = x[i][1:1];
@@ -25,6 +28,13 @@ data {
   vector[3] hi;
   matrix[n1, 2] A_restrict;
   real<lower=0> ridge;
+  vector[4] eta;                        // linear predictor of four observations
+  vector[4] y_real;
+  array[4] int y_int;
+  array[4] int trials;
+  array[4] int censoring;
+  vector[4] lower_bound;
+  vector[4] upper_bound;
 }
 generated quantities {
   matrix[n1, n2] se_cross = ard_cross_cov(x1, x2, 1, sd_, ls);
@@ -42,6 +52,23 @@ generated quantities {
   matrix[n1, n1] scaled_cov = se_sym - crossprod(restriction_factor(
     se_sym, identity_matrix(n1), restriction_cholesky(se_sym, identity_matrix(n1), ridge)));
   // joint KOH covariance: runs x2 (as (x, theta) with 1 input + 1 theta), physical x1 inputs
+  // observation models: gaussian with each censoring code, then the count likelihoods
+  vector[4] gaussian_censored = observation_log_lik(1, eta, 0.7, 1, y_real, y_int, trials, censoring,
+                                                    lower_bound, upper_bound);
+  vector[4] poisson = observation_log_lik(2, eta, 1, 1, y_real, y_int, trials, censoring,
+                                          lower_bound, upper_bound);
+  vector[4] negbinomial = observation_log_lik(3, eta, 1, 3.5, y_real, y_int, trials, censoring,
+                                              lower_bound, upper_bound);
+  vector[4] binomial = observation_log_lik(4, eta, 1, 1, y_real, y_int, trials, censoring,
+                                           lower_bound, upper_bound);
+  vector[4] response = response_scale(4, eta, 0, 1);
+  // the latent emulator at x1 (with theta 0.3) given runs x2 and outputs resid[1:4], z = 0: its mean
+  vector[n1] emulator_mean_at = emulator_latent(
+    cholesky_decompose(add_diag(ard_cov(x2, 1, sd_, ls), 0.01)), x2, resid[1:n2],
+    append_theta(first_coordinate(x1), [0.3]'), 1, 0.2, sd_, ls, rep_vector(0, n1));
+  // theta rows: theta 1 scalar, theta 2 functional with logit values at two points
+  matrix[2, 2] theta_rows = theta_rows_original(theta_unit_rows([0.25, 0.5]', {0, 1}, [[0.0], [2.0]]),
+                                                [0, 10]', [1, 20]');
   matrix[n2 + n1, n2 + n1] joint = koh_joint_cov(
     x2, append_theta(first_coordinate(x1), [0.3]'), x1, 1, sd_, ls, 0.01, 1.3, {0.7}, {0.4, 0.6}, 0.2);
 }
