@@ -143,30 +143,21 @@ generated quantities {
     if (likelihood_id == 3) phi[1] = precision;
     if (use_discrepancy) delta_sd_original[1] = delta_sd[1] * units;
     vector[N] eta = link_from_standardised(likelihood_id, f_std, y_center, y_scale) + delta;
-    log_lik = observation_log_lik(likelihood_id, eta, sd_obs, precision, y_real, y_int, trials,
-                                  censoring, lower_bound, upper_bound);
-    y_rep = observation_rng(likelihood_id, eta, sd_obs, precision, trials);
-    if (likelihood_id == 1) {
-      for (i in 1:N) {
-        if (censoring[i] == 0) log_lik[i] -= log(y_scale);  // a density in original units
-      }
-      y_rep = y_center + y_scale * y_rep;
-    }
+    log_lik = log_lik_original_units(
+      likelihood_id, observation_log_lik(likelihood_id, eta, sd_obs, precision, y_real, y_int, trials,
+                                         censoring, lower_bound, upper_bound),
+      censoring, y_scale);
+    y_rep = observations_original_units(
+      likelihood_id, observation_rng(likelihood_id, eta, sd_obs, precision, trials), y_center, y_scale);
     delta_gp = units * delta;
 
-    matrix[F > 0 ? P : 1, Q] theta_new_unit = rep_matrix(theta_unit', F > 0 ? P : 1);
-    for (j in 1:Q) {
-      int k = functional_slot[j];
-      if (k > 0) {
-        vector[P + G] curve = functional_theta_predict_rng(
-          theta_function_logit[:, k], theta_unit[j], x_fun, append_array(x_fun_new, x_fun_grid),
-          kernel_id, theta_function_sd[k], theta_function_length_scale[k]);
-        if (P > 0) theta_new_unit[:, j] = curve[1:P];
-        theta_function_grid[:, k] = theta_lower[j] + (theta_upper[j] - theta_lower[j]) * curve[(P + 1):(P + G)];
-      }
-    }
+    matrix[P + G, Q] theta_new_unit = theta_unit_rows_rng(
+      theta_unit, functional_slot, theta_function_logit, x_fun, append_array(x_fun_new, x_fun_grid),
+      kernel_id, theta_function_sd, theta_function_length_scale);
+    theta_function_grid = functional_columns_original(theta_new_unit[(P + 1):(P + G)], functional_slot,
+                                                      theta_lower, theta_upper);
     array[P] vector[D + Q] xt_new;
-    for (i in 1:P) xt_new[i] = append_row(x_new[i], theta_new_unit[F > 0 ? i : 1]');
+    for (i in 1:P) xt_new[i] = append_row(x_new[i], theta_new_unit[i]');
     // f at the new points given the runs and its latent values at the physical points,
     // which koh_joint_cov stacks with a noise sd equal to the latent jitter
     vector[P] f_std_new = rep_vector(emulator_mean, P);
@@ -190,7 +181,8 @@ generated quantities {
     f_new = response_scale(likelihood_id, f_link_new, y_center, y_scale);
     delta_new = units * delta_new_model;
     zeta_new = response_scale(likelihood_id, eta_new, y_center, y_scale);
-    y_new = observation_rng(likelihood_id, eta_new, sd_obs, precision, trials_new);
-    if (likelihood_id == 1) y_new = y_center + y_scale * y_new;
+    y_new = observations_original_units(
+      likelihood_id, observation_rng(likelihood_id, eta_new, sd_obs, precision, trials_new),
+      y_center, y_scale);
   }
 }

@@ -237,6 +237,16 @@ def test_functional_theta_recovers_the_ramp(functional_fit):
     assert curve["q95"][-1] < curve["q05"][0]
 
 
+def test_functional_theta_predicts_at_new_temperatures(functional_fit, tmp_path):
+    new = pd.DataFrame({"load": [80.0, 80.0], "temperature": [30.0, 80.0]})
+    truth = beam.simulator(new.load, beam.modulus(new.temperature)).to_numpy()
+    again = stancal.load_result(functional_fit.save(tmp_path / "beam.nc"))
+    for result in (functional_fit, again):
+        table = result.predict(new)
+        assert np.all(np.abs(table["zeta_q50"] - truth) < 0.1 * truth)
+    assert "theta_functions" in again.idata.children and again.options.functional == ("E",)
+
+
 def test_scalar_theta_misfits_where_the_functional_one_fits(functional_fit):
     data = beam_data()
     scalar = fit(data, simulator=BEAM / "simulator.stan", method="koh_latent", discrepancy="none")

@@ -4,12 +4,12 @@ a logistic ramp. The simulator takes one E; functional calibration recovers
 E(temperature). Writes physical.csv and runs.csv (simulator runs over
 load and E, for the emulator)."""
 
-from itertools import product
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
-from scipy.stats import qmc
+
+from stancal.design import latin_hypercube_with_corners
 
 NOISE_SD = 0.1  # mm
 E_BOUNDS = (0.5, 5.0)  # GPa
@@ -24,13 +24,6 @@ def simulator(load, E):
     return 1e3 * load * 0.125 / (3 * E * 1e9 * 2e-7)
 
 
-def design_with_corners(lower, upper, seed: int, runs: int = 60) -> np.ndarray:
-    """A Latin hypercube plus the box's corners, so the runs span the whole box."""
-    corners = np.array(list(product(*zip(lower, upper))))
-    inner = qmc.scale(qmc.LatinHypercube(d=len(lower), seed=seed).random(runs - len(corners)), lower, upper)
-    return np.vstack([corners, inner])
-
-
 def main(folder: Path = Path(__file__).parent) -> None:
     rng = np.random.default_rng(3)
     temperature, load = np.meshgrid(np.linspace(20, 90, 15), [50.0, 100.0, 150.0])
@@ -38,7 +31,7 @@ def main(folder: Path = Path(__file__).parent) -> None:
     deflection = simulator(load, modulus(temperature)) + NOISE_SD * rng.standard_normal(load.size)
     pd.DataFrame({"load": load, "temperature": temperature, "deflection": deflection.round(4)}).to_csv(
         folder / "physical.csv", index=False)
-    runs = pd.DataFrame(design_with_corners([50.0, E_BOUNDS[0]], [150.0, E_BOUNDS[1]], seed=8, runs=30),
+    runs = pd.DataFrame(latin_hypercube_with_corners([50.0, E_BOUNDS[0]], [150.0, E_BOUNDS[1]], runs=30, seed=8),
                         columns=["load", "E"]).round(4)
     runs["deflection"] = simulator(runs.load, runs.E).round(5)
     runs.to_csv(folder / "runs.csv", index=False)

@@ -4,12 +4,12 @@ to the source; the exact solid angle of a disc of radius R = 0.3 m makes the
 true count rate lower there (a discrepancy that depends on d alone).
 Writes physical.csv (Poisson counts) and runs.csv (simulator means)."""
 
-from itertools import product
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
-from scipy.stats import qmc
+
+from stancal.design import latin_hypercube_with_corners
 
 MU_TRUE = 0.35  # 1/cm
 DETECTOR_RADIUS = 0.3  # m
@@ -31,20 +31,13 @@ def true_mean(d, s):
     return simulator(d, s, MU_TRUE) * solid_angle_factor(d)
 
 
-def design_with_corners(lower, upper, seed: int, runs: int = 60) -> np.ndarray:
-    """A Latin hypercube plus the box's corners, so the runs span the whole box."""
-    corners = np.array(list(product(*zip(lower, upper))))
-    inner = qmc.scale(qmc.LatinHypercube(d=len(lower), seed=seed).random(runs - len(corners)), lower, upper)
-    return np.vstack([corners, inner])
-
-
 def main(folder: Path = Path(__file__).parent) -> None:
     rng = np.random.default_rng(2024)
     d, s = np.meshgrid([0.5, 0.75, 1.0, 1.5, 2.0, 2.5, 3.0], [0.0, 1.0, 2.5, 4.0, 5.0])
     d, s = d.ravel(), s.ravel()
     counts = rng.poisson(true_mean(d, s))
     pd.DataFrame({"d": d, "s": s, "counts": counts}).to_csv(folder / "physical.csv", index=False)
-    runs = pd.DataFrame(design_with_corners([0.5, 0.0, 0.05], [3.0, 5.0, 1.0], seed=5),
+    runs = pd.DataFrame(latin_hypercube_with_corners([0.5, 0.0, 0.05], [3.0, 5.0, 1.0], runs=60, seed=5),
                         columns=["d", "s", "mu"]).round(4)
     runs["counts"] = simulator(runs.d, runs.s, runs.mu).round(4)
     runs.to_csv(folder / "runs.csv", index=False)

@@ -75,3 +75,39 @@ vector functional_theta_predict_rng(vector logit_values, real level, array[] vec
   return inv_logit(logit(level) + latent_gp_predict_rng(logit_values - logit(level), x_fun, x_new,
                                                         kernel_id, marginal_sd, to_array_1d(length_scale)));
 }
+
+/**
+ * One posterior draw of every theta on the unit scale at new points: the
+ * functional ones from their GP given the distinct points, the scalar ones
+ * repeated.
+ *
+ * @return theta on the unit scale, one row per new point
+ */
+matrix theta_unit_rows_rng(vector theta_unit, array[] int functional_slot, matrix logit_values,
+                           array[] vector x_fun, array[] vector x_new, int kernel_id,
+                           vector marginal_sd, array[] vector length_scale) {
+  matrix[size(x_new), rows(theta_unit)] out = rep_matrix(theta_unit', size(x_new));
+  for (j in 1:rows(theta_unit)) {
+    int k = functional_slot[j];
+    if (k > 0) {
+      out[:, j] = functional_theta_predict_rng(logit_values[:, k], theta_unit[j], x_fun, x_new,
+                                               kernel_id, marginal_sd[k], length_scale[k]);
+    }
+  }
+  return out;
+}
+
+/**
+ * The functional theta's columns of unit-scale rows, in original units.
+ *
+ * @return one column per functional theta (rows(unit_rows) x F)
+ */
+matrix functional_columns_original(matrix unit_rows, array[] int functional_slot,
+                                   vector lower_bound, vector upper_bound) {
+  matrix[rows(unit_rows), max(append_array({0}, functional_slot))] out;
+  for (j in 1:cols(unit_rows)) {
+    int k = functional_slot[j];
+    if (k > 0) out[:, k] = lower_bound[j] + (upper_bound[j] - lower_bound[j]) * unit_rows[:, j];
+  }
+  return out;
+}

@@ -121,3 +121,26 @@ vector response_scale(int likelihood_id, vector eta, real y_center, real y_scale
 real discrepancy_units(int likelihood_id, real y_scale) {
   return likelihood_id == 1 ? y_scale : 1.0;
 }
+
+/**
+ * Pointwise log-likelihood in original units: the densities of exact
+ * Gaussian rows were taken on the standardised scale (censored rows are
+ * probabilities and need no change).
+ */
+vector log_lik_original_units(int likelihood_id, vector log_lik, array[] int censoring,
+                              real y_scale) {
+  vector[rows(log_lik)] out = log_lik;
+  if (likelihood_id == 1) {
+    for (i in 1:rows(out)) {
+      if (censoring[i] == 0) out[i] -= log(y_scale);
+    }
+  }
+  return out;
+}
+
+/**
+ * Observations drawn on the model scale, in original units.
+ */
+vector observations_original_units(int likelihood_id, vector y, real y_center, real y_scale) {
+  return likelihood_id == 1 ? y_center + y_scale * y : y;
+}
