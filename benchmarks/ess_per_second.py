@@ -25,13 +25,18 @@ import stancal  # noqa: E402
 from stancal.config import load_config  # noqa: E402
 
 
-def main() -> None:
+def sampling_arguments() -> argparse.Namespace:
+    """--chains, --warmup, --draws and --backend, shared by the benchmarks."""
     parser = argparse.ArgumentParser()
     parser.add_argument("--chains", type=int, default=2)
     parser.add_argument("--warmup", type=int, default=1000)
     parser.add_argument("--draws", type=int, default=1000)
     parser.add_argument("--backend", default=None)
-    args = parser.parse_args()
+    return parser.parse_args()
+
+
+def main() -> None:
+    args = sampling_arguments()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         problem = load_config(ROOT / "case_studies" / "cooling" / "config.toml")

@@ -11,7 +11,6 @@ runs, stage 1's emulator fit too), chains in parallel on the machine's cores.
 
 from __future__ import annotations
 
-import argparse
 import sys
 import warnings
 from pathlib import Path
@@ -24,6 +23,9 @@ sys.path.insert(0, str(ROOT))
 import stancal  # noqa: E402
 from stancal.config import load_config  # noqa: E402
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from ess_per_second import sampling_arguments  # noqa: E402
+
 CASES = (  # (name, case study, method)
     ("counts, Poisson + GP", "detector_counts", "koh"),
     ("counts from runs", "detector_counts", "koh_emulator"),
@@ -33,12 +35,7 @@ CASES = (  # (name, case study, method)
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser()
-    parser.add_argument("--chains", type=int, default=2)
-    parser.add_argument("--warmup", type=int, default=1000)
-    parser.add_argument("--draws", type=int, default=1000)
-    parser.add_argument("--backend", default=None)
-    args = parser.parse_args()
+    args = sampling_arguments()
     rows = []
     for name, folder, method in CASES:
         with warnings.catch_warnings():

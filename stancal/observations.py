@@ -61,7 +61,7 @@ def _numeric(frame: pd.DataFrame, column: str, what: str) -> np.ndarray:
     values = values.to_numpy(dtype=float)
     if np.isinf(values).any():
         raise DataError(f"{what}: column '{column}' has inf in rows "
-                               f"{_rows(np.isinf(values), frame.index)}; leave the cell empty for an open bound")
+                        f"{_rows(np.isinf(values), frame.index)}; leave the cell empty for an open bound")
     return values
 
 
@@ -70,7 +70,7 @@ def _require_whole(values: np.ndarray, column: str, index: pd.Index, what: str, 
     if bad.any():
         kind = "non-negative" if minimum == 0 else "positive"
         raise DataError(f"{what}: column '{column}' must hold {kind} whole numbers; rows "
-                               f"{_rows(bad, index)} hold {values[bad][:5].tolist()}")
+                        f"{_rows(bad, index)} hold {values[bad][:5].tolist()}")
 
 
 def read_observations(frame: pd.DataFrame, output: str, likelihood: str = "gaussian",

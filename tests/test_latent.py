@@ -11,9 +11,9 @@ import numpy as np
 import pandas as pd
 import pytest
 from conftest import ROOT, fit
-from scipy.stats import qmc
 
 import stancal
+from stancal.design import latin_hypercube_with_corners
 from stancal.models import Censoring, Likelihood
 from stancal.stan_source import shipped_models_dir
 
@@ -130,8 +130,8 @@ def test_binomial_from_runs_recovers_ed50():
     dose = np.linspace(0.2, 4, 15)
     trials = np.full(15, 20)
     physical = pd.DataFrame({"dose": dose, "n": trials, "responders": rng.binomial(trials, dose_response(dose, 1.6))})
-    design = qmc.scale(qmc.LatinHypercube(d=2, seed=2).random(40), [0.2, 0.5], [4.0, 3.0])
-    runs = pd.DataFrame(design, columns=["dose", "ed50"])
+    runs = pd.DataFrame(latin_hypercube_with_corners([0.2, 0.5], [4.0, 3.0], runs=40, seed=2),
+                        columns=["dose", "ed50"])
     runs["responders"] = dose_response(runs.dose, runs.ed50)  # the simulator's probability
     data = stancal.CalibrationData(physical, ["dose"], "responders", {"ed50": (0.5, 3.0)},
                                    likelihood="binomial", trials="n", runs=runs)

@@ -38,6 +38,7 @@ def main(out: Path = HERE / "out", draws: int = 1000) -> None:
     ax.axvline(K_TRUE, color="k", ls="--", label="true k")
     ax.set_yticks(range(len(fits)), list(fits))
     ax.set_xlabel("decay rate k (1/h), median and 90 % interval")
+    ax.locator_params(axis="x", nbins=6)
     ax.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(out / "censoring_vs_naive.png", dpi=110)
