@@ -116,6 +116,9 @@ def build_stan_data(
     if method in (Method.KOH_LATENT, Method.KOH_LATENT_EMULATOR):
         del out["y"]  # the observation model's own data replace it
         out.update(latent_data(data, options, new_points, trials_new))
+    if method is Method.KOH_LATENT and not data.observations.is_gaussian:
+        # a cheap simulator's link scale is used as it is (the scaling may be the runs')
+        out.update(y_center=0.0, y_scale=1.0)
     if method in (Method.KOH, Method.KOH_LATENT):
         out["X"] = data.physical[data.inputs].to_numpy()
         out["X_new"] = new_points[data.inputs].to_numpy()

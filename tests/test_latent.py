@@ -415,10 +415,16 @@ def test_cli_writes_censoring_and_theta_functions(tmp_path):
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
+        # the counts config has runs too: the cheap simulator must not take their scaling
+        assert main(["calibrate", str(COUNTS / "config.toml"), "--out", str(tmp_path / "p"),
+                     "--chains", "2", "--warmup", "300", "--draws", "300", "--seed", "4"]) == 0
         assert main(["calibrate", str(CENSORED / "config.toml"), "--out", str(tmp_path / "c"),
                      "--chains", "2", "--warmup", "300", "--draws", "300", "--seed", "4"]) == 0
         assert main(["calibrate", str(BEAM / "config.toml"), "--out", str(tmp_path / "b"),
                      "--chains", "2", "--warmup", "300", "--draws", "300", "--seed", "4"]) == 0
+    counts = json.loads((tmp_path / "p" / "summary.json").read_text())
+    assert counts["method"] == "koh_latent" and counts["likelihood"] == "poisson"
+    assert 0.25 < counts["theta"]["mu"]["q50"] < 0.45
     censored = json.loads((tmp_path / "c" / "summary.json").read_text())
     assert censored["censoring"]["left"] > 0 and censored["method"] == "koh_latent"
     assert "Censored observations" in (tmp_path / "c" / "report.md").read_text()
