@@ -144,6 +144,25 @@ def test_binomial_from_runs_recovers_ed50():
     assert 30 < table["y_q50"].iloc[0] < 70  # responders out of 100
 
 
+def test_binomial_with_a_cheap_simulator():
+    """The decay simulator with c0 < 1 is a survival probability, c0 exp(-k t):
+    successes out of 30 trials, logit link."""
+    rng = np.random.default_rng(5)
+    t = np.linspace(0.5, 14, 16)
+    p = decay.simulator(t, 0.9, decay.K_TRUE)
+    physical = pd.DataFrame({"t": t, "c0": 0.9, "n": 30, "alive": rng.binomial(30, p)})
+    data = stancal.CalibrationData(physical, ["t", "c0"], "alive", {"k": (0.01, 0.5)},
+                                   likelihood="binomial", trials="n")
+    result = fit(data, simulator=CENSORED / "simulator.stan")
+    low, high = interval(result, "k")
+    assert low < decay.K_TRUE < high
+    # a probability above 1 anywhere is an error that names the row
+    with pytest.raises(stancal.backends.StanRuntimeError, match=r"success probability 1\.1.* at row 1 .* logit link"):
+        fit(stancal.CalibrationData(physical.assign(c0=[1.2] + [0.9] * 15), ["t", "c0"], "alive",
+                                    {"k": (0.01, 0.02)}, likelihood="binomial", trials="n"),
+            simulator=CENSORED / "simulator.stan", chains=1, warmup=20, draws=20)
+
+
 # ---- censored ----------------------------------------------------------------
 
 def censored_data(frame: pd.DataFrame, bounds: bool = True) -> stancal.CalibrationData:
