@@ -49,14 +49,8 @@ _DIAGNOSED = ["theta", "noise_sd", "delta_sd", "delta_length_scale", "rho", "bet
 
 
 def _latent_reason(data: CalibrationData, options: ModelOptions) -> str | None:
-    """Why the latent-GP programs are needed, or None."""
-    if not data.observations.is_gaussian:
-        return f"likelihood '{data.observations.likelihood.name.lower()}'"
-    if data.observations.any_censored:
-        return "censored outputs"
-    if options.functional:
-        return "functional theta"
-    return None
+    """Why the latent-GP programs are needed (the outputs, or functional theta), or None."""
+    return data.latent_reason or ("functional theta" if options.functional else None)
 
 
 def choose_method(data: CalibrationData, simulator: str | Path | None, method: str | None,
@@ -64,10 +58,10 @@ def choose_method(data: CalibrationData, simulator: str | Path | None, method: s
     """The program to run: the user's method, or koh with a simulator and
     koh_emulator from runs; their latent-GP versions when the outputs or
     theta need them."""
-    reason = _latent_reason(data, options or ModelOptions())
+    options = options or ModelOptions()
+    reason = _latent_reason(data, options)
     base = _base_method(data, simulator, method)
     if reason is not None:  # every method has a latent version
-        options = options or ModelOptions()
         unsupported = [name for name, used in (
             (f"discrepancy '{options.discrepancy}'", options.discrepancy in RESTRICTED_DISCREPANCIES),
             ("mean_formula / mean_intercept", options.mean_formula is not None or options.mean_intercept),
@@ -174,9 +168,9 @@ def calibrate(
                            tuple(functional), tuple(functional_inputs))
     check_functional(data, options.functional, options.functional_inputs)
     l2 = method == L2
-    if l2 and _latent_reason(data, options):
+    if l2 and (reason := _latent_reason(data, options)):
         raise ValueError(f"method 'l2' needs Gaussian, uncensored outputs and scalar theta; "
-                         f"this problem has {_latent_reason(data, options)}")
+                         f"this problem has {reason}")
     chosen = choose_method(data, simulator, None if l2 else method, options)
     spec = model_spec(chosen)
     aliases = {"simulator.stan": Path(simulator)} if simulator is not None else {}

@@ -88,7 +88,7 @@ def compare_methods(data: CalibrationData, *, simulator: str | Path | None = Non
     unknown = set(methods) - set(METHODS)
     if unknown:
         raise ValueError(f"unknown methods {sorted(unknown)}; choose from {', '.join(METHODS)}")
-    if data.needs_latent_model:
+    if data.latent_reason:
         raise ValueError("the method comparison needs Gaussian, uncensored outputs (its methods integrate "
                          "the GP out); calibrate this problem with stancal calibrate")
     quadrature = input_box_quadrature(data)

@@ -10,9 +10,8 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from .models import Likelihood
-from .observations import read_observations
-from .validation import DataError
+from .observations import LINKS, read_observations
+from .validation import DataError, numeric_values, require_whole
 from .validation import row_labels as _rows
 
 
@@ -45,14 +44,7 @@ def _numeric_columns(frame: pd.DataFrame, columns: Sequence[str], what: str) -> 
     _require_columns(frame, columns, what)
     out = {}
     for column in columns:
-        raw = frame[column]
-        values = pd.to_numeric(raw, errors="coerce")
-        bad = values.isna().to_numpy() & raw.notna().to_numpy()
-        if bad.any():
-            raise DataError(
-                f"{what}: column '{column}' has non-numeric values in rows {_rows(bad, frame.index)}"
-            )
-        values = values.to_numpy(dtype=float)
+        values = numeric_values(frame, column, what)
         bad = ~np.isfinite(values)
         if bad.any():
             raise DataError(
@@ -223,9 +215,24 @@ class CalibrationData:
                                **self.observation_columns)
 
     @property
-    def needs_latent_model(self) -> bool:
-        """Non-Gaussian or censored outputs: the GP cannot be integrated out."""
-        return not self.observations.is_gaussian or self.observations.any_censored
+    def latent_reason(self) -> str | None:
+        """Why the outputs need the latent-GP programs (the GP cannot be
+        integrated out), or None."""
+        if not self.observations.is_gaussian:
+            return f"likelihood '{self.observations.likelihood.name.lower()}'"
+        if self.observations.any_censored:
+            return "censored outputs"
+        return None
+
+    def trials_at(self, points: pd.DataFrame) -> np.ndarray:
+        """Binomial trials of a new observation at each point: the trials
+        column where the points have it, else one (a binary outcome)."""
+        column = self.observation_columns["trials"]
+        if column is None or column not in points:
+            return np.ones(len(points), dtype=int)
+        values = numeric_values(points, column, "prediction points")
+        require_whole(values, column, points.index, "prediction points", 1)
+        return values.astype(int)
 
     @property
     def has_runs(self) -> bool:
@@ -291,30 +298,18 @@ class CalibrationData:
         return table
 
     def _check_runs_on_link_scale(self, table: pd.DataFrame) -> None:
-        """The runs' output is the simulator's mean: positive under a log
-        link, a probability under a logit link."""
-        likelihood = self.observations.likelihood
+        """The runs' output is the simulator's mean: it must lie where the link is defined."""
+        link = LINKS[self.observations.likelihood]
         values = table[self.output].to_numpy()
-        if likelihood in (Likelihood.POISSON, Likelihood.NEGBINOMIAL):
-            bad, need = values <= 0, "a mean count > 0 (log link)"
-        elif likelihood is Likelihood.BINOMIAL:
-            bad, need = (values <= 0) | (values >= 1), "a success probability strictly between 0 and 1 (logit link)"
-        else:
-            return
+        bad = ~link.defined(values)
         if bad.any():
-            raise DataError(f"simulator runs: output column '{self.output}' must be {need}; rows "
+            raise DataError(f"simulator runs: output column '{self.output}' must be {link.requirement}; rows "
                             f"{_rows(bad, table.index)} hold {values[bad][:5].tolist()}")
 
     def runs_on_link_scale(self) -> np.ndarray:
         """The runs' output on the likelihood's link scale."""
         assert self.runs is not None
-        values = self.runs[self.output].to_numpy()
-        likelihood = self.observations.likelihood
-        if likelihood is Likelihood.BINOMIAL:
-            return np.log(values / (1 - values))
-        if likelihood is Likelihood.GAUSSIAN:
-            return values
-        return np.log(values)
+        return LINKS[self.observations.likelihood].transform(self.runs[self.output].to_numpy())
 
     def _scaling(self) -> Scaling:
         low, width = {}, {}

@@ -262,7 +262,7 @@ def diagnose_gap(
     ``calibrate_options`` (kernel, chains, warmup, draws, backend,
     adapt_delta, ...) go to every ``calibrate`` call.
     """
-    if data.needs_latent_model:
+    if data.latent_reason:
         raise ValueError("the gap diagnosis needs Gaussian, uncensored outputs (its methods integrate "
                          "the GP out); calibrate this problem with stancal calibrate")
     chosen = choose_method(data, simulator, method)

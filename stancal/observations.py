@@ -3,13 +3,14 @@ them censored to a range), counts, or binomial successes out of trials."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
 
 from .models import Censoring, Likelihood
-from .validation import DataError
+from .validation import DataError, numeric_values, require_whole
 from .validation import row_labels as _rows
 
 LIKELIHOODS = {likelihood.name.lower(): likelihood for likelihood in Likelihood}
@@ -20,6 +21,34 @@ def likelihood_of(name: str) -> Likelihood:
         return LIKELIHOODS[name]
     except KeyError:
         raise DataError(f"likelihood must be one of {', '.join(LIKELIHOODS)}; got {name!r}") from None
+
+
+@dataclass(frozen=True)
+class Link:
+    """A likelihood's link g: where the simulator's mean must lie, and g itself."""
+
+    transform: Callable[[np.ndarray], np.ndarray]
+    defined: Callable[[np.ndarray], np.ndarray]
+    requirement: str
+
+
+_LOG = Link(np.log, lambda v: v > 0, "a mean count > 0 (log link)")
+LINKS = {
+    Likelihood.GAUSSIAN: Link(lambda v: v, lambda v: np.ones(v.shape, dtype=bool), "a real number"),
+    Likelihood.POISSON: _LOG,
+    Likelihood.NEGBINOMIAL: _LOG,
+    Likelihood.BINOMIAL: Link(lambda v: np.log(v / (1 - v)), lambda v: (v > 0) & (v < 1),
+                              "a success probability strictly between 0 and 1 (logit link)"),
+}
+
+
+def _finite_or_empty(frame: pd.DataFrame, column: str, what: str) -> np.ndarray:
+    """Numbers with NaN where empty (an open bound is an empty cell, not inf)."""
+    values = numeric_values(frame, column, what)
+    if np.isinf(values).any():
+        raise DataError(f"{what}: column '{column}' has inf in rows "
+                        f"{_rows(np.isinf(values), frame.index)}; leave the cell empty instead")
+    return values
 
 
 @dataclass(frozen=True)
@@ -51,28 +80,6 @@ class Observations:
         return {kind.name.lower(): int(np.sum(self.censoring == kind)) for kind in Censoring}
 
 
-def _numeric(frame: pd.DataFrame, column: str, what: str) -> np.ndarray:
-    """A column as floats with NaN for empty cells; text is an error."""
-    raw = frame[column]
-    values = pd.to_numeric(raw, errors="coerce")
-    bad = values.isna().to_numpy() & raw.notna().to_numpy()
-    if bad.any():
-        raise DataError(f"{what}: column '{column}' has non-numeric values in rows {_rows(bad, frame.index)}")
-    values = values.to_numpy(dtype=float)
-    if np.isinf(values).any():
-        raise DataError(f"{what}: column '{column}' has inf in rows "
-                        f"{_rows(np.isinf(values), frame.index)}; leave the cell empty for an open bound")
-    return values
-
-
-def _require_whole(values: np.ndarray, column: str, index: pd.Index, what: str, minimum: int) -> None:
-    bad = np.isnan(values) | (values < minimum) | (values != np.round(values))
-    if bad.any():
-        kind = "non-negative" if minimum == 0 else "positive"
-        raise DataError(f"{what}: column '{column}' must hold {kind} whole numbers; rows "
-                        f"{_rows(bad, index)} hold {values[bad][:5].tolist()}")
-
-
 def read_observations(frame: pd.DataFrame, output: str, likelihood: str = "gaussian",
                       trials: str | None = None, lower: str | None = None,
                       upper: str | None = None, what: str = "physical data") -> Observations:
@@ -85,50 +92,50 @@ def read_observations(frame: pd.DataFrame, output: str, likelihood: str = "gauss
         raise DataError(f"trials = '{trials}' is for likelihood 'binomial'; got '{likelihood}'")
     if (lower is not None or upper is not None) and kind is not Likelihood.GAUSSIAN:
         raise DataError(f"censoring bounds (lower/upper) need likelihood 'gaussian'; got '{likelihood}'")
-    value = _numeric(frame, output, what)
+    value = _finite_or_empty(frame, output, what)
     n = len(frame)
     censoring = np.zeros(n, dtype=int)
     low, high = np.full(n, -np.inf), np.full(n, np.inf)
     n_trials = np.zeros(n)
     if kind is Likelihood.GAUSSIAN:
         if lower is not None:
-            low = np.where(np.isnan(given := _numeric(frame, lower, what)), -np.inf, given)
+            low = np.where(np.isnan(given := _finite_or_empty(frame, lower, what)), -np.inf, given)
         if upper is not None:
-            high = np.where(np.isnan(given := _numeric(frame, upper, what)), np.inf, given)
+            high = np.where(np.isnan(given := _finite_or_empty(frame, upper, what)), np.inf, given)
         empty = np.isnan(value)
         unbounded = empty & np.isneginf(low) & np.isposinf(high)
         if unbounded.any():
             hint = ("give a lower or upper bound for a censored value, or drop the rows"
                     if lower or upper else "fill them, drop the rows, or name bound columns (lower/upper)")
             raise DataError(f"{what}: output column '{output}' is empty in rows "
-                                   f"{_rows(unbounded, frame.index)}; {hint}")
+                            f"{_rows(unbounded, frame.index)}; {hint}")
         crossed = empty & (low >= high)
         if crossed.any():
             raise DataError(f"{what}: censored rows {_rows(crossed, frame.index)} have lower >= upper "
-                                   f"('{lower}' >= '{upper}'); an exact value belongs in '{output}'")
+                            f"('{lower}' >= '{upper}'); an exact value belongs in '{output}'")
         censoring[empty & np.isneginf(low)] = Censoring.LEFT
         censoring[empty & np.isposinf(high)] = Censoring.RIGHT
         censoring[empty & np.isfinite(low) & np.isfinite(high)] = Censoring.INTERVAL
         low[~empty], high[~empty] = -np.inf, np.inf  # rows with a value are exact
     else:
-        _require_whole(value, output, frame.index, what, 0)
+        require_whole(value, output, frame.index, what, 0)
         if kind is Likelihood.BINOMIAL:
             if trials is None:  # binary outcomes
                 n_trials = np.ones(n)
                 above = value > 1
                 if above.any():
                     raise DataError(f"{what}: output column '{output}' must be 0 or 1 without a trials "
-                                           f"column; rows {_rows(above, frame.index)} exceed 1 "
-                                           "(name the trials column with trials = ...)")
+                                    f"column; rows {_rows(above, frame.index)} exceed 1 "
+                                    "(name the trials column with trials = ...)")
             else:
-                n_trials = _numeric(frame, trials, what)
-                _require_whole(n_trials, trials, frame.index, what, 1)
+                n_trials = _finite_or_empty(frame, trials, what)
+                require_whole(n_trials, trials, frame.index, what, 1)
                 above = value > n_trials
                 if above.any():
                     raise DataError(f"{what}: successes '{output}' exceed trials '{trials}' in rows "
-                                           f"{_rows(above, frame.index)}")
+                                    f"{_rows(above, frame.index)}")
     observed = censoring == Censoring.OBSERVED
     if observed.sum() < 2:
         raise DataError(f"{what}: only {int(observed.sum())} rows have an exact '{output}'; "
-                               "calibration needs at least 2")
+                        "calibration needs at least 2")
     return Observations(kind, value, n_trials.astype(int), censoring, low, high)

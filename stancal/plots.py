@@ -110,11 +110,11 @@ def _censored_ranges(ax, result: CalibrationResult, column: str) -> None:
         return
     x = result.data.physical[column].to_numpy()
     low, high = ax.get_ylim()
-    for i in np.flatnonzero(~obs.observed):
+    for n, i in enumerate(np.flatnonzero(~obs.observed)):
         lower = obs.lower[i] if np.isfinite(obs.lower[i]) else low
         upper = obs.upper[i] if np.isfinite(obs.upper[i]) else high
         ax.plot([x[i], x[i]], [lower, upper], color="0.4", lw=1.2, alpha=0.7,
-                label="censored: known range" if i == np.flatnonzero(~obs.observed)[0] else None)
+                label="censored: known range" if n == 0 else None)
         marker = "v" if not np.isfinite(obs.lower[i]) else ("^" if not np.isfinite(obs.upper[i]) else "_")
         ax.scatter([x[i]], [obs.upper[i] if marker == "v" else obs.lower[i]], marker=marker,
                    color="0.4", s=22, zorder=3)

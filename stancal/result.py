@@ -26,7 +26,6 @@ from .standata import (
     build_stan_data,
     mean_terms_of,
     to_stan_json,
-    trials_at,
 )
 
 # Stan program variables -> names in the posterior group (original units)
@@ -254,7 +253,7 @@ class CalibrationResult:
             phi = np.asarray(posterior["phi"]).reshape(-1, 1)
             return rng.negative_binomial(phi, phi / (phi + zeta)).astype(float)
         if likelihood is Likelihood.BINOMIAL:
-            return rng.binomial(trials_at(self.data, points), zeta).astype(float)
+            return rng.binomial(self.data.trials_at(points), zeta).astype(float)
         noise = np.asarray(posterior["noise_sd"]).reshape(-1, 1)
         return zeta + noise * rng.standard_normal(zeta.shape)
 

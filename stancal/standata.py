@@ -9,11 +9,10 @@ import numpy as np
 import pandas as pd
 
 from .data import CalibrationData
-from .functional import check_functional, functional_grid
+from .functional import functional_grid
 from .mean_terms import MeanTerms, build_mean_terms
 from .models import Kernel, Method
 from .quadrature import input_box_quadrature
-from .validation import DataError
 
 
 @dataclass(frozen=True)
@@ -89,7 +88,7 @@ def build_stan_data(
     s = data.scaling
     terms = mean_terms_of(data, options)
     h_new = terms.at(new_points) if terms else np.zeros((len(new_points), 0))
-    trials_new = trials_at(data, new_points)
+    trials_new = data.trials_at(new_points)
     new_points = data.check_new_points(new_points)
     out: dict[str, Any] = dict(
         N=len(data.physical),
@@ -97,7 +96,6 @@ def build_stan_data(
         D_delta=len(data.discrepancy_inputs),
         Q=len(data.parameters),
         x_delta=s.to_unit(data.physical, data.discrepancy_inputs),
-        y=_standardise(data, data.physical[data.output].to_numpy()),
         y_center=s.y_center,
         y_scale=s.y_scale,
         H=h_new.shape[1],
@@ -114,8 +112,9 @@ def build_stan_data(
         x_delta_new=s.to_unit(new_points, data.discrepancy_inputs),
     )
     if method in (Method.KOH_LATENT, Method.KOH_LATENT_EMULATOR):
-        del out["y"]  # the observation model's own data replace it
         out.update(latent_data(data, options, new_points, trials_new))
+    else:
+        out["y"] = _standardise(data, data.physical[data.output].to_numpy())
     if method is Method.KOH_LATENT and not data.observations.is_gaussian:
         # a cheap simulator's link scale is used as it is (the scaling may be the runs')
         out.update(y_center=0.0, y_scale=1.0)
@@ -140,25 +139,10 @@ def build_stan_data(
     return out
 
 
-def trials_at(data: CalibrationData, new_points: pd.DataFrame) -> np.ndarray:
-    """Binomial trials of a new observation: the trials column where the new
-    points have it, else one (a binary outcome)."""
-    column = data.observation_columns["trials"]
-    if column is None or column not in new_points:
-        return np.ones(len(new_points), dtype=int)
-    values = pd.to_numeric(new_points[column], errors="coerce").to_numpy()
-    bad = ~(values >= 1) | (values != np.round(values))
-    if bad.any():
-        raise DataError(f"prediction points: column '{column}' must hold positive whole numbers "
-                        f"of trials; rows {np.flatnonzero(bad)[:10].tolist()}")
-    return values.astype(int)
-
-
 def latent_data(data: CalibrationData, options: ModelOptions, new_points: pd.DataFrame,
                 trials_new: np.ndarray) -> dict[str, Any]:
     """The observation model and functional theta of koh_latent*.stan."""
     obs = data.observations
-    check_functional(data, options.functional, options.functional_inputs)
     observed = obs.observed & obs.is_gaussian
     grid = functional_grid(data, options.functional_inputs)
     slots = [options.functional.index(name) + 1 if name in options.functional else 0
