@@ -35,8 +35,8 @@ data {
   array[N] int<lower=0, upper=3> censoring;  // 0 = observed, 1 = left, 2 = right, 3 = interval
   vector[N] lower_bound;                // censoring bounds, standardised like y_real (used where censored)
   vector[N] upper_bound;                // see lower_bound
-  real y_center;                        // gaussian: original-scale y = y_center + y_scale * y; else 0
-  real<lower=0> y_scale;                // gaussian: see y_center; else 1
+  real y_center;                        // gaussian: original-scale y = y_center + y_scale * y (unused otherwise)
+  real<lower=0> y_scale;                // gaussian: see y_center (unused otherwise)
   vector[Q] theta_lower;                // lower bounds of theta, original units (uniform prior)
   vector<lower=theta_lower>[Q] theta_upper;  // upper bounds of theta, original units
   int<lower=0, upper=1> use_discrepancy;     // 1 = GP discrepancy on the link scale, 0 = none
@@ -91,8 +91,8 @@ model {
   theta_function_logit ~ functional_theta(theta_unit, functional_slot, x_fun, kernel_id, theta_function_sd,
                                           theta_function_length_scale);
   if (!prior_only) {
-    vector[N] eta = simulator_link(likelihood_id,
-                                   simulator_at_rows(X, theta_points, y_center, y_scale), X) + delta;
+    vector[N] eta = simulator_model_scale(likelihood_id, simulator_at_rows(X, theta_points, 0, 1), X,
+                                          y_center, y_scale) + delta;
     target += sum(observation_log_lik(
       likelihood_id, eta, likelihood_id == 1 ? noise_sd[1] : 1, likelihood_id == 3 ? inv_square(inv_sqrt_phi[1]) : 1,
       y_real, y_int, trials, censoring, lower_bound, upper_bound));
@@ -117,8 +117,8 @@ generated quantities {
     if (likelihood_id == 1) noise_sd_original[1] = noise_sd[1] * y_scale;
     if (likelihood_id == 3) phi[1] = precision;
     if (use_discrepancy) delta_sd_original[1] = delta_sd[1] * units;
-    vector[N] eta = simulator_link(likelihood_id,
-                                   simulator_at_rows(X, theta_points, y_center, y_scale), X) + delta;
+    vector[N] eta = simulator_model_scale(likelihood_id, simulator_at_rows(X, theta_points, 0, 1), X,
+                                          y_center, y_scale) + delta;
     log_lik = log_lik_original_units(
       likelihood_id, observation_log_lik(likelihood_id, eta, sd_obs, precision, y_real, y_int, trials,
                                          censoring, lower_bound, upper_bound),
@@ -133,13 +133,12 @@ generated quantities {
       kernel_id, theta_function_sd, theta_function_length_scale);
     theta_function_grid = functional_columns_original(theta_new_unit[(P + 1):(P + G)], functional_slot,
                                                       theta_lower, theta_upper);
-    vector[P] f_link_new = simulator_link(
+    vector[P] f_link_new = simulator_model_scale(
       likelihood_id,
       // one simulator call for all new points when theta is shared
       simulator_at_rows(X_new, theta_rows_original(F > 0 ? theta_new_unit[1:P] : to_matrix(theta_unit'),
-                                                   theta_lower, theta_upper),
-                        y_center, y_scale),
-      X_new);
+                                                   theta_lower, theta_upper), 0, 1),
+      X_new, y_center, y_scale);
     vector[P] delta_new_model = rep_vector(0, P);
     if (use_discrepancy && P > 0) {
       delta_new_model = latent_gp_predict_rng(delta, x_delta, x_delta_new, kernel_id, delta_sd[1],

@@ -115,9 +115,6 @@ def build_stan_data(
         out.update(latent_data(data, options, new_points, trials_new))
     else:
         out["y"] = _standardise(data, data.physical[data.output].to_numpy())
-    if method is Method.KOH_LATENT and not data.observations.is_gaussian:
-        # a cheap simulator's link scale is used as it is (the scaling may be the runs')
-        out.update(y_center=0.0, y_scale=1.0)
     if method in (Method.KOH, Method.KOH_LATENT):
         out["X"] = data.physical[data.inputs].to_numpy()
         out["X_new"] = new_points[data.inputs].to_numpy()

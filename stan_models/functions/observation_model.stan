@@ -74,14 +74,16 @@ vector observation_rng(int likelihood_id, vector eta, real noise_sd, real phi,
 }
 
 /**
- * The simulator's mean on the link scale: log for counts, logit for
- * binomial, unchanged for gaussian, with a check that names the point.
+ * A cheap simulator's mean on the model scale: standardised like y for
+ * gaussian, g(f) (log for counts, logit for binomial) otherwise, with a
+ * check that names the point. The link scale is not standardised, so
+ * y_center and y_scale are used for gaussian only.
  *
- * @param f simulator output on the response scale (gaussian: standardised)
+ * @param f simulator output on the response scale, original units
  * @param X the points, for the message
  */
-vector simulator_link(int likelihood_id, vector f, matrix X) {
-  if (likelihood_id == 1) return f;
+vector simulator_model_scale(int likelihood_id, vector f, matrix X, real y_center, real y_scale) {
+  if (likelihood_id == 1) return (f - y_center) / y_scale;
   for (i in 1:rows(f)) {
     if (likelihood_id <= 3 && !(f[i] > 0)) {
       reject("simulator(X, theta) returned the mean ", f[i], " at row ", i, " of X = ", X[i],
