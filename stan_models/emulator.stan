@@ -35,8 +35,7 @@ model {
   emulator_length_scale ~ emulator_length_scale();
   emulator_nugget ~ normal(0, 0.05);
   if (!prior_only) {
-    matrix[M, M] K = add_diag(ard_cov(xt_sim, kernel_id, emulator_sd, emulator_length_scale),
-                              square(emulator_nugget));
+    matrix[M, M] K = emulator_run_cov(xt_sim, kernel_id, emulator_sd, emulator_length_scale, emulator_nugget);
     y_sim ~ multi_normal_cholesky(rep_vector(emulator_mean, M), cholesky_decompose(K));
   }
 }
@@ -45,8 +44,7 @@ generated quantities {
   vector[M] loo_error;     // leave-one-out prediction error of each run, original units
   {
     matrix[M, M] K_inv = chol2inv(cholesky_decompose(
-      add_diag(ard_cov(xt_sim, kernel_id, emulator_sd, emulator_length_scale),
-               square(emulator_nugget))));
+      emulator_run_cov(xt_sim, kernel_id, emulator_sd, emulator_length_scale, emulator_nugget)));
     vector[M] g = K_inv * (y_sim - emulator_mean);
     vector[M] c = diagonal(K_inv);
     log_lik = -0.5 * log(2 * pi()) + 0.5 * log(c) - 0.5 * square(g) ./ c - log(y_scale);

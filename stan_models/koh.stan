@@ -47,6 +47,8 @@ data {
   matrix[P, D] X_new;                   // simulator inputs of the prediction points, original units
   array[P] vector[D_delta] x_delta_new; // discrepancy inputs of the prediction points, scaled to [0, 1]
   matrix[P, H] h_new;                   // mean terms at the prediction points, scaled like h
+  int<lower=0> P_normals;               // P = the draws at the prediction points use normals_new, 0 = Stan's RNG
+  matrix[P_normals, 2] normals_new;     // standard normals for those draws; column 2: discrepancy (1 unused here)
 }
 transformed data {
   int orthogonal = use_discrepancy && discrepancy_form == 2;
@@ -54,19 +56,23 @@ transformed data {
   // nodes U and number of functionals the GP is conditioned on (restricted_gp.stan)
   int U = orthogonal ? R : (scaled ? N : 0);
   int n_functionals = orthogonal ? Q : U;
-  array[U] vector[D_delta] x_U;
-  if (orthogonal) x_U = x_quad;
-  if (scaled) x_U = x_delta;
+  // R = 0 unless the GP is orthogonal
+  array[U] vector[D_delta] x_U = scaled ? x_delta : x_quad;
+  if (P_normals != 0 && P_normals != P) reject("P_normals must be 0 or P = ", P, "; got ", P_normals);
 }
 parameters {
   vector<lower=0, upper=1>[Q] theta_unit;                // theta rescaled to [0, 1]
   real<lower=0> noise_sd;                                // standardised units
   array[use_discrepancy] real<lower=0> delta_sd;         // standardised units
-  array[use_discrepancy ? D_delta : 0] real<lower=0> delta_length_scale;  // fraction of input range
+  array[use_discrepancy ? D : 0] real<lower=0> delta_input_length_scale;  // simulator inputs: fraction of input range
+  array[use_discrepancy ? D_delta - D : 0] real<lower=0> delta_relevance;  // covariates: inverse length scale
   array[estimate_rho] real<lower=0> rho_free;
   vector[H] beta;                                        // mean-term coefficients, standardised units
 }
 transformed parameters {
+  // the discrepancy's length scales over all its inputs: a covariate's is 1 / relevance
+  array[use_discrepancy ? D_delta : 0] real delta_length_scale
+    = discrepancy_length_scales(delta_input_length_scale, delta_relevance);
   vector[Q] theta = theta_from_unit(theta_unit, theta_lower, theta_upper);
   real rho = estimate_rho ? rho_free[1] : 1.0;
 }
@@ -74,7 +80,8 @@ model {
   // theta_unit is uniform on [0, 1]: the bounds are the prior support.
   noise_sd ~ normal(0, 1);
   delta_sd ~ normal(0, 0.5);
-  delta_length_scale ~ discrepancy_length_scale();
+  delta_input_length_scale ~ discrepancy_length_scale();
+  delta_relevance ~ covariate_relevance();
   rho_free ~ normal(1, 0.25);
   beta ~ normal(0, beta_prior_sd);
   if (!prior_only) {
@@ -90,7 +97,8 @@ model {
                                scaled ? square(delta_sd[1]) * N / scaled_lambda : 0));
         K -= crossprod(V);
       }
-      resid ~ multi_normal_cholesky(rep_vector(0, N), cholesky_decompose(add_diag(K, square(noise_sd))));
+      resid ~ multi_normal_cholesky(rep_vector(0, N), cholesky_decompose(
+        add_jitter(add_diag(K, square(noise_sd)), square(delta_sd[1]))));
     } else {
       resid ~ normal(0, noise_sd);
     }
@@ -136,16 +144,18 @@ generated quantities {
         K_cross -= V_new' * V;
         K_new -= crossprod(V_new);
       }
-      matrix[N, N] L = cholesky_decompose(add_diag(K_delta, square(noise_sd)));
-      log_lik = mvn_loo_log_lik(resid, L);
-      resid_loo_mean = mvn_loo_mean(resid, L);
+      matrix[N, N] L = cholesky_decompose(add_jitter(add_diag(K_delta, square(noise_sd)), square(delta_sd[1])));
+      tuple(vector[N], vector[N]) loo = mvn_loo(resid, L);
+      log_lik = loo.1;
+      resid_loo_mean = loo.2;
+      vector[P] z_new = prediction_normals_rng(normals_new, 2, P);
       if (prior_only) {
-        delta_obs = gp_prior_rng(K_delta);
-        if (P > 0) delta_new_std = gp_prior_rng(K_new);
+        delta_obs = gp_prior_draw(K_delta, std_normals_rng(N));
+        if (P > 0) delta_new_std = gp_prior_draw(K_new, z_new);
       } else {
-        delta_obs = gp_conditional_rng(resid, L, K_delta, K_delta);
+        delta_obs = gp_conditional_draw(resid, L, K_delta, K_delta, std_normals_rng(N));
         delta_obs_mean = gp_conditional_mean(resid, L, K_delta);
-        if (P > 0) delta_new_std = gp_conditional_rng(resid, L, K_cross, K_new);
+        if (P > 0) delta_new_std = gp_conditional_draw(resid, L, K_cross, K_new, z_new);
       }
     } else {
       for (i in 1:N) log_lik[i] = normal_lpdf(resid[i] | 0, noise_sd);

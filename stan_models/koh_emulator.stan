@@ -42,17 +42,21 @@ data {
   array[P] vector[D] x_new;             // simulator inputs of the prediction points, scaled to [0, 1]
   array[P] vector[D_delta] x_delta_new; // discrepancy inputs of the prediction points, scaled to [0, 1]
   matrix[P, H] h_new;                   // mean terms at the prediction points, scaled like h
+  int<lower=0> P_normals;               // P = the draws at the prediction points use normals_new, 0 = Stan's RNG
+  matrix[P_normals, 2] normals_new;     // standard normals for those draws; column 1: simulator, 2: discrepancy
 }
 transformed data {
   array[M] vector[D + Q] xt_sim;
   for (j in 1:M) xt_sim[j] = append_row(x_sim[j], theta_sim[j]);
   vector[M + N] y_joint = append_row(y_sim, y);
+  if (P_normals != 0 && P_normals != P) reject("P_normals must be 0 or P = ", P, "; got ", P_normals);
 }
 parameters {
   vector<lower=0, upper=1>[Q] theta_unit;                // theta rescaled to [0, 1]
   real<lower=0> noise_sd;                                // standardised units
   array[use_discrepancy] real<lower=0> delta_sd;         // standardised units
-  array[use_discrepancy ? D_delta : 0] real<lower=0> delta_length_scale;  // fraction of input range
+  array[use_discrepancy ? D : 0] real<lower=0> delta_input_length_scale;  // simulator inputs: fraction of input range
+  array[use_discrepancy ? D_delta - D : 0] real<lower=0> delta_relevance;  // covariates: inverse length scale
   array[estimate_rho] real<lower=0> rho_free;
   vector[H] beta;                                        // mean-term coefficients, standardised units
   real emulator_mean;
@@ -61,13 +65,17 @@ parameters {
   real<lower=0> emulator_nugget;
 }
 transformed parameters {
+  // the discrepancy's length scales over all its inputs: a covariate's is 1 / relevance
+  array[use_discrepancy ? D_delta : 0] real delta_length_scale
+    = discrepancy_length_scales(delta_input_length_scale, delta_relevance);
   vector[Q] theta = theta_from_unit(theta_unit, theta_lower, theta_upper);
   real rho = estimate_rho ? rho_free[1] : 1.0;
 }
 model {
   noise_sd ~ normal(0, 1);
   delta_sd ~ normal(0, 0.5);
-  delta_length_scale ~ discrepancy_length_scale();
+  delta_input_length_scale ~ discrepancy_length_scale();
+  delta_relevance ~ covariate_relevance();
   rho_free ~ normal(1, 0.25);
   beta ~ normal(0, beta_prior_sd);
   emulator_mean ~ normal(0, 1);
@@ -75,8 +83,8 @@ model {
   emulator_length_scale ~ emulator_length_scale();
   emulator_nugget ~ normal(0, 0.05);
   if (prior_only) {
-    matrix[M, M] K_sim = add_diag(ard_cov(xt_sim, kernel_id, emulator_sd, emulator_length_scale),
-                                  square(emulator_nugget));
+    matrix[M, M] K_sim = emulator_run_cov(xt_sim, kernel_id, emulator_sd, emulator_length_scale,
+                                          emulator_nugget);
     y_sim ~ multi_normal_cholesky(rep_vector(emulator_mean, M), cholesky_decompose(K_sim));
   } else {
     matrix[M + N, M + N] K = koh_joint_cov(xt_sim, append_theta(x, theta_unit), x_delta, kernel_id,
@@ -99,33 +107,18 @@ generated quantities {
   vector[P] zeta_new;     // true process rho * f + delta at the prediction points
   if (use_discrepancy) delta_sd_original[1] = delta_sd[1] * y_scale;
   {
-    array[N] vector[D + Q] xt_obs = append_theta(x, theta_unit);
-    matrix[M + N, M + N] L = cholesky_decompose(
-      koh_joint_cov(xt_sim, xt_obs, x_delta, kernel_id, emulator_sd, emulator_length_scale,
-                    emulator_nugget, rho, delta_sd, delta_length_scale, noise_sd));
-    vector[M + N] resid = y_joint - append_row(rep_vector(emulator_mean, M),
-                                               rho * emulator_mean + h * beta);
-    log_lik = mvn_loo_log_lik(resid, L)[(M + 1):(M + N)] - log(y_scale);
-    y_loo_mean = y_center + y_scale * (y - resid[(M + 1):(M + N)]
-                                       + mvn_loo_mean(resid, L)[(M + 1):(M + N)]);
-    // one joint draw at the physical points (rows 1:N) and the prediction points
-    matrix[N + P, 2] f_delta = koh_joint_draw_rng(
-      resid, L, prior_only, xt_sim, xt_obs, x_delta,
-      append_array(xt_obs, append_theta(x_new, theta_unit)), append_array(x_delta, x_delta_new),
-      kernel_id, emulator_sd, emulator_length_scale, rho, delta_sd, delta_length_scale);
-    vector[N + P] f_all = emulator_mean + f_delta[:, 1];
-    vector[N + P] delta_all = append_row(h * beta, h_new * beta) + f_delta[:, 2];
-    vector[N + P] zeta_all = rho * f_all + delta_all;
-    y_rep = y_center + y_scale * to_vector(normal_rng(zeta_all[1:N], noise_sd));
-    delta_gp = y_scale * f_delta[1:N, 2];
-    delta_gp_mean = rep_vector(0, N);
-    if (use_discrepancy && !prior_only) {
-      matrix[N, M + N] K_cross = append_col(
-        rep_matrix(0, N, M), ard_cov(x_delta, kernel_id, delta_sd[1], delta_length_scale));
-      delta_gp_mean = y_scale * gp_conditional_mean(resid, L, K_cross);
-    }
-    f_new = y_center + y_scale * f_all[(N + 1):(N + P)];
-    delta_new = y_scale * delta_all[(N + 1):(N + P)];
-    zeta_new = y_center + y_scale * zeta_all[(N + 1):(N + P)];
+    tuple(vector[N], vector[N], vector[N], vector[N], vector[N], vector[P], vector[P], vector[P]) q
+      = koh_joint_quantities_rng(y_sim, y, xt_sim, x, theta_unit, x_delta, h, beta, x_new, x_delta_new,
+                                 h_new, normals_new, prior_only, kernel_id, emulator_mean, emulator_sd,
+                                 emulator_length_scale, emulator_nugget, rho, delta_sd,
+                                 delta_length_scale, noise_sd, y_center, y_scale);
+    log_lik = q.1;
+    y_loo_mean = q.2;
+    y_rep = q.3;
+    delta_gp = q.4;
+    delta_gp_mean = q.5;
+    f_new = q.6;
+    delta_new = q.7;
+    zeta_new = q.8;
   }
 }

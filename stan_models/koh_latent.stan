@@ -55,19 +55,29 @@ data {
   array[P] vector[D_delta] x_delta_new; // discrepancy inputs of the prediction points, scaled to [0, 1]
   array[P] vector[D_fun] x_fun_new;     // functional inputs of the prediction points, scaled like x_fun
   array[P] int<lower=0> trials_new;     // binomial: trials of a new observation at each prediction point
+  int<lower=0> P_normals;               // P = the draws at the prediction points use normals_new, 0 = Stan's RNG
+  matrix[P_normals, 2 + F] normals_new; // standard normals for those draws; column 1: simulator (emulator),
+                                        // 2: discrepancy, 2 + k: the k-th functional theta
+}
+transformed data {
+  if (P_normals != 0 && P_normals != P) reject("P_normals must be 0 or P = ", P, "; got ", P_normals);
 }
 parameters {
   vector<lower=0, upper=1>[Q] theta_unit;   // theta on [0, 1]; a functional theta's level
   array[likelihood_id == 1] real<lower=0> noise_sd;       // gaussian, standardised units
   array[likelihood_id == 3] real<lower=0> inv_sqrt_phi;   // negbinomial overdispersion
   array[use_discrepancy] real<lower=0> delta_sd;          // model-scale units
-  array[use_discrepancy ? D_delta : 0] real<lower=0> delta_length_scale;  // fraction of input range
+  array[use_discrepancy ? D : 0] real<lower=0> delta_input_length_scale;  // simulator inputs: fraction of input range
+  array[use_discrepancy ? D_delta - D : 0] real<lower=0> delta_relevance;  // covariates: inverse length scale
   vector[use_discrepancy ? N : 0] delta_z;                // non-centred discrepancy
   vector<lower=0>[F] theta_function_sd;                   // logit scale
   array[F] vector<lower=0>[D_fun] theta_function_length_scale;  // fraction of input range
   matrix[N_fun, F] theta_function_logit;                  // logit of functional theta (unit scale) at x_fun
 }
 transformed parameters {
+  // the discrepancy's length scales over all its inputs: a covariate's is 1 / relevance
+  array[use_discrepancy ? D_delta : 0] real delta_length_scale
+    = discrepancy_length_scales(delta_input_length_scale, delta_relevance);
   // theta at each physical point (one row when none is functional), original units
   matrix[F > 0 ? N : 1, Q] theta_points = theta_rows_original(
     theta_unit_rows(theta_unit, functional_slot, theta_function_logit[fun_point]),
@@ -84,7 +94,8 @@ model {
   noise_sd ~ normal(0, 1);
   inv_sqrt_phi ~ normal(0, 1);
   delta_sd ~ normal(0, 0.5);
-  delta_length_scale ~ discrepancy_length_scale();
+  delta_input_length_scale ~ discrepancy_length_scale();
+  delta_relevance ~ covariate_relevance();
   delta_z ~ std_normal();
   theta_function_sd ~ normal(0, 1.5);
   for (k in 1:F) theta_function_length_scale[k] ~ functional_length_scale();
@@ -119,37 +130,32 @@ generated quantities {
     if (use_discrepancy) delta_sd_original[1] = delta_sd[1] * units;
     vector[N] eta = simulator_model_scale(likelihood_id, simulator_at_rows(X, theta_points, 0, 1), X,
                                           y_center, y_scale) + delta;
-    log_lik = log_lik_original_units(
-      likelihood_id, observation_log_lik(likelihood_id, eta, sd_obs, precision, y_real, y_int, trials,
-                                         censoring, lower_bound, upper_bound),
-      censoring, y_scale);
-    y_rep = observations_original_units(
-      likelihood_id, observation_rng(likelihood_id, eta, sd_obs, precision, trials), y_center, y_scale);
+    tuple(vector[N], vector[N]) at_points = latent_observation_quantities_rng(
+      likelihood_id, eta, sd_obs, precision, y_real, y_int, trials, censoring, lower_bound, upper_bound,
+      y_center, y_scale);
+    log_lik = at_points.1;
+    y_rep = at_points.2;
     delta_gp = units * delta;
 
-    // functional theta at the prediction points and on the grid, given the points
-    matrix[P + G, Q] theta_new_unit = theta_unit_rows_rng(
-      theta_unit, functional_slot, theta_function_logit, x_fun, append_array(x_fun_new, x_fun_grid),
-      kernel_id, theta_function_sd, theta_function_length_scale);
-    theta_function_grid = functional_columns_original(theta_new_unit[(P + 1):(P + G)], functional_slot,
-                                                      theta_lower, theta_upper);
+    // functional theta on the grid and at the prediction points, given the points
+    theta_function_grid = theta_function_grid_rng(
+      theta_unit, functional_slot, theta_function_logit, x_fun, x_fun_grid, kernel_id, theta_function_sd,
+      theta_function_length_scale, theta_lower, theta_upper);
+    matrix[P, Q] theta_new_unit = theta_unit_rows_draw(
+      theta_unit, functional_slot, theta_function_logit, x_fun, x_fun_new, kernel_id, theta_function_sd,
+      theta_function_length_scale, functional_normals_rng(normals_new, F, P));
     vector[P] f_link_new = simulator_model_scale(
       likelihood_id,
       // one simulator call for all new points when theta is shared
-      simulator_at_rows(X_new, theta_rows_original(F > 0 ? theta_new_unit[1:P] : to_matrix(theta_unit'),
+      simulator_at_rows(X_new, theta_rows_original(F > 0 ? theta_new_unit : to_matrix(theta_unit'),
                                                    theta_lower, theta_upper), 0, 1),
       X_new, y_center, y_scale);
-    vector[P] delta_new_model = rep_vector(0, P);
-    if (use_discrepancy && P > 0) {
-      delta_new_model = latent_gp_predict_rng(delta, x_delta, x_delta_new, kernel_id, delta_sd[1],
-                                              delta_length_scale);
-    }
-    vector[P] eta_new = f_link_new + delta_new_model;
-    f_new = response_scale(likelihood_id, f_link_new, y_center, y_scale);
-    delta_new = units * delta_new_model;
-    zeta_new = response_scale(likelihood_id, eta_new, y_center, y_scale);
-    y_new = observations_original_units(
-      likelihood_id, observation_rng(likelihood_id, eta_new, sd_obs, precision, trials_new),
-      y_center, y_scale);
+    tuple(vector[P], vector[P], vector[P], vector[P]) at_new = latent_prediction_quantities_rng(
+      likelihood_id, f_link_new, delta, x_delta, x_delta_new, kernel_id, delta_sd, delta_length_scale,
+      normals_new, sd_obs, precision, trials_new, units, y_center, y_scale);
+    f_new = at_new.1;
+    delta_new = at_new.2;
+    zeta_new = at_new.3;
+    y_new = at_new.4;
   }
 }

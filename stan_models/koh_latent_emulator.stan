@@ -16,6 +16,7 @@ functions {
 #include gp_kernels.stan
 #include gp_conditional.stan
 #include koh_joint.stan
+#include loo.stan
 #include latent_gp.stan
 #include observation_model.stan
 #include functional_theta.stan
@@ -64,23 +65,25 @@ data {
   array[P] vector[D_delta] x_delta_new; // discrepancy inputs of the prediction points, scaled to [0, 1]
   array[P] vector[D_fun] x_fun_new;     // functional inputs of the prediction points, scaled like x_fun
   array[P] int<lower=0> trials_new;     // binomial: trials of a new observation at each prediction point
+  int<lower=0> P_normals;               // P = the draws at the prediction points use normals_new, 0 = Stan's RNG
+  matrix[P_normals, 2 + F] normals_new; // standard normals for those draws; column 1: simulator (emulator),
+                                        // 2: discrepancy, 2 + k: the k-th functional theta
 }
 transformed data {
   array[M] vector[D + Q] xt_sim;
   for (j in 1:M) xt_sim[j] = append_row(x_sim[j], theta_sim[j]);
-  array[0] real no_discrepancy;         // koh_joint_predict_rng draws f alone with it
-  // the relative 1e-6 floor (as in latent_gp_cholesky) keeps K positive definite when
-  // stage 1 found a vanishing nugget and long length scales
+  array[0] real no_discrepancy = rep_array(0.0, 0);  // koh_joint_predict draws f alone with it
   matrix[M, M] L_sim = cholesky_decompose(
-    add_diag(ard_cov(xt_sim, kernel_id, emulator_sd, emulator_length_scale),
-             square(emulator_nugget) + 1e-6 * square(emulator_sd)));
+    emulator_run_cov(xt_sim, kernel_id, emulator_sd, emulator_length_scale, emulator_nugget));
+  if (P_normals != 0 && P_normals != P) reject("P_normals must be 0 or P = ", P, "; got ", P_normals);
 }
 parameters {
   vector<lower=0, upper=1>[Q] theta_unit;   // theta on [0, 1]; a functional theta's level
   array[likelihood_id == 1] real<lower=0> noise_sd;       // gaussian, standardised units
   array[likelihood_id == 3] real<lower=0> inv_sqrt_phi;   // negbinomial overdispersion
   array[use_discrepancy] real<lower=0> delta_sd;          // model-scale units
-  array[use_discrepancy ? D_delta : 0] real<lower=0> delta_length_scale;  // fraction of input range
+  array[use_discrepancy ? D : 0] real<lower=0> delta_input_length_scale;  // simulator inputs: fraction of input range
+  array[use_discrepancy ? D_delta - D : 0] real<lower=0> delta_relevance;  // covariates: inverse length scale
   vector[use_discrepancy ? N : 0] delta_z;                // non-centred discrepancy
   vector<lower=0>[F] theta_function_sd;                   // logit scale
   array[F] vector<lower=0>[D_fun] theta_function_length_scale;  // fraction of input range
@@ -88,6 +91,9 @@ parameters {
   vector[N] emulator_z;                                   // non-centred emulator at the physical points
 }
 transformed parameters {
+  // the discrepancy's length scales over all its inputs: a covariate's is 1 / relevance
+  array[use_discrepancy ? D_delta : 0] real delta_length_scale
+    = discrepancy_length_scales(delta_input_length_scale, delta_relevance);
   // theta at each physical point on [0, 1] (one row when none is functional)
   matrix[F > 0 ? N : 1, Q] theta_points_unit = theta_unit_rows(
     theta_unit, functional_slot, theta_function_logit[fun_point]);
@@ -109,7 +115,8 @@ model {
   noise_sd ~ normal(0, 1);
   inv_sqrt_phi ~ normal(0, 1);
   delta_sd ~ normal(0, 0.5);
-  delta_length_scale ~ discrepancy_length_scale();
+  delta_input_length_scale ~ discrepancy_length_scale();
+  delta_relevance ~ covariate_relevance();
   delta_z ~ std_normal();
   theta_function_sd ~ normal(0, 1.5);
   for (k in 1:F) theta_function_length_scale[k] ~ functional_length_scale();
@@ -143,46 +150,43 @@ generated quantities {
     if (likelihood_id == 3) phi[1] = precision;
     if (use_discrepancy) delta_sd_original[1] = delta_sd[1] * units;
     vector[N] eta = link_from_standardised(likelihood_id, f_std, y_center, y_scale) + delta;
-    log_lik = log_lik_original_units(
-      likelihood_id, observation_log_lik(likelihood_id, eta, sd_obs, precision, y_real, y_int, trials,
-                                         censoring, lower_bound, upper_bound),
-      censoring, y_scale);
-    y_rep = observations_original_units(
-      likelihood_id, observation_rng(likelihood_id, eta, sd_obs, precision, trials), y_center, y_scale);
+    tuple(vector[N], vector[N]) at_points = latent_observation_quantities_rng(
+      likelihood_id, eta, sd_obs, precision, y_real, y_int, trials, censoring, lower_bound, upper_bound,
+      y_center, y_scale);
+    log_lik = at_points.1;
+    y_rep = at_points.2;
     delta_gp = units * delta;
 
-    matrix[P + G, Q] theta_new_unit = theta_unit_rows_rng(
-      theta_unit, functional_slot, theta_function_logit, x_fun, append_array(x_fun_new, x_fun_grid),
-      kernel_id, theta_function_sd, theta_function_length_scale);
-    theta_function_grid = functional_columns_original(theta_new_unit[(P + 1):(P + G)], functional_slot,
-                                                      theta_lower, theta_upper);
+    // functional theta on the grid and at the prediction points, given the points
+    theta_function_grid = theta_function_grid_rng(
+      theta_unit, functional_slot, theta_function_logit, x_fun, x_fun_grid, kernel_id, theta_function_sd,
+      theta_function_length_scale, theta_lower, theta_upper);
+    matrix[P, Q] theta_new_unit = theta_unit_rows_draw(
+      theta_unit, functional_slot, theta_function_logit, x_fun, x_fun_new, kernel_id, theta_function_sd,
+      theta_function_length_scale, functional_normals_rng(normals_new, F, P));
     array[P] vector[D + Q] xt_new;
     for (i in 1:P) xt_new[i] = append_row(x_new[i], theta_new_unit[i]');
-    // f at the new points given the runs and its latent values at the physical points,
-    // which koh_joint_cov stacks with a noise sd equal to the latent jitter
+    // f at the new points given the runs and its latent values at the physical points
+    // (noise-free: koh_joint_cov's jitter is the latent draw's)
     vector[P] f_std_new = rep_vector(emulator_mean, P);
     if (P > 0) {
       vector[M + N] resid = append_row(y_sim, f_std) - emulator_mean;
       matrix[M + N, M + N] L = cholesky_decompose(koh_joint_cov(
-        xt_sim, xt_obs, x_delta, kernel_id, emulator_sd, emulator_length_scale,
-        sqrt(square(emulator_nugget) + 1e-6 * square(emulator_sd)), 1.0, no_discrepancy,
-        no_discrepancy, 1e-3 * emulator_sd));
-      f_std_new += koh_joint_predict_rng(resid, L, xt_sim, xt_obs, x_delta, xt_new, x_delta_new,
-                                         kernel_id, emulator_sd, emulator_length_scale, 1.0,
-                                         no_discrepancy, no_discrepancy)[1:P];
+        xt_sim, xt_obs, x_delta, kernel_id, emulator_sd, emulator_length_scale, emulator_nugget,
+        1.0, no_discrepancy, no_discrepancy, 0));
+      // the delta half of the draw is empty here (no discrepancy): its normals are zeros
+      f_std_new += koh_joint_predict(resid, L, xt_sim, xt_obs, x_delta, xt_new, x_delta_new,
+                                     kernel_id, emulator_sd, emulator_length_scale, 1.0,
+                                     no_discrepancy, no_discrepancy,
+                                     append_row(prediction_normals_rng(normals_new, 1, P), rep_vector(0, P)))[1:P];
     }
     vector[P] f_link_new = link_from_standardised(likelihood_id, f_std_new, y_center, y_scale);
-    vector[P] delta_new_model = rep_vector(0, P);
-    if (use_discrepancy && P > 0) {
-      delta_new_model = latent_gp_predict_rng(delta, x_delta, x_delta_new, kernel_id, delta_sd[1],
-                                              delta_length_scale);
-    }
-    vector[P] eta_new = f_link_new + delta_new_model;
-    f_new = response_scale(likelihood_id, f_link_new, y_center, y_scale);
-    delta_new = units * delta_new_model;
-    zeta_new = response_scale(likelihood_id, eta_new, y_center, y_scale);
-    y_new = observations_original_units(
-      likelihood_id, observation_rng(likelihood_id, eta_new, sd_obs, precision, trials_new),
-      y_center, y_scale);
+    tuple(vector[P], vector[P], vector[P], vector[P]) at_new = latent_prediction_quantities_rng(
+      likelihood_id, f_link_new, delta, x_delta, x_delta_new, kernel_id, delta_sd, delta_length_scale,
+      normals_new, sd_obs, precision, trials_new, units, y_center, y_scale);
+    f_new = at_new.1;
+    delta_new = at_new.2;
+    zeta_new = at_new.3;
+    y_new = at_new.4;
   }
 }

@@ -11,6 +11,7 @@ from .gap_report import write_gap_report
 from .mean_terms import FormulaError
 from .models import MODELS, Kernel, Method
 from .modes import MultimodalWarning
+from .report import write_calibration
 from .result import CalibrationResult
 from .stan_source import StanProgramError
 
@@ -22,6 +23,6 @@ __all__ = [
     "CalibrationData", "CalibrationResult", "Candidate", "CandidateError", "Comparison", "DataError",
     "FormulaError", "GapWarning", "InputRangeWarning", "Kernel", "MODELS", "Method",
     "MultimodalWarning", "SamplerWarning", "StanProgramError", "calibrate", "diagnose_gap",
-    "compare_methods", "load_result", "write_comparison", "write_gap_report",
+    "compare_methods", "load_result", "write_calibration", "write_comparison", "write_gap_report",
 ]
 __version__ = "0.1.0"

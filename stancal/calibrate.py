@@ -16,14 +16,13 @@ from .data import CalibrationData
 from .functional import check_functional
 from .inits import spread_theta_inits
 from .l2 import l2_result
-from .models import LATENT_PROGRAM, Method, model_spec
+from .models import LATENT_PROGRAM, RESTRICTED_DISCREPANCIES, Method, ModelOptions, model_spec
 from .quadrature import input_box_quadrature
 from .result import CalibrationResult, build_datatree
+from .seeds import command_seed
 from .stan_source import flatten
 from .standata import (
     EMULATOR_HYPERPARAMETERS,
-    RESTRICTED_DISCREPANCIES,
-    ModelOptions,
     build_emulator_data,
     build_stan_data,
     default_new_points,
@@ -32,19 +31,8 @@ from .standata import (
 
 logger = logging.getLogger("stancal")
 
-# parameters block of each program, for diagnostics and for predict()
-_CALIBRATION_PARAMETERS = ["theta_unit", "noise_sd", "delta_sd", "delta_length_scale", "rho_free", "beta"]
-_LATENT_PARAMETERS = ["theta_unit", "noise_sd", "inv_sqrt_phi", "delta_sd", "delta_length_scale",
-                      "delta_z", "theta_function_sd", "theta_function_length_scale", "theta_function_logit"]
-_PARAMETERS = {
-    Method.KOH: _CALIBRATION_PARAMETERS,
-    Method.MODULAR: _CALIBRATION_PARAMETERS,
-    Method.KOH_EMULATOR: [*_CALIBRATION_PARAMETERS, *EMULATOR_HYPERPARAMETERS],
-    Method.KOH_LATENT: _LATENT_PARAMETERS,
-    Method.KOH_LATENT_EMULATOR: [*_LATENT_PARAMETERS, "emulator_z"],
-}
 L2 = "l2"  # not a Stan program: the projection of another method's zeta draws
-_DIAGNOSED = ["theta", "noise_sd", "delta_sd", "delta_length_scale", "rho", "beta", "phi",
+_DIAGNOSED = ["theta", "noise_sd", "delta_sd", "delta_length_scale", "delta_relevance", "rho", "beta", "phi",
               "theta_function_sd", *EMULATOR_HYPERPARAMETERS]
 
 
@@ -176,7 +164,7 @@ def calibrate(
     aliases = {"simulator.stan": Path(simulator)} if simulator is not None else {}
     flat = flatten(Path(program) if program else spec.path, aliases=aliases)
     stan_backend = get_backend(backend)
-    seed = int(np.random.default_rng().integers(2**31 - 1)) if seed is None else seed
+    seed = command_seed(seed)
     new_points = default_new_points(data) if new_points is None else new_points.reset_index(drop=True)
     quadrature = None
     if l2:  # zeta is drawn at the quadrature nodes too, with the sampler's own RNG
@@ -199,13 +187,14 @@ def calibrate(
     sample = stan_backend.sample(flat, to_stan_json(stan_data), chains=chains, warmup=warmup,
                                  draws=draws, seed=seed, inits=inits, adapt_delta=adapt_delta,
                                  max_treedepth=max_treedepth)
-    tree = build_datatree(sample, data, fit_points, _PARAMETERS[chosen], options)
+    parameter_names = stan_backend.parameter_names(flat)  # the program's own, edited or not
+    tree = build_datatree(sample, data, fit_points, parameter_names, options)
     if prior:
         prior_sample = stan_backend.sample(
             flat, to_stan_json({**stan_data, "prior_only": 1}), chains=chains, warmup=warmup,
             draws=draws, seed=seed + 1, inits=inits, adapt_delta=adapt_delta,
             max_treedepth=max_treedepth)
-        prior_tree = build_datatree(prior_sample, data, fit_points, _PARAMETERS[chosen], options)
+        prior_tree = build_datatree(prior_sample, data, fit_points, parameter_names, options)
         tree["prior"] = prior_tree["posterior"]
         tree["prior_predictive"] = prior_tree["posterior_predictive"]
     timing = {"compile_s": sample.compile_seconds + emulator.get("compile_s", 0.0),
@@ -223,14 +212,23 @@ def calibrate(
         result = l2_result(result, quadrature, len(new_points))
         tree, posterior = result.idata, result.idata["posterior"].to_dataset()
     widths = data.theta_upper - data.theta_lower
-    result.modes = mode_checks.find_modes(np.asarray(posterior["theta"]),
-                                          np.asarray(tree["sample_stats"]["lp"]),
-                                          data.theta_names, widths)
+    lp = np.asarray(tree["sample_stats"]["lp"])
+    result.modes = mode_checks.find_modes(np.asarray(posterior["theta"]), lp, data.theta_names, widths)
+    weights_unavailable = None
+    if len(result.modes) > 1 and quadrature is None:  # L2's theta is a projection, not a density's
+        try:
+            unconstrain, log_density = stan_backend.log_density_functions(flat, to_stan_json(stan_data))
+        except NotImplementedError as err:
+            weights_unavailable = str(err)
+        else:
+            parameters = {k: np.asarray(v) for k, v in tree["stan_parameters"].data_vars.items()}
+            result.modes = mode_checks.weigh(result.modes, unconstrain(parameters), log_density, lp,
+                                             np.random.default_rng(seed))
     result.diagnostics = sampler_checks.check_sampler(
         posterior, tree["sample_stats"].to_dataset(), max_treedepth,
-        [v for v in _DIAGNOSED if v in posterior])
+        [v for v in posterior if v in _DIAGNOSED or v in parameter_names], [m.chains for m in result.modes])
     sampler_checks.report(result.diagnostics)
-    mode_checks.report(result.modes)
+    mode_checks.report(result.modes, weights_unavailable)
     if out_dir is not None:
         result.save(Path(out_dir) / "posterior.nc")
     return result

@@ -4,7 +4,6 @@
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import sys
 import warnings
@@ -15,9 +14,9 @@ from .calibrate import L2, calibrate
 from .compare import METHODS
 from .config import ConfigError, load_config
 from .data import DataError
-from .models import Method
+from .models import DISCREPANCIES, Method
+from .report import write_calibration
 from .stan_source import StanProgramError
-from .standata import DISCREPANCIES
 
 logger = logging.getLogger("stancal")
 
@@ -114,55 +113,6 @@ def run_compare(args: argparse.Namespace) -> dict:
     for message in _stancal_warnings(caught):
         print(f"warning: {message}", file=sys.stderr)
     return summary
-
-
-def write_calibration(result, folder: Path, warning_messages: list[str]) -> dict:
-    """summary.json, summary.csv, figures and report.md of one calibration."""
-    from .plots import write_plots
-
-    summary = result.to_summary_json()
-    summary["warnings"] = warning_messages
-    (folder / "summary.json").write_text(json.dumps(summary, indent=2))
-    result.summary().to_csv(folder / "summary.csv")
-    plots = write_plots(result, folder)
-    (folder / "report.md").write_text(_report(summary, result.summary(), plots))
-    return summary
-
-
-def _report(summary: dict, table, plots: list[Path]) -> str:
-    d = summary["diagnostics"]
-    lines = [
-        f"# Calibration report ({summary['method']}, {summary['backend']}, "
-        f"{summary['likelihood']} likelihood)", "",
-        "## Calibration parameters (original units; 90 % interval)", "",
-        "| parameter | mean | 5 % | 50 % | 95 % | R-hat | bulk ESS |", "|---|---|---|---|---|---|---|",
-        *(f"| {k} | {v['mean']:.4g} | {v['q05']:.4g} | {v['q50']:.4g} | {v['q95']:.4g} | "
-          f"{v['rhat']:.3f} | {v['ess_bulk']:.0f} |" for k, v in summary["theta"].items()),
-        "", "## All parameters", "", table.round(4).to_markdown(),
-        "", "## Sampler", "",
-        f"- divergences: {d['divergences']}; max R-hat {d['max_rhat']:.3f}; "
-        f"min bulk ESS {d['min_ess_bulk']:.0f}; min tail ESS {d['min_ess_tail']:.0f}",
-        f"- compile {summary['timing']['compile_s']:.1f} s, sampling {summary['timing']['sample_s']:.1f} s",
-        *(f"- **warning**: {w}" for w in summary.get("warnings", [])),
-    ]
-    if "censoring" in summary:
-        counts = summary["censoring"]
-        lines += ["", "## Censored observations", "",
-                  f"- exact {counts['observed']}, left-censored {counts['left']}, "
-                  f"right-censored {counts['right']}, interval-censored {counts['interval']}"]
-    for name, curve in summary.get("theta_functions", {}).items():
-        column = next(iter(curve["inputs"]))
-        lines += ["", f"## Functional parameter {name}({', '.join(curve['inputs'])})", "",
-                  f"- over {column} from {min(curve['inputs'][column]):.4g} to {max(curve['inputs'][column]):.4g}: "
-                  f"posterior mean from {min(curve['mean']):.4g} to {max(curve['mean']):.4g}; "
-                  "the grid and its 90 % band are in summary.json (theta_functions)"]
-    if len(summary["modes"]) > 1:
-        lines += ["", "## Separate theta modes", "",
-                  *(f"- mode {i + 1}: chains {m['chains']}, mean log density {m['mean_log_density']:.1f}, "
-                    + ", ".join(f"{k} {t['mean']:.4g} [{t['q05']:.4g}, {t['q95']:.4g}]" for k, t in m["theta"].items())
-                    for i, m in enumerate(summary["modes"]))]
-    lines += ["", "## Figures", "", *(f"![{p.stem}]({p.name})" for p in plots), ""]
-    return "\n".join(lines)
 
 
 def _one_line(err: Exception) -> str:

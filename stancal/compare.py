@@ -15,11 +15,13 @@ import pandas as pd
 
 from .calibrate import L2, calibrate, choose_method
 from .data import CalibrationData
-from .gap import psis_score
 from .l2 import l2_result
+from .models import RESTRICTED_DISCREPANCIES
 from .quadrature import Quadrature, input_box_quadrature
 from .result import CalibrationResult
-from .standata import RESTRICTED_DISCREPANCIES
+from .scoring import psis_score
+from .summaries import band
+from .seeds import command_seed
 
 METHODS = ("koh", "l2", *RESTRICTED_DISCREPANCIES)
 
@@ -53,9 +55,8 @@ class Comparison:
         result = fit.result
         for name, s in result.theta_summary().items():
             row.update({f"{name}_q50": s["q50"], f"{name}_q05": s["q05"], f"{name}_q95": s["q95"]})
-        size = discrepancy_rms(result, self.quadrature)
-        row.update(discrepancy_rms_q50=np.median(size), discrepancy_rms_q05=np.quantile(size, 0.05),
-                   discrepancy_rms_q95=np.quantile(size, 0.95))
+        size = band(discrepancy_rms(result, self.quadrature))
+        row.update({f"discrepancy_rms_{q}": float(size[q]) for q in ("q05", "q50", "q95")})
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # Pareto k is reported in the table
             score = psis_score(result)
@@ -92,7 +93,7 @@ def compare_methods(data: CalibrationData, *, simulator: str | Path | None = Non
         raise ValueError("the method comparison needs Gaussian, uncensored outputs (its methods integrate "
                          "the GP out); calibrate this problem with stancal calibrate")
     quadrature = input_box_quadrature(data)
-    seed = int(np.random.default_rng().integers(2**31 - 1)) if seed is None else seed
+    seed = command_seed(seed)
     base_method = str(choose_method(data, simulator, None))
     fits: list[MethodFit] = []
     koh: MethodFit | None = None
@@ -125,9 +126,9 @@ def compare_methods(data: CalibrationData, *, simulator: str | Path | None = Non
 
 def plot_comparison(comparison: Comparison, path: str | Path | None = None):
     """theta (median and 90 % interval) and discrepancy size per method."""
-    from .plots import _finish, _pyplot
+    from .plots import finish, pyplot
 
-    plt = _pyplot()
+    plt = pyplot()
     fitted = [f for f in comparison.fits if f.result is not None]
     names = comparison.theta_names
     fig, axes = plt.subplots(1, len(names) + 1, figsize=(3.6 * (len(names) + 1), 0.5 * len(fitted) + 2))
@@ -140,13 +141,13 @@ def plot_comparison(comparison: Comparison, path: str | Path | None = None):
         ax.set_xlabel(f"{name} (median, 90 %)")
     ax = axes[-1]
     for i, fit in enumerate(fitted):
-        size = discrepancy_rms(fit.result, comparison.quadrature)
-        q05, q50, q95 = np.quantile(size, [0.05, 0.5, 0.95])
+        size = band(discrepancy_rms(fit.result, comparison.quadrature))
+        q05, q50, q95 = size["q05"], size["q50"], size["q95"]
         ax.errorbar(q50, i, xerr=[[q50 - q05], [q95 - q50]], fmt="s", capsize=3, color="C3")
     ax.set_yticks(list(rows), [f.name for f in fitted])
     ax.set_xlabel("discrepancy RMS over the input box")
     fig.suptitle("Calibration methods compared")
-    return _finish(fig, path)
+    return finish(fig, path)
 
 
 def write_comparison(comparison: Comparison, folder: str | Path) -> dict[str, Any]:

@@ -92,6 +92,14 @@ class Scaling:
             [(frame[c].to_numpy(float) - self.low[c]) / self.width[c] for c in columns]
         )
 
+    def standardise(self, y: np.ndarray) -> np.ndarray:
+        """Outputs in original units -> the standardised scale the programs use."""
+        return (np.asarray(y, float) - self.y_center) / self.y_scale
+
+    def original(self, y_standardised: np.ndarray) -> np.ndarray:
+        """The inverse of standardise."""
+        return self.y_center + self.y_scale * np.asarray(y_standardised, float)
+
 
 class CalibrationData:
     """Physical observations, optional simulator runs and the calibration

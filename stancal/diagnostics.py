@@ -46,16 +46,32 @@ def _bfmi(energy: np.ndarray) -> np.ndarray:
     return np.square(np.diff(energy, axis=1)).mean(axis=1) / np.var(energy, axis=1)
 
 
+def _as_chains(posterior: xr.Dataset, chains: list[int]) -> xr.Dataset:
+    """The given chains; a single chain as its two halves, so that R-hat
+    still compares the start of the chain with its end."""
+    if len(chains) > 1:
+        return posterior.isel(chain=chains)
+    half = posterior.sizes["draw"] // 2
+    one = posterior.isel(chain=chains[0]).drop_vars(["chain", "draw"], errors="ignore")
+    return xr.concat([one.isel(draw=slice(0, half)), one.isel(draw=slice(half, 2 * half))], dim="chain")
+
+
 def check_sampler(posterior: xr.Dataset, sample_stats: xr.Dataset, max_treedepth: int,
-                  parameters: list[str]) -> Diagnostics:
-    """Check divergences, R-hat, ESS, tree depth and E-BFMI of ``parameters``."""
+                  parameters: list[str], modes: list[list[int]] | None = None) -> Diagnostics:
+    """Check divergences, R-hat, ESS, tree depth and E-BFMI of ``parameters``.
+    ``modes``: the chains of each theta mode, when there are several; R-hat
+    is then taken within each mode (chains in different modes disagree by
+    design, and the modes are weighed separately)."""
     import arviz_stats as ast
 
     chains = posterior.sizes["chain"]
     draws = chains * posterior.sizes["draw"]
-    rhat = ast.rhat(posterior[parameters])
-    ess_bulk = ast.ess(posterior[parameters], method="bulk")
-    ess_tail = ast.ess(posterior[parameters], method="tail")
+    groups = modes if modes and len(modes) > 1 else [list(range(chains))]
+    rhat = xr.concat([ast.rhat(_as_chains(posterior[parameters], group)) for group in groups],
+                     dim="mode").max("mode")
+    # the modes' draws are independent samples of their parts of the posterior: their ESS add up
+    ess_bulk = sum(ast.ess(_as_chains(posterior[parameters], group), method="bulk") for group in groups)
+    ess_tail = sum(ast.ess(_as_chains(posterior[parameters], group), method="tail") for group in groups)
 
     def extreme(ds: xr.Dataset, largest: bool) -> tuple[float, str]:
         best, where = (-np.inf if largest else np.inf), ""
@@ -87,9 +103,10 @@ def check_sampler(posterior: xr.Dataset, sample_stats: xr.Dataset, max_treedepth
         )
     if max_rhat > RHAT_LIMIT:
         messages.append(
-            f"R-hat up to {max_rhat:.3f} ({worst_rhat}) > {RHAT_LIMIT}: chains disagree. "
-            "Run longer (more warmup and draws); if chains sit in different theta modes, "
-            "see result.modes."
+            f"R-hat up to {max_rhat:.3f} ({worst_rhat}) > {RHAT_LIMIT}: chains "
+            + ("within a theta mode " if len(groups) > 1 else "") + "disagree. "
+            "Run longer (more warmup and draws)"
+            + ("." if len(groups) > 1 else "; if chains sit in different theta modes, see result.modes.")
         )
     min_ess = min(min_bulk, min_tail)
     if min_ess < ESS_PER_CHAIN * chains:

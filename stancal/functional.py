@@ -10,6 +10,7 @@ import numpy as np
 import pandas as pd
 
 from .data import CalibrationData
+from .summaries import band
 from .validation import DataError
 
 # points per input of the theta(x) grid: 50 for one input, a coarse product grid for more
@@ -56,11 +57,7 @@ def theta_function_summary(curves: np.ndarray, grid: pd.DataFrame,
     theta_functions: per theta, the grid and the mean and 90 % band."""
     out = {}
     for k, name in enumerate(names):
-        values = curves[:, :, k]
-        out[name] = {
-            "inputs": {c: grid[c].tolist() for c in grid.columns},
-            "mean": values.mean(0).tolist(),
-            "q05": np.quantile(values, 0.05, axis=0).tolist(),
-            "q95": np.quantile(values, 0.95, axis=0).tolist(),
-        }
+        summary = band(curves[:, :, k])
+        out[name] = {"inputs": {c: grid[c].tolist() for c in grid.columns},
+                     **{q: summary[q].tolist() for q in ("mean", "q05", "q95")}}
     return out

@@ -23,21 +23,20 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
-from scipy.special import logsumexp
-from scipy.stats import norm
 
 from .backends import get_backend
 from .calibrate import calibrate, choose_method
 from .data import CalibrationData, DataError
-from .gap_location import GapLocation, discrepancy_parts, interval, locate_gap
+from .gap_location import GapLocation, interval, locate_gap
 from .mean_terms import FormulaError, build_mean_terms
 from .models import Method, model_spec
 from .result import CalibrationResult
+from .scoring import PARETO_K_LIMIT, Score, kfold_score, psis_score
+from .seeds import command_seed
 from .stan_source import StanProgramError, flatten
 
 logger = logging.getLogger("stancal")
 
-PARETO_K_LIMIT = 0.7
 
 
 class CandidateError(ValueError):
@@ -69,28 +68,6 @@ class Candidate:
             raise CandidateError(f"candidate '{self.name}': give a formula or a Stan simulator, not both")
         if self.stan is not None and not self.inputs:
             raise CandidateError(f"candidate '{self.name}': a simulator variant needs its 'inputs' columns")
-
-
-@dataclass
-class Score:
-    """Predictive performance and remaining discrepancy of one fit."""
-
-    elpd_i: np.ndarray  # pointwise held-out log predictive density
-    heldout_mean: np.ndarray  # held-out predictive mean of each observation
-    max_pareto_k: float  # NaN under K-fold
-    scheme: str  # "psis-loo" or "kfold"
-    discrepancy_rms: np.ndarray  # draws: RMS of the GP discrepancy over the physical points
-
-    @property
-    def elpd(self) -> float:
-        return float(self.elpd_i.sum())
-
-    @property
-    def elpd_se(self) -> float:
-        return float(np.sqrt(len(self.elpd_i) * np.var(self.elpd_i)))
-
-    def holdout_rmse(self, y: np.ndarray) -> float:
-        return float(np.sqrt(np.mean((y - self.heldout_mean) ** 2)))
 
 
 @dataclass
@@ -202,45 +179,6 @@ def check_candidates(data: CalibrationData, candidates: list[Candidate], backend
             raise CandidateError(f"candidate '{c.name}': the variant does not compile: {err}") from None
 
 
-# ---- scores ------------------------------------------------------------------
-def _discrepancy_rms(result: CalibrationResult) -> np.ndarray:
-    gp, constant = discrepancy_parts(result)
-    return np.sqrt(np.mean((gp + constant[:, None]) ** 2, axis=1))
-
-
-def psis_score(result: CalibrationResult) -> Score:
-    """PSIS-LOO on the exact conditional log p(y_i | y_-i, params), and the
-    held-out mean as the importance-weighted E(y_i | y_-i, params)."""
-    import arviz_stats as ast
-
-    loo = ast.loo(result.idata, pointwise=True, var_name="y")
-    log_w = np.asarray(loo.log_weights.transpose("chain", "draw", "obs")).reshape(-1, loo.n_data_points)
-    weights = np.exp(log_w - logsumexp(log_w, axis=0))
-    loo_mean = np.asarray(result.idata["at_observations"]["y_loo_mean"])
-    loo_mean = loo_mean.reshape(-1, loo_mean.shape[-1])
-    return Score(np.asarray(loo.elpd_i), (weights * loo_mean).sum(0),
-                 float(np.max(loo.pareto_k)), "psis-loo", _discrepancy_rms(result))
-
-
-def kfold_score(data: CalibrationData, fit, k: int, seed: int,
-                discrepancy_rms: np.ndarray) -> Score:
-    """K-fold cross-validation: ``fit(train_data, heldout_points)`` returns a
-    result whose predictions are at the held-out points."""
-    n = len(data.physical)
-    folds = np.random.default_rng(seed).permutation(n) % k
-    y = data.physical[data.output].to_numpy()
-    elpd, mean = np.zeros(n), np.zeros(n)
-    for fold in range(k):
-        test = np.flatnonzero(folds == fold)
-        train = np.flatnonzero(folds != fold)
-        result = fit(data.subset(train), data.source.iloc[test].reset_index(drop=True))
-        zeta = np.asarray(result.idata["predictions"]["zeta_new"]).reshape(-1, len(test))
-        noise = np.asarray(result.idata["posterior"]["noise_sd"]).reshape(-1, 1)
-        elpd[test] = logsumexp(norm.logpdf(y[test], zeta, noise), axis=0) - np.log(len(zeta))
-        mean[test] = zeta.mean(0)
-    return Score(elpd, mean, float("nan"), "kfold", discrepancy_rms)
-
-
 # ---- the analysis --------------------------------------------------------------
 def diagnose_gap(
     data: CalibrationData,
@@ -268,7 +206,7 @@ def diagnose_gap(
     chosen = choose_method(data, simulator, method)
     stan_backend = get_backend(calibrate_options.get("backend"))
     check_candidates(data, candidates, stan_backend)
-    seed = int(np.random.default_rng().integers(2**31 - 1)) if seed is None else seed
+    seed = command_seed(seed)
     out = Path(out_dir) if out_dir is not None else None
     # every fit has a constant in the discrepancy mean, so that no candidate
     # term wins by standing in for the discrepancy's overall level

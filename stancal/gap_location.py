@@ -24,6 +24,7 @@ from scipy.stats import qmc
 
 from .kernels import ard_cross_cov
 from .result import CalibrationResult
+from .summaries import band
 
 _JITTER = 1e-6  # relative to a unit-variance kernel; keeps interpolation stable
 
@@ -33,9 +34,8 @@ def interval(values: np.ndarray) -> dict[str, float]:
     values = np.asarray(values, dtype=float)
     values = values[np.isfinite(values)]
     if values.size == 0:
-        return {"mean": float("nan"), "q05": float("nan"), "q95": float("nan")}
-    return {"mean": float(values.mean()), "q05": float(np.quantile(values, 0.05)),
-            "q95": float(np.quantile(values, 0.95))}
+        return {"mean": float("nan"), "q05": float("nan"), "q50": float("nan"), "q95": float("nan")}
+    return {k: float(v) for k, v in band(values).items()}
 
 
 @dataclass
@@ -48,9 +48,7 @@ class MainEffect:
     categorical: bool
 
     def band(self) -> pd.DataFrame:
-        return pd.DataFrame({
-            "value": self.values, "mean": self.draws.mean(0),
-            "q05": np.quantile(self.draws, 0.05, axis=0), "q95": np.quantile(self.draws, 0.95, axis=0)})
+        return pd.DataFrame({"value": self.values, **band(self.draws)})
 
     def regions(self) -> list[dict]:
         """Ranges (or levels) where the 90 % band excludes zero. A region
@@ -175,8 +173,9 @@ def locate_gap(result: CalibrationResult, *, max_draws: int = 200, base_points: 
     data = result.data
     delta, constant = discrepancy_parts(result)
     delta_mean, _ = discrepancy_parts(result, "delta_gp_mean")
-    length_scale = np.asarray(result.idata["stan_parameters"]["delta_length_scale"])
-    length_scale = length_scale.reshape(-1, length_scale.shape[-1])
+    # each draw's length scales on the unit scale of the discrepancy inputs
+    widths = np.array([data.scaling.width[c] for c in data.discrepancy_inputs])
+    length_scale = np.asarray(result.idata["posterior"]["delta_length_scale"]).reshape(-1, len(widths)) / widths
     rng = np.random.default_rng(seed)
     chosen = np.sort(rng.choice(len(delta), size=min(max_draws, len(delta)), replace=False))
     design = _Design(result, base_points, grid_size, seed)
@@ -206,11 +205,13 @@ def locate_gap(result: CalibrationResult, *, max_draws: int = 200, base_points: 
             for v in design.variables}
     delta = delta + constant[:, None]
     observed = data.source[list(design.variables)].reset_index(drop=True).copy()
-    observed["delta_mean"] = delta.mean(0)
-    observed["delta_q05"] = np.quantile(delta, 0.05, axis=0)
-    observed["delta_q95"] = np.quantile(delta, 0.95, axis=0)
+    for k, v in band(delta).items():
+        observed[f"delta_{k}"] = v
     observed["credible"] = (observed.delta_q05 > 0) | (observed.delta_q95 < 0)
     return GapLocation(
-        importance={v: interval(np.clip(total[v], 0, None)) for v in design.variables},
-        first_order={v: interval(first[v]) for v in design.variables},
+        # a Sobol index lies in [0, 1]; the Monte Carlo estimates (Jansen's total,
+        # Saltelli's first order) can stray past either end, and clipping only
+        # moves them closer to the truth
+        importance={v: interval(np.clip(total[v], 0, 1)) for v in design.variables},
+        first_order={v: interval(np.clip(first[v], 0, 1)) for v in design.variables},
         main_effects=main, at_observations=observed)

@@ -10,12 +10,12 @@ import numpy as np
 
 from .gap import GapAnalysis
 from .gap_location import GapLocation
-from .plots import _finish, _pyplot
+from .plots import finish, pyplot
 
 
 def plot_importance(location: GapLocation, path: Path | None = None):
     """Total Sobol index of the discrepancy for each variable, with 90 % interval."""
-    plt = _pyplot()
+    plt = pyplot()
     names = list(location.importance)
     est = [location.importance[v] for v in names]
     fig, ax = plt.subplots(figsize=(5.5, 0.5 * len(names) + 1.4))
@@ -30,12 +30,12 @@ def plot_importance(location: GapLocation, path: Path | None = None):
     ax.set_xlabel("share of the discrepancy's variance involving the variable (total Sobol index)")
     ax.set_title("Where: what the gap depends on")
     fig.tight_layout()
-    return _finish(fig, path)
+    return finish(fig, path)
 
 
 def plot_main_effects(location: GapLocation, path: Path | None = None):
     """E[delta | variable] with its 90 % band; shaded where the band excludes 0."""
-    plt = _pyplot()
+    plt = pyplot()
     effects = list(location.main_effects.values())
     fig, axes = plt.subplots(1, len(effects), figsize=(3.6 * len(effects), 3.2), squeeze=False,
                              sharey=True)
@@ -56,12 +56,12 @@ def plot_main_effects(location: GapLocation, path: Path | None = None):
     axes[0][0].set_ylabel("discrepancy (reality - simulator)")
     fig.suptitle("Where: discrepancy along each variable (red: credibly non-zero)")
     fig.tight_layout()
-    return _finish(fig, path)
+    return finish(fig, path)
 
 
 def plot_candidates(summary: dict, path: Path | None = None):
     """ELPD difference and shrinkage of each candidate, best first."""
-    plt = _pyplot()
+    plt = pyplot()
     cands = summary["candidates"]
     names = [c["name"] for c in cands]
     y = np.arange(len(cands))
@@ -80,7 +80,7 @@ def plot_candidates(summary: dict, path: Path | None = None):
     right.set_xlabel("shrinkage of the remaining discrepancy (90 %)")
     fig.suptitle("Which effect, and how far the gap shrinks")
     fig.tight_layout()
-    return _finish(fig, path)
+    return finish(fig, path)
 
 
 def _value(v) -> str:
@@ -103,7 +103,8 @@ def report_markdown(summary: dict, figures: list[Path]) -> str:
              f"The gap depends most on **{ranked[0][0]}** (total Sobol index {_fmt(ranked[0][1])})"
              + (f", then {ranked[1][0]} ({_fmt(ranked[1][1])})." if len(ranked) > 1 else "."),
              f"At {where['observations_with_credible_gap']} physical points the discrepancy's 90 % "
-             "interval excludes zero.", ""]
+             "interval excludes zero. (Sobol indices are estimated per posterior draw by Monte "
+             "Carlo and clipped to [0, 1], the range of a Sobol index.)", ""]
     local = [r for r in where["regions"] if not r["whole_range"]]
     everywhere = sorted({r["variable"] for r in where["regions"] if r["whole_range"]})
     if local:
@@ -130,6 +131,9 @@ def report_markdown(summary: dict, figures: list[Path]) -> str:
             f"With it, the remaining discrepancy is {_fmt(best['discrepancy_rms'])}: shrinkage "
             f"{_fmt(best['shrinkage'])}. θ moves: {moved}. Held-out RMSE "
             f"{base['holdout_rmse']:.4g} → {best['holdout_rmse']:.4g}.", "",
+            "A formula candidate's terms are centred over the physical points, so its effect has "
+            "no level of its own: the level stays with the discrepancy's constant, and the "
+            "remaining discrepancy (GP part plus constant) compares like with like.", "",
             "| candidate | kind | ELPD diff ± se | shrinkage (90 %) | remaining RMS | θ | held-out RMSE |",
             "|---|---|---|---|---|---|---|",
             *(f"| {c['name']} | {c['kind']} | {c['elpd_diff']:+.1f} ± {c['elpd_diff_se']:.1f} | "

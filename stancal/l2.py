@@ -20,9 +20,9 @@ from scipy.stats import qmc
 
 from .backends import get_backend
 from .kernels import ard_cross_cov
-from .models import Method
+from .models import Method, ModelOptions
 from .quadrature import Quadrature
-from .standata import ModelOptions, build_stan_data, to_stan_json
+from .standata import build_stan_data, to_stan_json
 
 # (points with the simulator inputs, theta (S, Q) in original units) -> f, (S, points)
 SimulatorAt = Callable[[pd.DataFrame, np.ndarray], np.ndarray]
@@ -49,15 +49,22 @@ def stan_simulator(result) -> SimulatorAt:
     data, backend = result.data, get_backend(result.backend)
     options = ModelOptions(discrepancy="none", kernel=result.options.kernel)
     last: dict = {}  # the program bound to the last points' data: projection reuses one set
+    # every parameter of the (possibly edited) program at its posterior median;
+    # f does not depend on them, but generated quantities need them all
+    stored = result.idata["stan_parameters"]
+    fixed = {name: np.median(np.asarray(da).reshape(-1, *da.shape[2:]), axis=0)
+             for name, da in stored.data_vars.items()}
+    # without a discrepancy, mean terms or rho these are empty
+    fixed.update({k: np.zeros(0) for k in ("delta_sd", "delta_input_length_scale", "delta_relevance", "rho_free", "beta") if k in fixed})
 
     def at(points: pd.DataFrame, theta: np.ndarray) -> np.ndarray:
         if last.get("points") is not points:
             stan_data = to_stan_json(build_stan_data(data, Method.KOH, options, points))
             last.update(points=points, run=backend.quantities_function(result.program, stan_data, seed=1))
         unit = np.clip(_theta_unit(data, theta), 1e-12, 1 - 1e-12)
-        none = np.zeros((1, len(unit), 0))
-        parameters = {"theta_unit": unit[None], "noise_sd": np.ones((1, len(unit))),
-                      "delta_sd": none, "delta_length_scale": none, "rho_free": none, "beta": none}
+        parameters = {name: np.broadcast_to(value, (1, len(unit), *np.shape(value)))
+                      for name, value in fixed.items()}
+        parameters["theta_unit"] = unit[None]
         return last["run"](parameters)["f_new"][0]
 
     return at
@@ -74,7 +81,7 @@ def emulator_mean(result) -> SimulatorAt:
         hyper = {k: np.median(np.asarray(posterior[k]).reshape(-1, *posterior[k].shape[2:]), axis=0)
                  for k in ("emulator_mean", "emulator_sd", "emulator_length_scale", "emulator_nugget")}
     runs_xt = np.hstack([s.to_unit(data.runs, data.inputs), s.to_unit(data.runs, data.theta_names)])
-    y_runs = (data.runs[data.output].to_numpy(float) - s.y_center) / s.y_scale
+    y_runs = s.standardise(data.runs[data.output])
     kernel_id, sd = result.options.kernel_id, float(hyper["emulator_sd"])
     length = np.asarray(hyper["emulator_length_scale"], float)
     k_runs = ard_cross_cov(runs_xt, runs_xt, kernel_id, sd, length)
@@ -87,7 +94,7 @@ def emulator_mean(result) -> SimulatorAt:
         S, P = len(theta_unit), len(x_unit)
         xt = np.hstack([np.repeat(x_unit, S, axis=0), np.tile(theta_unit, (P, 1))])
         f = float(hyper["emulator_mean"]) + ard_cross_cov(xt, runs_xt, kernel_id, sd, length) @ weights
-        return s.y_center + s.y_scale * f.reshape(P, S).T
+        return s.original(f.reshape(P, S).T)
 
     return at
 

@@ -6,6 +6,8 @@ from dataclasses import dataclass
 from enum import IntEnum, StrEnum
 from pathlib import Path
 
+import numpy as np
+
 from .stan_source import shipped_models_dir
 
 
@@ -91,3 +93,42 @@ def model_spec(name: str) -> ModelSpec:
         raise ValueError(
             f"unknown model {name!r}; choose one of {', '.join(MODELS)}"
         ) from None
+
+
+@dataclass(frozen=True)
+class ModelOptions:
+    """Choices that change the model, not the sampler."""
+
+    discrepancy: str = "gp"  # see DISCREPANCIES
+    kernel: str = "se"  # se | matern52
+    estimate_rho: bool = False
+    mean_formula: str | None = None  # discrepancy mean terms h(x, z)' beta, e.g. "I(v**2)"
+    mean_intercept: bool = False  # a constant term in the discrepancy mean
+    scaled_lambda: float | None = None  # scaled GP penalty lambda_z; None = sqrt(N)
+    functional: tuple[str, ...] = ()  # theta that vary over functional_inputs (review section 8.2)
+    functional_inputs: tuple[str, ...] = ()
+
+    def __post_init__(self) -> None:
+        # lists from a config or a saved result
+        object.__setattr__(self, "functional", tuple(self.functional))
+        object.__setattr__(self, "functional_inputs", tuple(self.functional_inputs))
+        if self.discrepancy not in DISCREPANCIES:
+            raise ValueError(f"discrepancy must be one of {', '.join(DISCREPANCIES)}; "
+                             f"got {self.discrepancy!r}")
+        if self.kernel not in ("se", "matern52"):
+            raise ValueError(f"kernel must be 'se' or 'matern52'; got {self.kernel!r}")
+        if self.scaled_lambda is not None and not (np.isfinite(self.scaled_lambda) and self.scaled_lambda > 0):
+            raise ValueError(f"scaled_lambda must be a positive number; got {self.scaled_lambda!r}")
+
+    @property
+    def kernel_id(self) -> int:
+        return int(Kernel.SE if self.kernel == "se" else Kernel.MATERN52)
+
+    @property
+    def has_discrepancy(self) -> bool:
+        return self.discrepancy != "none"
+
+
+# discrepancy_form in koh.stan; "none" switches the discrepancy off
+DISCREPANCIES = {"gp": 1, "orthogonal": 2, "scaled": 3, "none": 1}
+RESTRICTED_DISCREPANCIES = ("orthogonal", "scaled")  # restricted_gp.stan, koh.stan only

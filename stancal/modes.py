@@ -5,9 +5,11 @@ from __future__ import annotations
 
 import logging
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
+
+from .mode_mass import bridge_log_mass, mode_weights
 
 logger = logging.getLogger("stancal")
 
@@ -23,6 +25,13 @@ class Mode:
     theta_q05: dict[str, float]
     theta_q95: dict[str, float]
     mean_log_density: float
+    # share of the posterior mass (mode_mass.py) with its 90 % Monte Carlo
+    # interval; None when it could not be estimated
+    weight: float | None = None
+    weight_q05: float | None = None
+    weight_q95: float | None = None
+    log_mass: float | None = None
+    log_mass_se: float | None = None
 
     def to_dict(self) -> dict:
         return {
@@ -30,6 +39,9 @@ class Mode:
             "theta": {k: {"mean": self.theta_mean[k], "q05": self.theta_q05[k],
                           "q95": self.theta_q95[k]} for k in self.theta_mean},
             "mean_log_density": self.mean_log_density,
+            "weight": None if self.weight is None else {
+                "mean": self.weight, "q05": self.weight_q05, "q95": self.weight_q95},
+            "log_mass": self.log_mass, "log_mass_se": self.log_mass_se,
         }
 
 
@@ -77,22 +89,50 @@ def find_modes(theta: np.ndarray, lp: np.ndarray, names: list[str],
     return sorted(modes, key=lambda m: -m.mean_log_density)
 
 
+def weigh(modes: list[Mode], unconstrained: np.ndarray, log_density, lp: np.ndarray,
+          rng: np.random.Generator) -> list[Mode]:
+    """Each mode's share of the posterior mass by bridge sampling
+    (mode_mass.py), heaviest first. ``unconstrained``: (chain, draw, d)
+    draws on the unconstrained scale; ``lp``: (chain, draw) log density, for
+    the draws' effective sample size."""
+    import arviz_stats as ast
+
+    masses = []
+    for mode in modes:
+        draws = unconstrained[mode.chains].reshape(-1, unconstrained.shape[-1])
+        effective = float(ast.ess(lp[mode.chains], method="bulk"))
+        masses.append(bridge_log_mass(draws, log_density, rng, effective))
+    weights, low, high = mode_weights(masses, rng)
+    weighed = [replace(mode, weight=float(w), weight_q05=float(lo), weight_q95=float(hi),
+                       log_mass=m.log_mass, log_mass_se=m.log_mass_se)
+               for mode, w, lo, hi, m in zip(modes, weights, low, high, masses)]
+    return sorted(weighed, key=lambda m: -m.weight)
+
+
 def describe(modes: list[Mode]) -> str:
     parts = []
     for k, m in enumerate(modes, start=1):
         theta = ", ".join(f"{n} {m.theta_mean[n]:.4g} [{m.theta_q05[n]:.4g}, {m.theta_q95[n]:.4g}]"
                           for n in m.theta_mean)
-        parts.append(f"mode {k} (chains {m.chains}, mean log density {m.mean_log_density:.1f}): {theta}")
+        mass = (f"weight {m.weight:.3f} [{m.weight_q05:.3f}, {m.weight_q95:.3f}]" if m.weight is not None
+                else f"mean log density {m.mean_log_density:.1f}")
+        parts.append(f"mode {k} (chains {m.chains}, {mass}): {theta}")
     return "; ".join(parts)
 
 
-def report(modes: list[Mode]) -> None:
+def report(modes: list[Mode], weights_unavailable: str | None = None) -> None:
     if len(modes) > 1:
+        if modes[0].weight is not None:
+            how = ("theta is summarised as their mixture, each mode weighted by its posterior mass "
+                   "(bridge sampling; 90 % Monte Carlo intervals)")
+        else:
+            how = (f"their posterior masses could not be estimated ({weights_unavailable}), so the "
+                   "summary is that of the mode with the highest log density, which is not "
+                   "necessarily the heaviest")
         message = (
-            f"the chains found {len(modes)} separate theta modes: {describe(modes)}. "
-            "Summaries are given per mode (the first has the highest log density); chains "
-            "stuck in a mode do not weigh the modes correctly, so compare them, run more "
-            "chains, or narrow the theta bounds."
+            f"the chains found {len(modes)} separate theta modes: {describe(modes)}. {how}. "
+            "Summaries per mode are in result.summary(); more chains, or narrower theta bounds, "
+            "show whether there are modes no chain found."
         )
         logger.warning(message)
         warnings.warn(message, MultimodalWarning, stacklevel=3)

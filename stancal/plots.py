@@ -10,7 +10,8 @@ import pandas as pd
 from .result import CalibrationResult
 
 
-def _pyplot():
+def pyplot():
+    """matplotlib.pyplot on the file-only Agg backend (no display needed)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -21,7 +22,7 @@ def _pyplot():
 
 def plot_theta(result: CalibrationResult, path: str | Path | None = None):
     """Posterior histogram of each theta over its prior box, one colour per mode."""
-    plt = _pyplot()
+    plt = pyplot()
     params = result.data.parameters
     fig, axes = plt.subplots(1, len(params), figsize=(4 * len(params), 3.2), squeeze=False)
     theta = np.asarray(result.idata["posterior"]["theta"])
@@ -37,7 +38,7 @@ def plot_theta(result: CalibrationResult, path: str | Path | None = None):
     axes[0][0].legend(fontsize=8)
     fig.suptitle(f"theta posterior ({result.method})")
     fig.tight_layout()
-    return _finish(fig, path)
+    return finish(fig, path)
 
 
 def _along(result: CalibrationResult):
@@ -47,7 +48,7 @@ def _along(result: CalibrationResult):
 
 def plot_fit(result: CalibrationResult, path: str | Path | None = None):
     """zeta (90 % band) and the calibrated simulator against the data."""
-    plt = _pyplot()
+    plt = pyplot()
     table = result.predict()
     column = _along(result)
     order = np.argsort(table[column].to_numpy())
@@ -74,12 +75,12 @@ def plot_fit(result: CalibrationResult, path: str | Path | None = None):
     ax.set_title("prediction of reality" if len(result.data.discrepancy_inputs) == 1
                  else f"prediction at the data points, against {column}")
     fig.tight_layout()
-    return _finish(fig, path)
+    return finish(fig, path)
 
 
 def plot_discrepancy(result: CalibrationResult, path: str | Path | None = None):
     """delta with its 90 % band against each input and covariate."""
-    plt = _pyplot()
+    plt = pyplot()
     table = result.predict()
     columns = list(result.data.discrepancy_variables)
     fig, axes = plt.subplots(1, len(columns), figsize=(5 * len(columns), 3.5), squeeze=False)
@@ -99,7 +100,7 @@ def plot_discrepancy(result: CalibrationResult, path: str | Path | None = None):
     axes[0][0].legend(fontsize=8)
     fig.suptitle("model discrepancy delta(x)")
     fig.tight_layout()
-    return _finish(fig, path)
+    return finish(fig, path)
 
 
 def _censored_ranges(ax, result: CalibrationResult, column: str) -> None:
@@ -124,7 +125,7 @@ def _censored_ranges(ax, result: CalibrationResult, column: str) -> None:
 def plot_theta_functions(result: CalibrationResult, path: str | Path | None = None):
     """Each functional theta against each input it varies over: posterior
     mean and 90 % band (averaged over the other functional inputs)."""
-    plt = _pyplot()
+    plt = pyplot()
     curves = result.theta_functions()
     inputs = list(result.options.functional_inputs)
     fig, axes = plt.subplots(len(curves), len(inputs), figsize=(5.5 * len(inputs), 3.6 * len(curves)),
@@ -144,13 +145,14 @@ def plot_theta_functions(result: CalibrationResult, path: str | Path | None = No
             ax.legend(fontsize=8)
     fig.suptitle("functional calibration parameters")
     fig.tight_layout()
-    return _finish(fig, path)
+    return finish(fig, path)
 
 
-def _finish(fig, path):
+def finish(fig, path):
+    """Save ``fig`` to ``path`` and close it; without a path, return it open."""
     if path is not None:
         fig.savefig(path, dpi=110)
-        _pyplot().close(fig)
+        pyplot().close(fig)
     return fig
 
 

@@ -17,16 +17,11 @@ from .backends import Draws, SampleOutput, get_backend
 from .data import CalibrationData
 from .diagnostics import Diagnostics
 from .functional import functional_grid, theta_function_summary
-from .models import Likelihood
+from .models import Likelihood, ModelOptions
 from .modes import Mode
 from .stan_source import FlatProgram
-from .standata import (
-    EMULATOR_HYPERPARAMETERS,
-    ModelOptions,
-    build_stan_data,
-    mean_terms_of,
-    to_stan_json,
-)
+from .summaries import band
+from .standata import EMULATOR_HYPERPARAMETERS, build_stan_data, mean_terms_of, to_stan_json
 
 # Stan program variables -> names in the posterior group (original units)
 _REPORTED = {
@@ -43,7 +38,13 @@ _NEW_OBSERVATION = "y_new"  # latent programs: a new observation from the likeli
 # per physical point: the GP part of delta (a draw, and its mean given the
 # parameters), and E(y_i | y_-i) for held-out error
 _AT_OBSERVATIONS = ("delta_gp", "delta_gp_mean", "y_loo_mean")
-QUANTILES = (0.05, 0.5, 0.95)
+# parameters of stancal's programs that the posterior group holds in another
+# form (original units, or not at all: latent standard normals); any other
+# parameter of a program goes into the posterior group as it is
+_REEXPRESSED = {"theta_unit", "noise_sd", "delta_sd", "delta_input_length_scale", "delta_relevance",
+                "rho_free", "beta",
+                "inv_sqrt_phi", "delta_z", "emulator_z", "theta_function_sd",
+                "theta_function_length_scale", "theta_function_logit"}
 
 
 def build_datatree(sample: SampleOutput, data: CalibrationData,
@@ -62,6 +63,9 @@ def build_datatree(sample: SampleOutput, data: CalibrationData,
     if options.has_discrepancy:
         widths = np.array([data.scaling.width[c] for c in data.discrepancy_inputs])
         posterior["delta_length_scale"] = d["delta_length_scale"] * widths
+        covariates = len(data.discrepancy_inputs) - len(data.inputs)
+        if covariates:  # per unit of each covariate: 0 switches it off
+            posterior["delta_relevance"] = d["delta_relevance"] / widths[len(data.inputs):]
     if options.functional:
         widths = np.array([data.scaling.width[c] for c in options.functional_inputs])
         posterior["theta_function_sd"] = d["theta_function_sd"]
@@ -74,6 +78,9 @@ def build_datatree(sample: SampleOutput, data: CalibrationData,
     terms = mean_terms_of(data, options)
     if terms is not None:  # coefficients per raw term, original units
         posterior["beta"] = d["beta"] * data.scaling.y_scale / terms.scale
+    for name in parameter_names:  # a parameter of the user's own program, as the program has it
+        if name not in _REEXPRESSED and name not in posterior and d[name].size:
+            posterior[name] = d[name]
     sampled = {
         "posterior": posterior,
         "posterior_predictive": {"y": d["y_rep"]},
@@ -85,7 +92,7 @@ def build_datatree(sample: SampleOutput, data: CalibrationData,
     if options.functional:
         sampled["theta_functions"] = {"theta_function": d["theta_function_grid"]}
     dims = {
-        "theta": ["theta_name"], "delta_length_scale": ["delta_input"],
+        "theta": ["theta_name"], "delta_length_scale": ["delta_input"], "delta_relevance": ["delta_covariate"],
         "emulator_length_scale": ["emulator_input"], "y": ["obs"], "beta": ["mean_term"],
         **{k: ["obs"] for k in _AT_OBSERVATIONS},
         **{k: ["new_point"] for k in (*_PREDICTED, _NEW_OBSERVATION)},
@@ -96,6 +103,7 @@ def build_datatree(sample: SampleOutput, data: CalibrationData,
     grid = functional_grid(data, options.functional_inputs)
     coords = {
         "theta_name": data.theta_names, "delta_input": data.discrepancy_inputs,
+        "delta_covariate": data.discrepancy_inputs[len(data.inputs):],
         "emulator_input": [*data.inputs, *data.theta_names],
         "obs": np.arange(len(data.physical)), "new_point": np.arange(len(new_points)),
         "mean_term": terms.names if terms else [],
@@ -125,10 +133,15 @@ def build_datatree(sample: SampleOutput, data: CalibrationData,
 
 def _interval_table(values: np.ndarray, prefix: str) -> dict[str, np.ndarray]:
     """values: (samples, points) -> mean and quantiles per point."""
-    out = {f"{prefix}_mean": values.mean(0)}
-    for q in QUANTILES:
-        out[f"{prefix}_q{int(round(q * 100)):02d}"] = np.quantile(values, q, axis=0)
-    return out
+    return {f"{prefix}_{k}": v for k, v in band(values).items()}
+
+
+def weighted_quantiles(values: np.ndarray, weights: np.ndarray, quantiles) -> list[float]:
+    """Quantiles of weighted draws (weights summing to 1), by interpolating
+    the weighted empirical CDF at the draws' midpoints."""
+    order = np.argsort(values)
+    cumulative = np.cumsum(weights[order]) - 0.5 * weights[order]
+    return [float(np.interp(q, cumulative, values[order])) for q in quantiles]
 
 
 @dataclass
@@ -180,30 +193,49 @@ class CalibrationResult:
 
     def summary(self) -> pd.DataFrame:
         """theta and hyperparameters on the original scale. With several theta
-        modes, one block of rows per mode (column ``mode``, 1 = highest density)."""
+        modes, one block of rows per mode (column ``mode``, 1 = the heaviest,
+        or the highest density when the masses are unknown; column ``weight``,
+        its share of the posterior mass)."""
         posterior = self.idata["posterior"].to_dataset()
         if len(self.modes) <= 1:
             return self._summary_of(posterior)
         blocks = []
         for k, mode in enumerate(self.modes, start=1):
             block = self._summary_of(posterior.isel(chain=mode.chains))
+            block.insert(0, "weight", np.nan if mode.weight is None else mode.weight)
             block.insert(0, "mode", k)
             blocks.append(block)
         return pd.concat(blocks)
 
     def theta_summary(self) -> dict[str, dict[str, float]]:
-        table = self._summary_of(self._dominant_posterior()[["theta"]])
-        return {
-            name: {k: float(table.loc[f"theta[{name}]", k])
-                   for k in ("mean", "sd", "q05", "q50", "q95", "rhat", "ess_bulk")}
-            for name in self.data.theta_names
-        }
-
-    def _dominant_posterior(self) -> xr.Dataset:
+        """theta's posterior summary. With several modes whose masses are
+        known, that of their mixture, each mode weighted by its mass (R-hat
+        is the worst within a mode, ESS the smallest)."""
+        keys = ("mean", "sd", "q05", "q50", "q95", "rhat", "ess_bulk")
         posterior = self.idata["posterior"].to_dataset()
-        if len(self.modes) > 1:
-            return posterior.isel(chain=self.modes[0].chains)
-        return posterior
+        if len(self.modes) > 1 and self.modes[0].weight is not None:
+            return {name: dict(zip(keys, values)) for name, values in self._mixture_theta(posterior).items()}
+        if len(self.modes) > 1:  # masses unknown (see modes.report)
+            posterior = posterior.isel(chain=self.modes[0].chains)
+        table = self._summary_of(posterior[["theta"]])
+        return {name: {k: float(table.loc[f"theta[{name}]", k]) for k in keys}
+                for name in self.data.theta_names}
+
+    def _mixture_theta(self, posterior: xr.Dataset) -> dict[str, list[float]]:
+        theta = np.asarray(posterior["theta"])  # (chain, draw, theta)
+        draws = np.concatenate([theta[m.chains].reshape(-1, theta.shape[-1]) for m in self.modes])
+        weights = np.concatenate([np.full(len(m.chains) * theta.shape[1], m.weight / (len(m.chains) * theta.shape[1]))
+                                  for m in self.modes])
+        per_mode = [self._summary_of(posterior[["theta"]].isel(chain=m.chains)) for m in self.modes]
+        out = {}
+        for j, name in enumerate(self.data.theta_names):
+            mean = float(weights @ draws[:, j])
+            sd = float(np.sqrt(weights @ (draws[:, j] - mean) ** 2))
+            label = f"theta[{name}]"
+            out[name] = [mean, sd, *weighted_quantiles(draws[:, j], weights, (0.05, 0.5, 0.95)),
+                         max(float(t.loc[label, "rhat"]) for t in per_mode),
+                         min(float(t.loc[label, "ess_bulk"]) for t in per_mode)]
+        return out
 
     def theta_draws(self) -> pd.DataFrame:
         theta = self.idata["posterior"]["theta"]

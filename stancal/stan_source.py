@@ -61,6 +61,15 @@ class FlatProgram:
         message = _TEMPORARY_FILE.sub("at ", message)
         return _LINE_REFERENCE.sub(replace, message)
 
+    def users_warnings(self, stanc_warnings: str) -> list[str]:
+        """stanc's warnings that point into the user's own files, mapped to
+        them. Those that point into the shipped programs are known, mostly
+        pedantic-mode advice about stancal's own modelling choices."""
+        shipped = str(shipped_models_dir())
+        blocks = re.split(r"\n(?=Warning)", stanc_warnings.strip()) if stanc_warnings.strip() else []
+        mapped = [self.explain(block) for block in blocks]
+        return [block for block in mapped if not block.split("\n", 1)[0].count(shipped)]
+
 
 def flatten(
     program: Path,

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -11,47 +10,8 @@ import pandas as pd
 from .data import CalibrationData
 from .functional import functional_grid
 from .mean_terms import MeanTerms, build_mean_terms
-from .models import Kernel, Method
+from .models import DISCREPANCIES, RESTRICTED_DISCREPANCIES, Method, ModelOptions
 from .quadrature import input_box_quadrature
-
-
-@dataclass(frozen=True)
-class ModelOptions:
-    """Choices that change the model, not the sampler."""
-
-    discrepancy: str = "gp"  # see DISCREPANCIES
-    kernel: str = "se"  # se | matern52
-    estimate_rho: bool = False
-    mean_formula: str | None = None  # discrepancy mean terms h(x, z)' beta, e.g. "I(v**2)"
-    mean_intercept: bool = False  # a constant term in the discrepancy mean
-    scaled_lambda: float | None = None  # scaled GP penalty lambda_z; None = sqrt(N)
-    functional: tuple[str, ...] = ()  # theta that vary over functional_inputs (review section 8.2)
-    functional_inputs: tuple[str, ...] = ()
-
-    def __post_init__(self) -> None:
-        # lists from a config or a saved result
-        object.__setattr__(self, "functional", tuple(self.functional))
-        object.__setattr__(self, "functional_inputs", tuple(self.functional_inputs))
-        if self.discrepancy not in DISCREPANCIES:
-            raise ValueError(f"discrepancy must be one of {', '.join(DISCREPANCIES)}; "
-                             f"got {self.discrepancy!r}")
-        if self.kernel not in ("se", "matern52"):
-            raise ValueError(f"kernel must be 'se' or 'matern52'; got {self.kernel!r}")
-        if self.scaled_lambda is not None and not (np.isfinite(self.scaled_lambda) and self.scaled_lambda > 0):
-            raise ValueError(f"scaled_lambda must be a positive number; got {self.scaled_lambda!r}")
-
-    @property
-    def kernel_id(self) -> int:
-        return int(Kernel.SE if self.kernel == "se" else Kernel.MATERN52)
-
-    @property
-    def has_discrepancy(self) -> bool:
-        return self.discrepancy != "none"
-
-
-# discrepancy_form in koh.stan; "none" switches the discrepancy off
-DISCREPANCIES = {"gp": 1, "orthogonal": 2, "scaled": 3, "none": 1}
-RESTRICTED_DISCREPANCIES = ("orthogonal", "scaled")  # restricted_gp.stan, koh.stan only
 
 
 EMULATOR_HYPERPARAMETERS = ("emulator_mean", "emulator_sd", "emulator_length_scale", "emulator_nugget")
@@ -70,10 +30,6 @@ def mean_terms_of(data: CalibrationData, options: ModelOptions) -> MeanTerms | N
     if options.mean_formula is None and not options.mean_intercept:
         return None
     return build_mean_terms(options.mean_formula, data.source, intercept=options.mean_intercept)
-
-
-def _standardise(data: CalibrationData, values: np.ndarray) -> np.ndarray:
-    return (values - data.scaling.y_center) / data.scaling.y_scale
 
 
 def build_stan_data(
@@ -110,11 +66,15 @@ def build_stan_data(
         prior_only=int(prior_only),
         P=len(new_points),
         x_delta_new=s.to_unit(new_points, data.discrepancy_inputs),
+        # Stan's RNG draws at the prediction points; the PyStan backend gives
+        # normals per draw when it reruns generated quantities (backends.base)
+        P_normals=0,
+        normals_new=np.zeros((0, 2 + len(options.functional))),
     )
     if method in (Method.KOH_LATENT, Method.KOH_LATENT_EMULATOR):
         out.update(latent_data(data, options, new_points, trials_new))
     else:
-        out["y"] = _standardise(data, data.physical[data.output].to_numpy())
+        out["y"] = data.scaling.standardise(data.physical[data.output].to_numpy())
     if method in (Method.KOH, Method.KOH_LATENT):
         out["X"] = data.physical[data.inputs].to_numpy()
         out["X_new"] = new_points[data.inputs].to_numpy()
@@ -150,13 +110,13 @@ def latent_data(data: CalibrationData, options: ModelOptions, new_points: pd.Dat
                                     return_inverse=True)
     return dict(
         likelihood_id=int(obs.likelihood),
-        y_real=np.where(observed, _standardise(data, np.nan_to_num(obs.value)), 0.0),
+        y_real=np.where(observed, data.scaling.standardise(np.nan_to_num(obs.value)), 0.0),
         y_int=np.where(obs.is_gaussian, 0, np.nan_to_num(obs.value)).astype(int),
         trials=obs.trials,
         censoring=obs.censoring,
         # infinite bounds are never read (the censoring code says which side is used)
-        lower_bound=np.nan_to_num(_standardise(data, obs.lower), posinf=0.0, neginf=0.0),
-        upper_bound=np.nan_to_num(_standardise(data, obs.upper), posinf=0.0, neginf=0.0),
+        lower_bound=np.nan_to_num(data.scaling.standardise(obs.lower), posinf=0.0, neginf=0.0),
+        upper_bound=np.nan_to_num(data.scaling.standardise(obs.upper), posinf=0.0, neginf=0.0),
         F=len(options.functional),
         functional_slot=slots,
         D_fun=len(fun_inputs),
@@ -193,7 +153,7 @@ def emulator_run_data(data: CalibrationData) -> dict[str, Any]:
         M=len(data.runs),
         x_sim=s.to_unit(data.runs, data.inputs),
         theta_sim=s.to_unit(data.runs, data.theta_names),
-        y_sim=_standardise(data, data.runs_on_link_scale()),
+        y_sim=data.scaling.standardise(data.runs_on_link_scale()),
     )
 
 

@@ -34,12 +34,19 @@ def exact_cooling_data() -> stancal.CalibrationData:
 
 
 def fit(data, **kwargs):
-    """Small but honest sampling settings for tests."""
+    """Small but honest sampling settings for tests. Sampler warnings are not
+    hidden: recovery tests assert the fit's health with assert_healthy."""
     settings = dict(chains=2, warmup=400, draws=400, seed=11)
     settings.update(kwargs)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        return stancal.calibrate(data, **settings)
+    return stancal.calibrate(data, **settings)
+
+
+def assert_healthy(result, divergences: int = 0) -> None:
+    """R-hat <= 1.01 over every diagnosed parameter, and at most
+    ``divergences`` divergent transitions (a test that allows any says why)."""
+    d = result.diagnostics
+    assert d.max_rhat <= 1.01, f"R-hat {d.max_rhat:.4f} at {d.worst_rhat}"
+    assert d.divergences <= divergences, f"{d.divergences} divergences of {d.draws}"
 
 
 @pytest.fixture(scope="session")

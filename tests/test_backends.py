@@ -41,3 +41,51 @@ def test_cmdstanpy_recovers_theta(exact_cooling_data):
     k = result.theta_summary()["k"]
     assert result.backend == "cmdstanpy"
     assert k["q05"] < K_TRUE < k["q95"]
+
+
+def test_a_cached_build_prints_nothing(koh_fit, capfd):
+    """PyStan prints stanc's warnings about the flat program on every build;
+    stancal shows the user's own once, at compile time (test_stan_source)."""
+    import pandas as pd
+
+    from stancal.backends.pystan_backend import PyStanBackend
+    from stancal.standata import build_stan_data, to_stan_json
+
+    point = pd.DataFrame({"t": [10.0], "T0": [70.0]})
+    data = to_stan_json(build_stan_data(koh_fit.data, koh_fit.method, koh_fit.options, point))
+    capfd.readouterr()
+    PyStanBackend()._build(koh_fit.program, data, seed=1)
+    printed = capfd.readouterr()
+    assert printed.out == "" and printed.err == ""
+
+
+def test_draws_written_for_cmdstans_standalone_generated_quantities_read_back(tmp_path):
+    """CmdStan reruns generated quantities from Stan CSV files; stancal writes
+    them from stored draws. cmdstanpy's own reader (no CmdStan needed) must
+    get every element back in place, matrices column-major."""
+    import cmdstanpy
+    import numpy as np
+
+    from stancal.backends.cmdstanpy_backend import write_stan_csv
+
+    rng = np.random.default_rng(1)
+    draws = {"theta_unit": rng.uniform(size=(2, 5, 1)), "noise_sd": rng.uniform(size=(2, 5)),
+             "m": rng.normal(size=(2, 5, 2, 3))}
+    files = [str(write_stan_csv(tmp_path / f"chain-{c}.csv", draws, c, seed=3)) for c in range(2)]
+    fit = cmdstanpy.from_csv(files)
+    assert fit.chains == 2 and fit.num_draws_sampling == 5
+    for name, values in draws.items():
+        np.testing.assert_array_equal(fit.stan_variable(name).reshape(values.shape), values)
+
+
+def test_the_cmdstanpy_backend_runs_without_pystan():
+    """Generated quantities under cmdstanpy go through CmdStan, not PyStan."""
+    import ast
+    from pathlib import Path
+
+    from stancal.backends import cmdstanpy_backend
+
+    tree = ast.parse(Path(cmdstanpy_backend.__file__).read_text())
+    imported = {alias.name for node in ast.walk(tree) if isinstance(node, ast.Import) for alias in node.names}
+    imported |= {node.module or "" for node in ast.walk(tree) if isinstance(node, ast.ImportFrom)}
+    assert not {m for m in imported if m.split(".")[0] in ("stan", "httpstan") or "pystan" in m}, imported

@@ -45,6 +45,21 @@ def test_disagreeing_chains_raise_rhat():
     assert any("R-hat up to" in m for m in d.messages)
 
 
+def test_rhat_is_taken_within_each_theta_mode():
+    theta = rng.standard_normal((4, 500, 1))
+    theta[2:] += 3  # chains 2 and 3 sit in another mode
+    d = check_sampler(posterior(theta), stats(), 10, ["theta"], modes=[[0, 1], [2, 3]])
+    assert d.max_rhat < 1.01 and d.ok, d.messages
+    stuck = theta.copy()
+    stuck[3] = np.linspace(2, 4, 500)[:, None]  # a chain that drifts inside its mode
+    d = check_sampler(posterior(stuck), stats(), 10, ["theta"], modes=[[0, 1], [2, 3]])
+    assert any("chains within a theta mode disagree" in m for m in d.messages)
+    lone = theta.copy()
+    lone[3] = np.linspace(5, 7, 500)[:, None]  # a mode of one chain is split in halves
+    d = check_sampler(posterior(lone), stats(), 10, ["theta"], modes=[[0, 1], [2], [3]])
+    assert d.max_rhat > 1.5
+
+
 def test_low_ess_is_reported():
     walk = rng.standard_normal((4, 500, 1)).cumsum(axis=1) * 0.05
     d = check_sampler(posterior(walk), stats(), 10, ["theta"])

@@ -3,7 +3,7 @@
 import numpy as np
 import pandas as pd
 import pytest
-from conftest import COOLING, K_TRUE, fit, newton
+from conftest import COOLING, K_TRUE, assert_healthy, fit, newton
 
 # Tolerance for agreement between methods: posterior medians of k within
 # 0.004 (2 % of the k box [0.01, 0.2]; the koh 90 % interval is about 0.004 wide).
@@ -19,7 +19,7 @@ def test_truth_inside_90_percent_interval(name, request):
     result = request.getfixturevalue(name)
     k = k_summary(result)
     assert k["q05"] < K_TRUE < k["q95"], k
-    assert result.diagnostics.divergences <= 0.01 * result.diagnostics.draws
+    assert_healthy(result)
 
 
 @pytest.mark.parametrize("name", ["koh_emulator_fit", "modular_fit"])
@@ -42,6 +42,7 @@ def test_plain_parameter_estimation_without_discrepancy(exact_cooling_data):
     ls = optimize.least_squares(lambda k: newton(t, T0, k[0]) - y, [0.1])
     se = np.sqrt(np.sum(ls.fun**2) / (len(y) - 1) / (ls.jac.T @ ls.jac)[0, 0])
     k_draws = np.asarray(result.idata["posterior"]["theta"]).ravel()
+    assert_healthy(result)
     assert abs(np.median(k_draws) - ls.x[0]) < 0.5 * se
     assert abs(k_draws.std() / se - 1) < 0.3
     assert "delta_sd" not in result.idata["posterior"]

@@ -21,6 +21,10 @@ RIDGE = 0.3
 OBSERVATIONS = dict(eta=[0.3, -1.2, 2.0, 0.1], y_real=[0.5, 0, 0, 0], y_int=[3, 0, 12, 7],
                     trials=[5, 4, 20, 9], censoring=[0, 1, 2, 3], lower_bound=[0, 0, 1.5, -0.4],
                     upper_bound=[0, -0.8, 0, 0.9])
+X_SIM = rng.uniform(0.5, 2.0, size=(3, 2))
+THETA_SIM, THETA_LO, THETA_HI = np.array([0.7, 1.3]), np.array([0.1, -1.0]), np.array([2.0, 3.0])
+Z_DRAW = rng.standard_normal(4)
+JITTER = 1e-6  # of the prior variance: gp_kernels.stan's add_jitter
 
 
 def se(a, b):
@@ -45,7 +49,9 @@ def gq():
 
     data = dict(n1=6, n2=4, x1=X1.tolist(), x2=X2.tolist(), sd_=SD, ls=LS.tolist(),
                 resid=RESID.tolist(), unit=[0, 0.5, 1], lo=[-1, 0, 10], hi=[1, 2, 20],
-                A_restrict=A_RESTRICT.tolist(), ridge=RIDGE, **OBSERVATIONS)
+                A_restrict=A_RESTRICT.tolist(), ridge=RIDGE, X_sim=X_SIM.tolist(),
+                theta_sim=THETA_SIM.tolist(), theta_lo=THETA_LO.tolist(), theta_hi=THETA_HI.tolist(),
+                z_draw=Z_DRAW.tolist(), **OBSERVATIONS)
     model = stan.build(flatten(HARNESS).code, data=data, random_seed=1)
     fit = model.fixed_param(num_samples=1, num_chains=1)
     return {name: np.asarray(fit[name])[..., 0] for name in fit.param_names}
@@ -80,6 +86,28 @@ def test_gp_conditional_mean(gq):
     np.testing.assert_allclose(gq["conditional_mean"], se(X2, X1) @ np.linalg.solve(K, RESID), rtol=1e-10)
 
 
+def test_gp_conditional_draw_from_given_normals(gq):
+    K = se(X1, X1) + 0.1 * np.eye(6)
+    A = np.linalg.solve(K, se(X1, X2))
+    cov = se(X2, X2) - se(X2, X1) @ A
+    cov += JITTER * np.mean(np.diag(se(X2, X2))) * np.eye(4)
+    expected = A.T @ RESID + np.linalg.cholesky(cov) @ Z_DRAW
+    np.testing.assert_allclose(gq["conditional_draw"], expected, rtol=1e-8)
+    np.testing.assert_allclose(gq["given_normals"], Z_DRAW, rtol=0)
+
+
+def simulator_derivatives(theta):
+    x1, x2 = X_SIM[:, 0], X_SIM[:, 1]
+    return np.column_stack([-x1 * np.exp(-theta[0] * x1), x2**2])
+
+
+def test_theta_derivatives_are_central_differences(gq):
+    # central differences of step 1e-5 of the range: error ~1e-10; one-sided ones are off by ~1e-6
+    np.testing.assert_allclose(gq["dfdtheta"], simulator_derivatives(THETA_SIM), rtol=1e-8)
+    # at a bound the step stays inside the box (one-sided there), still accurate to ~1e-5
+    np.testing.assert_allclose(gq["dfdtheta_at_bound"], simulator_derivatives(THETA_LO), rtol=1e-4)
+
+
 def test_theta_from_unit(gq):
     np.testing.assert_allclose(gq["theta"], [-1, 1, 20])
 
@@ -91,7 +119,7 @@ def test_koh_joint_covariance(gq):
     K_so = rho * se(X2, xt_obs)
     d2 = (((X1[:, None, :] - X1[None, :, :]) / delta_ls) ** 2).sum(-1)
     K_oo = rho**2 * se(xt_obs, xt_obs) + delta_sd**2 * np.exp(-0.5 * d2) + noise**2 * np.eye(6)
-    expected = np.block([[K_ss, K_so], [K_so.T, K_oo]])
+    expected = np.block([[K_ss, K_so], [K_so.T, K_oo]]) + JITTER * SD**2 * np.eye(10)
     np.testing.assert_allclose(gq["joint"], expected, rtol=1e-10)
 
 
@@ -99,16 +127,18 @@ def test_orthogonal_gp_covariance(gq):
     """K - K A (A'KA)^-1 A'K: the functionals A' delta have zero prior variance."""
     K = se(X1, X1)
     T = A_RESTRICT.T @ K @ A_RESTRICT
-    T += 1e-9 * np.mean(np.diag(T)) * np.eye(2)
+    T += JITTER * np.mean(np.diag(T)) * np.eye(2)
     expected = K - K @ A_RESTRICT @ np.linalg.solve(T, A_RESTRICT.T @ K)
     np.testing.assert_allclose(gq["orthogonal_cov"], expected, rtol=1e-7, atol=1e-10)
-    np.testing.assert_allclose(A_RESTRICT.T @ gq["orthogonal_cov"] @ A_RESTRICT, 0, atol=1e-7)
+    # the functionals keep about the jitter's share of their prior variance
+    np.testing.assert_allclose(A_RESTRICT.T @ gq["orthogonal_cov"] @ A_RESTRICT, 0,
+                               atol=2 * JITTER * np.mean(np.diag(A_RESTRICT.T @ K @ A_RESTRICT)))
 
 
 def test_scaled_gp_covariance(gq):
     """S-GaSP: K - K (K + ridge I)^-1 K, smaller than K in every direction."""
     K = se(X1, X1)
-    T = K + (RIDGE + 1e-9 * np.mean(np.diag(K))) * np.eye(6)
+    T = K + (RIDGE + JITTER * np.mean(np.diag(K))) * np.eye(6)
     np.testing.assert_allclose(gq["scaled_cov"], K - K @ np.linalg.solve(T, K), rtol=1e-7, atol=1e-10)
     assert np.all(np.linalg.eigvalsh(K - gq["scaled_cov"]) > -1e-10)
 

@@ -63,3 +63,28 @@ def test_every_data_line_has_a_comment():
         for line in block.splitlines():
             if line.strip():
                 assert "//" in line, f"{spec.stan_file}: data line without a comment: {line.strip()}"
+
+
+def stanc_warnings(flat) -> str:
+    import httpstan.compile
+
+    return httpstan.compile.compile(flat.code, "stancal_check")[1]
+
+
+def test_stanc_warnings_in_the_users_file_are_mapped_and_shipped_ones_left_out(tmp_path):
+    sim = tmp_path / "halved.stan"
+    sim.write_text("// a simulator with a classic slip: 1 / 2 is integer division, 0\n"
+                   "vector simulator(matrix X, vector theta) {\n  return (1 / 2) * theta[1] * X[:, 1];\n}\n")
+    flat = flatten(shipped_models_dir() / "koh.stan", aliases={"simulator.stan": sim})
+    raw = stanc_warnings(flat)
+    assert str(shipped_models_dir()) in flat.explain(raw)  # stanc's pedantic advice on stancal's own code
+    shown = flat.users_warnings(raw)
+    assert len(shown) == 1 and f"line 3 of {sim}" in shown[0] and "int division" in shown[0]
+    assert "/tmp/httpstan_" not in shown[0]
+
+
+def test_no_program_has_a_variable_used_before_it_is_assigned():
+    sim = shipped_models_dir().parent / "case_studies" / "cooling" / "simulator.stan"
+    for spec in MODELS.values():
+        raw = stanc_warnings(flatten(spec.path, aliases={"simulator.stan": sim}))
+        assert "may not have been assigned" not in raw, spec.name

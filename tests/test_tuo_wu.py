@@ -33,17 +33,20 @@ def koh_tuo_wu():
 def test_koh_on_tuo_wu(koh_tuo_wu):
     """Record what KOH gives. The review reports -0.0821 on its own data; KOH's
     target depends on the discrepancy prior (section 6.1), so this test checks
-    that every chain's answer is a real theta mode and that the reported
-    summary is that of the highest-density mode, not a blend."""
+    that the reported summary is the posterior's, the modes weighted by their
+    mass, not a blend of chains nor the highest-density mode."""
     result = koh_tuo_wu
     summary = result.theta_summary()["theta"]
     print(f"KOH on Tuo & Wu (seed 1): median {summary['q50']:.4f}, "
           f"90 % [{summary['q05']:.4f}, {summary['q95']:.4f}], modes: "
-          f"{[(m.chains, round(m.theta_mean['theta'], 4)) for m in result.modes]}")
-    assert -2 < summary["q05"] < summary["q95"] < 2
-    top = result.modes[0]
-    assert summary["q50"] == pytest.approx(
-        float(np.median(np.asarray(result.idata["posterior"]["theta"])[top.chains])), abs=1e-9)
+          f"{[(m.chains, round(m.theta_mean['theta'], 4), m.weight) for m in result.modes]}")
+    theta = np.asarray(result.idata["posterior"]["theta"])[..., 0]
+    weights = [m.weight for m in result.modes] if len(result.modes) > 1 else [1.0]
+    assert sum(weights) == pytest.approx(1)
+    # the mixture's CDF at the reported quantiles, computed from each mode's draws
+    for q in ("q05", "q50", "q95"):
+        cdf = sum(w * np.mean(theta[m.chains] <= summary[q]) for w, m in zip(weights, result.modes))
+        assert cdf == pytest.approx(int(q[1:]) / 100, abs=0.01), q
     # the posterior predictive still tracks the true process (Tuo & Wu 2018)
     table = result.predict()
     truth = tuo_wu.zeta(table["x"].to_numpy())

@@ -13,7 +13,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 import stancal  # noqa: E402
-from stancal.cli import write_calibration  # noqa: E402
+from stancal.report import write_calibration  # noqa: E402
 from stancal.config import load_config  # noqa: E402
 
 HERE = Path(__file__).parent

@@ -67,13 +67,14 @@ real functional_theta_lpdf(matrix logit_values, vector theta_unit, array[] int f
 
 /**
  * One posterior draw of theta_j(x) on the unit scale at new points, given
- * its logit values at the distinct points.
+ * its logit values at the distinct points, from standard normals z (one per
+ * new point).
  */
-vector functional_theta_predict_rng(vector logit_values, real level, array[] vector x_fun,
-                                    array[] vector x_new, int kernel_id, real marginal_sd,
-                                    vector length_scale) {
-  return inv_logit(logit(level) + latent_gp_predict_rng(logit_values - logit(level), x_fun, x_new,
-                                                        kernel_id, marginal_sd, to_array_1d(length_scale)));
+vector functional_theta_predict(vector logit_values, real level, array[] vector x_fun,
+                                array[] vector x_new, int kernel_id, real marginal_sd,
+                                vector length_scale, vector z) {
+  return inv_logit(logit(level) + latent_gp_predict(logit_values - logit(level), x_fun, x_new,
+                                                    kernel_id, marginal_sd, to_array_1d(length_scale), z));
 }
 
 /**
@@ -81,20 +82,33 @@ vector functional_theta_predict_rng(vector logit_values, real level, array[] vec
  * functional ones from their GP given the distinct points, the scalar ones
  * repeated.
  *
+ * @param z standard normals: column k for the k-th functional theta, one row per new point
  * @return theta on the unit scale, one row per new point
  */
-matrix theta_unit_rows_rng(vector theta_unit, array[] int functional_slot, matrix logit_values,
-                           array[] vector x_fun, array[] vector x_new, int kernel_id,
-                           vector marginal_sd, array[] vector length_scale) {
+matrix theta_unit_rows_draw(vector theta_unit, array[] int functional_slot, matrix logit_values,
+                            array[] vector x_fun, array[] vector x_new, int kernel_id,
+                            vector marginal_sd, array[] vector length_scale, matrix z) {
   matrix[size(x_new), rows(theta_unit)] out = rep_matrix(theta_unit', size(x_new));
   for (j in 1:rows(theta_unit)) {
     int k = functional_slot[j];
     if (k > 0) {
-      out[:, j] = functional_theta_predict_rng(logit_values[:, k], theta_unit[j], x_fun, x_new,
-                                               kernel_id, marginal_sd[k], length_scale[k]);
+      out[:, j] = functional_theta_predict(logit_values[:, k], theta_unit[j], x_fun, x_new,
+                                           kernel_id, marginal_sd[k], length_scale[k], z[:, k]);
     }
   }
   return out;
+}
+
+/**
+ * Standard normals for the functional theta at the prediction points:
+ * columns 3 to 2 + F of the given ones (see prediction_normals_rng).
+ *
+ * @return P x F standard normals
+ */
+matrix functional_normals_rng(matrix given, int F, int n) {
+  matrix[n, F] z;
+  for (k in 1:F) z[:, k] = prediction_normals_rng(given, 2 + k, n);
+  return z;
 }
 
 /**
@@ -104,10 +118,28 @@ matrix theta_unit_rows_rng(vector theta_unit, array[] int functional_slot, matri
  */
 matrix functional_columns_original(matrix unit_rows, array[] int functional_slot,
                                    vector lower_bound, vector upper_bound) {
-  matrix[rows(unit_rows), max(append_array({0}, functional_slot))] out;
+  matrix[rows(unit_rows), max(append_array({0}, functional_slot))] out = rep_matrix(0, rows(unit_rows), max(append_array({0}, functional_slot)));
   for (j in 1:cols(unit_rows)) {
     int k = functional_slot[j];
     if (k > 0) out[:, k] = lower_bound[j] + (upper_bound[j] - lower_bound[j]) * unit_rows[:, j];
   }
   return out;
+}
+
+/**
+ * One posterior draw of each functional theta on its grid, original units,
+ * for the theta(x) curves of the report.
+ *
+ * @return one column per functional theta, one row per grid point
+ */
+matrix theta_function_grid_rng(vector theta_unit, array[] int functional_slot, matrix logit_values,
+                               array[] vector x_fun, array[] vector x_fun_grid, int kernel_id,
+                               vector marginal_sd, array[] vector length_scale,
+                               vector theta_lower, vector theta_upper) {
+  int g = size(x_fun_grid);
+  int f = cols(logit_values);
+  return functional_columns_original(
+    theta_unit_rows_draw(theta_unit, functional_slot, logit_values, x_fun, x_fun_grid, kernel_id,
+                         marginal_sd, length_scale, to_matrix(std_normals_rng(g * f), g, f)),
+    functional_slot, theta_lower, theta_upper);
 }

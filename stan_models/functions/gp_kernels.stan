@@ -1,4 +1,20 @@
 /**
+ * The one jitter policy of stancal's programs: every covariance that is
+ * factorised gets 1e-6 of its prior variance on the diagonal. That keeps the
+ * Cholesky factorisation positive definite where points repeat, where a
+ * stage-1 nugget vanishes, or where a conditional is nearly exact, and it is
+ * far below anything the data can resolve (an sd of 0.1 % of the GP's).
+ *
+ * @param K covariance matrix
+ * @param prior_variance the variance of the process before any conditioning
+ *        (e.g. marginal_sd^2)
+ * @return K with the jitter on its diagonal
+ */
+matrix add_jitter(matrix K, real prior_variance) {
+  return add_diag(K, 1e-6 * prior_variance);
+}
+
+/**
  * Stationary ARD covariance between two sets of points.
  *
  * Inputs are expected on the unit cube, so length scales are fractions of
@@ -36,6 +52,36 @@ matrix ard_cov(array[] vector x, int kernel_id, real marginal_sd,
     return gp_matern52_cov(x, marginal_sd, length_scale);
   }
   return gp_exp_quad_cov(x, marginal_sd, length_scale);
+}
+
+/**
+ * The discrepancy's ARD length scales over all its inputs: the simulator
+ * inputs' own, then 1 / relevance for each covariate (covariate_relevance
+ * in priors.stan). The sampler keeps a relevance above 0, so the length
+ * scale stays finite, however long.
+ *
+ * @param input_length_scale one per simulator input
+ * @param relevance one per covariate
+ * @return length scales, simulator inputs first
+ */
+array[] real discrepancy_length_scales(array[] real input_length_scale, array[] real relevance) {
+  return append_array(input_length_scale, inv(relevance));
+}
+
+/**
+ * Covariance of the simulator runs under the emulator GP: the kernel over
+ * (x, theta), the nugget, and the jitter.
+ *
+ * @param xt_sim emulator inputs of the runs, (x, theta) on the unit cube
+ * @param kernel_id 1 = squared exponential, 2 = Matern 5/2
+ * @param emulator_sd, emulator_length_scale emulator GP hyperparameters
+ * @param emulator_nugget standard deviation of the runs' nugget
+ * @return covariance matrix, size(xt_sim) x size(xt_sim)
+ */
+matrix emulator_run_cov(array[] vector xt_sim, int kernel_id, real emulator_sd,
+                        array[] real emulator_length_scale, real emulator_nugget) {
+  return add_jitter(add_diag(ard_cov(xt_sim, kernel_id, emulator_sd, emulator_length_scale),
+                             square(emulator_nugget)), square(emulator_sd));
 }
 
 /**

@@ -14,7 +14,7 @@
  * @param delta_sd, delta_length_scale discrepancy GP hyperparameters
  *        (empty arrays for no discrepancy)
  * @param noise_sd measurement noise standard deviation
- * @return covariance matrix of size M + N
+ * @return covariance matrix of size M + N, with the jitter (add_jitter) of the emulator's variance
  */
 matrix koh_joint_cov(array[] vector xt_sim, array[] vector xt_obs,
                      array[] vector x_delta, int kernel_id,
@@ -35,12 +35,13 @@ matrix koh_joint_cov(array[] vector xt_sim, array[] vector xt_obs,
     K_obs += ard_cov(x_delta, kernel_id, delta_sd[1], delta_length_scale);
   }
   K[(m + 1):(m + n), (m + 1):(m + n)] = add_diag(K_obs, square(noise_sd));
-  return K;
+  return add_jitter(K, square(emulator_sd));
 }
 
 /**
  * One joint draw of the emulated simulator f and the discrepancy delta at
- * new points, given runs and physical data, for the joint KOH model.
+ * new points, given runs and physical data, for the joint KOH model, from
+ * given standard normals.
  *
  * @param resid [y_sim; y_obs] minus their prior means
  * @param L_joint Cholesky factor of koh_joint_cov(...)
@@ -49,14 +50,15 @@ matrix koh_joint_cov(array[] vector xt_sim, array[] vector xt_obs,
  * @param xt_new emulator inputs of the new points at the current theta
  * @param x_delta_new discrepancy inputs of the new points
  * @param other parameters as in koh_joint_cov
+ * @param z standard normals, size 2P: f's, then delta's
  * @return [f_new; delta_new] minus their prior means, size 2P
  */
-vector koh_joint_predict_rng(vector resid, matrix L_joint, array[] vector xt_sim,
-                             array[] vector xt_obs, array[] vector x_delta,
-                             array[] vector xt_new, array[] vector x_delta_new,
-                             int kernel_id, real emulator_sd,
-                             array[] real emulator_length_scale, real rho,
-                             array[] real delta_sd, array[] real delta_length_scale) {
+vector koh_joint_predict(vector resid, matrix L_joint, array[] vector xt_sim,
+                         array[] vector xt_obs, array[] vector x_delta,
+                         array[] vector xt_new, array[] vector x_delta_new,
+                         int kernel_id, real emulator_sd,
+                         array[] real emulator_length_scale, real rho,
+                         array[] real delta_sd, array[] real delta_length_scale, vector z) {
   int m = size(xt_sim);
   int n = size(xt_obs);
   int p = size(xt_new);
@@ -73,7 +75,7 @@ vector koh_joint_predict_rng(vector resid, matrix L_joint, array[] vector xt_sim
     K_new[(p + 1):(2 * p), (p + 1):(2 * p)]
       = ard_cov(x_delta_new, kernel_id, delta_sd[1], delta_length_scale);
   }
-  return gp_conditional_rng(resid, L_joint, K_cross, K_new);
+  return gp_conditional_draw(resid, L_joint, K_cross, K_new, z);
 }
 
 /**
@@ -86,22 +88,86 @@ vector koh_joint_predict_rng(vector resid, matrix L_joint, array[] vector xt_sim
  * @param L_joint Cholesky factor of koh_joint_cov(...)
  * @param prior_only 1 = ignore the physical data
  * @param xt_sim, xt_obs, x_delta, xt_new, x_delta_new, other parameters
- *        as in koh_joint_predict_rng
+ *        as in koh_joint_predict
+ * @param z_f, z_delta standard normals for f and for delta, one per new point
  * @return matrix with one row per new point: column 1 = f minus its prior
  *         mean, column 2 = delta
  */
-matrix koh_joint_draw_rng(vector resid, matrix L_joint, int prior_only,
-                          array[] vector xt_sim, array[] vector xt_obs,
-                          array[] vector x_delta, array[] vector xt_new,
-                          array[] vector x_delta_new, int kernel_id, real emulator_sd,
-                          array[] real emulator_length_scale, real rho,
-                          array[] real delta_sd, array[] real delta_length_scale) {
+matrix koh_joint_draw(vector resid, matrix L_joint, int prior_only,
+                      array[] vector xt_sim, array[] vector xt_obs,
+                      array[] vector x_delta, array[] vector xt_new,
+                      array[] vector x_delta_new, int kernel_id, real emulator_sd,
+                      array[] real emulator_length_scale, real rho,
+                      array[] real delta_sd, array[] real delta_length_scale,
+                      vector z_f, vector z_delta) {
   int m = size(xt_sim);
   int n_cond = prior_only ? 0 : size(xt_obs);
   int p = size(xt_new);
-  vector[2 * p] f_delta = koh_joint_predict_rng(
+  if (p == 0) return rep_matrix(0, 0, 2);
+  vector[2 * p] f_delta = koh_joint_predict(
     resid[1:(m + n_cond)], L_joint[1:(m + n_cond), 1:(m + n_cond)], xt_sim,
     xt_obs[1:n_cond], x_delta[1:n_cond], xt_new, x_delta_new, kernel_id, emulator_sd,
-    emulator_length_scale, rho, delta_sd, delta_length_scale);
+    emulator_length_scale, rho, delta_sd, delta_length_scale, append_row(z_f, z_delta));
   return append_col(f_delta[1:p], f_delta[(p + 1):(2 * p)]);
+}
+
+/**
+ * The generated quantities that the emulator-based Gaussian programs
+ * (koh_emulator.stan, modular.stan) share: with the emulator's
+ * hyperparameters given, the joint model's conditionals are exact.
+ *
+ * @param y_sim, y standardised outputs of the runs and of the physical points
+ * @param xt_sim emulator inputs of the runs
+ * @param x, x_delta simulator and discrepancy inputs of the physical points
+ * @param h, beta discrepancy mean terms at the physical points and their coefficients
+ * @param x_new, x_delta_new, h_new the same at the prediction points
+ * @param normals_new standard normals for the draws at the prediction points
+ *        (prediction_normals_rng): column 1 for f, column 2 for delta
+ * @param other parameters as in koh_joint_cov; y_center, y_scale as in the programs
+ * @return (log_lik, y_loo_mean, y_rep, delta_gp, delta_gp_mean at the physical
+ *         points; f_new, delta_new, zeta_new at the prediction points), original units
+ */
+tuple(vector, vector, vector, vector, vector, vector, vector, vector) koh_joint_quantities_rng(
+    vector y_sim, vector y, array[] vector xt_sim, array[] vector x, vector theta_unit,
+    array[] vector x_delta, matrix h, vector beta, array[] vector x_new,
+    array[] vector x_delta_new, matrix h_new, matrix normals_new, int prior_only,
+    int kernel_id, real emulator_mean, real emulator_sd, array[] real emulator_length_scale,
+    real emulator_nugget, real rho, array[] real delta_sd, array[] real delta_length_scale,
+    real noise_sd, real y_center, real y_scale) {
+  int m = size(xt_sim);
+  int n = size(x);
+  int p = size(x_new);
+  array[n] vector[num_elements(xt_sim[1])] xt_obs = append_theta(x, theta_unit);
+  matrix[m + n, m + n] L = cholesky_decompose(
+    koh_joint_cov(xt_sim, xt_obs, x_delta, kernel_id, emulator_sd, emulator_length_scale,
+                  emulator_nugget, rho, delta_sd, delta_length_scale, noise_sd));
+  vector[m + n] resid = append_row(y_sim, y) - append_row(rep_vector(emulator_mean, m),
+                                                          rho * emulator_mean + h * beta);
+  tuple(vector[m + n], vector[m + n]) loo = mvn_loo(resid, L);
+  // (f, delta) at the physical points, then at the prediction points, whose
+  // standard normals stancal may give
+  matrix[n, 2] f_delta_obs = koh_joint_draw(
+    resid, L, prior_only, xt_sim, xt_obs, x_delta, xt_obs, x_delta, kernel_id, emulator_sd,
+    emulator_length_scale, rho, delta_sd, delta_length_scale, std_normals_rng(n), std_normals_rng(n));
+  matrix[p, 2] f_delta_new = koh_joint_draw(
+    resid, L, prior_only, xt_sim, xt_obs, x_delta, append_theta(x_new, theta_unit), x_delta_new,
+    kernel_id, emulator_sd, emulator_length_scale, rho, delta_sd, delta_length_scale,
+    prediction_normals_rng(normals_new, 1, p), prediction_normals_rng(normals_new, 2, p));
+  vector[n] zeta_obs = rho * (emulator_mean + f_delta_obs[:, 1]) + h * beta + f_delta_obs[:, 2];
+  vector[p] f_new = emulator_mean + f_delta_new[:, 1];
+  vector[p] delta_new = h_new * beta + f_delta_new[:, 2];
+  vector[n] delta_gp_mean = rep_vector(0, n);
+  if (size(delta_sd) > 0 && !prior_only) {
+    matrix[n, m + n] K_cross = append_col(
+      rep_matrix(0, n, m), ard_cov(x_delta, kernel_id, delta_sd[1], delta_length_scale));
+    delta_gp_mean = gp_conditional_mean(resid, L, K_cross);
+  }
+  return (loo.1[(m + 1):(m + n)] - log(y_scale),
+          y_center + y_scale * (y - resid[(m + 1):(m + n)] + loo.2[(m + 1):(m + n)]),
+          y_center + y_scale * to_vector(normal_rng(zeta_obs, noise_sd)),
+          y_scale * f_delta_obs[:, 2],
+          y_scale * delta_gp_mean,
+          y_center + y_scale * f_new,
+          y_scale * delta_new,
+          y_center + y_scale * (rho * f_new + delta_new));
 }

@@ -5,13 +5,13 @@
  */
 
 /**
- * Cholesky factor of a latent GP's covariance at the points. A relative
- * jitter of 1e-6 keeps it positive definite where points repeat.
+ * Cholesky factor of a latent GP's covariance at the points, with the
+ * jitter (add_jitter) that keeps it positive definite where points repeat.
  */
 matrix latent_gp_cholesky(array[] vector x, int kernel_id, real marginal_sd,
                           array[] real length_scale) {
-  return cholesky_decompose(add_diag(ard_cov(x, kernel_id, marginal_sd, length_scale),
-                                     1e-6 * square(marginal_sd)));
+  return cholesky_decompose(add_jitter(ard_cov(x, kernel_id, marginal_sd, length_scale),
+                                       square(marginal_sd)));
 }
 
 /**
@@ -23,13 +23,14 @@ vector latent_gp(array[] vector x, int kernel_id, real marginal_sd,
 }
 
 /**
- * One draw of a latent GP at new points given its values at the points.
+ * One draw of a latent GP at new points given its values at the points,
+ * from standard normals z (one per new point).
  */
-vector latent_gp_predict_rng(vector values, array[] vector x, array[] vector x_new,
-                             int kernel_id, real marginal_sd, array[] real length_scale) {
-  return gp_conditional_rng(values, latent_gp_cholesky(x, kernel_id, marginal_sd, length_scale),
-                            ard_cross_cov(x_new, x, kernel_id, marginal_sd, length_scale),
-                            ard_cov(x_new, kernel_id, marginal_sd, length_scale));
+vector latent_gp_predict(vector values, array[] vector x, array[] vector x_new, int kernel_id,
+                         real marginal_sd, array[] real length_scale, vector z) {
+  return gp_conditional_draw(values, latent_gp_cholesky(x, kernel_id, marginal_sd, length_scale),
+                             ard_cross_cov(x_new, x, kernel_id, marginal_sd, length_scale),
+                             ard_cov(x_new, kernel_id, marginal_sd, length_scale), z);
 }
 
 /**
@@ -51,6 +52,43 @@ vector emulator_latent(matrix L_sim, array[] vector xt_sim, vector y_sim, array[
     L_sim, ard_cross_cov(xt_sim, xt_obs, kernel_id, emulator_sd, emulator_length_scale));
   vector[n] mean_obs = emulator_mean + A' * mdivide_left_tri_low(L_sim, y_sim - emulator_mean);
   matrix[n, n] cov_obs = ard_cov(xt_obs, kernel_id, emulator_sd, emulator_length_scale) - crossprod(A);
-  // symmetrise against round-off; the jitter as in latent_gp_cholesky
-  return mean_obs + cholesky_decompose(add_diag(0.5 * (cov_obs + cov_obs'), 1e-6 * square(emulator_sd))) * z;
+  // symmetrised against round-off
+  return mean_obs + cholesky_decompose(add_jitter(0.5 * (cov_obs + cov_obs'), square(emulator_sd))) * z;
+}
+
+/**
+ * The generated quantities at the prediction points that both latent programs
+ * share: the discrepancy given its latent values at the physical points, the
+ * real process, and a new observation.
+ *
+ * @param likelihood_id the observation model (observation_model.stan)
+ * @param f_link_new the simulator at the prediction points, model scale
+ * @param delta the latent discrepancy at the physical points, model scale
+ * @param x_delta, x_delta_new discrepancy inputs of the physical and the prediction points
+ * @param delta_sd, delta_length_scale the discrepancy's hyperparameters (empty: none)
+ * @param normals_new standard normals for the draws at the prediction points
+ *        (prediction_normals_rng): column 2 for delta
+ * @param sd_obs, precision the Gaussian noise sd and negative binomial precision
+ * @param trials_new binomial trials of a new observation at each prediction point
+ * @param units discrepancy units (discrepancy_units)
+ * @return (f_new, delta_new, zeta_new, y_new), original units
+ */
+tuple(vector, vector, vector, vector) latent_prediction_quantities_rng(
+    int likelihood_id, vector f_link_new, vector delta, array[] vector x_delta,
+    array[] vector x_delta_new, int kernel_id, array[] real delta_sd,
+    array[] real delta_length_scale, matrix normals_new, real sd_obs, real precision,
+    array[] int trials_new, real units, real y_center, real y_scale) {
+  int p = rows(f_link_new);
+  vector[p] delta_new = rep_vector(0, p);
+  if (size(delta_sd) > 0) {
+    delta_new = latent_gp_predict(delta, x_delta, x_delta_new, kernel_id, delta_sd[1], delta_length_scale,
+                                  prediction_normals_rng(normals_new, 2, p));
+  }
+  vector[p] eta_new = f_link_new + delta_new;
+  return (response_scale(likelihood_id, f_link_new, y_center, y_scale),
+          units * delta_new,
+          response_scale(likelihood_id, eta_new, y_center, y_scale),
+          observations_original_units(
+            likelihood_id, observation_rng(likelihood_id, eta_new, sd_obs, precision, trials_new),
+            y_center, y_scale));
 }

@@ -11,6 +11,21 @@ real discrepancy_length_scale_lpdf(array[] real length_scale) {
 }
 
 /**
+ * Prior for the relevance (inverse length scale, per input range) of each
+ * covariate in the discrepancy GP: half-normal(0, 2). Unlike a length-scale
+ * prior that vanishes at infinity, it keeps mass near relevance 0, where the
+ * covariate is switched off, so a covariate that plays no part (a decoy) can
+ * drop out of the discrepancy; a relevant one still reaches length scales
+ * of a fifth of its range (relevance 5) at the prior's 99th percentile.
+ *
+ * @param relevance one per covariate
+ * @return log density
+ */
+real covariate_relevance_lpdf(array[] real relevance) {
+  return normal_lpdf(relevance | 0, 2);
+}
+
+/**
  * Prior for ARD length scales of the emulator GP over (x, theta) on the
  * unit cube. Inverse gamma(2, 1): 90 % between 0.21 and 2.8, because
  * simulators are often nearly linear in some inputs.

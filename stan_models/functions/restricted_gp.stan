@@ -15,11 +15,11 @@
 /**
  * Cholesky factor of T = A' K_UU A + ridge * I.
  * @param ridge 0 for the orthogonal GP, sd^2 N / lambda for the scaled GP;
- *   a relative 1e-9 is added because a theta without influence makes T singular
+ *   the jitter (add_jitter) covers a theta without influence, which makes T singular
  */
 matrix restriction_cholesky(matrix K_UU, matrix A, real ridge) {
   matrix[cols(A), cols(A)] T = quad_form_sym(K_UU, A);
-  return cholesky_decompose(add_diag(T, ridge + 1e-9 * mean(diagonal(T))));
+  return cholesky_decompose(add_jitter(add_diag(T, ridge), mean(diagonal(T))));
 }
 
 /**

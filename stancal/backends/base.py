@@ -25,6 +25,18 @@ Draws = dict[str, np.ndarray]
 """Variable name -> array of shape (chain, draw, *variable shape)."""
 
 
+def fresh_prediction_normals(data: dict[str, Any], rng: np.random.Generator) -> dict[str, Any]:
+    """Data entries that give a program fresh standard normals for its draws
+    at the prediction points, for one parameter draw. A program opts in by
+    declaring ``P_normals`` and ``normals_new`` (P x (2 + F), F = 0 when the
+    program has no functional theta); see prediction_normals_rng in
+    functions/gp_conditional.stan."""
+    if "P_normals" not in data:
+        return {}
+    rows, columns = int(data["P"]), 2 + int(data.get("F", 0))
+    return {"P_normals": rows, "normals_new": rng.standard_normal((rows, columns)).tolist()}
+
+
 class StanRuntimeError(RuntimeError):
     """Stan rejected the data or failed while sampling."""
 
@@ -60,6 +72,10 @@ class StanBackend(Protocol):
         max_treedepth: int,
     ) -> SampleOutput: ...
 
+    def parameter_names(self, program: FlatProgram) -> list[str]:
+        """The names in the program's parameters block, read by stanc."""
+        ...
+
     def generate_quantities(
         self,
         program: FlatProgram,
@@ -67,11 +83,20 @@ class StanBackend(Protocol):
         parameters: Draws,
         seed: int,
     ) -> Draws:
-        """Rerun generated quantities for given parameter draws (chain, draw, ...)."""
+        """Rerun generated quantities for given parameter draws (chain, draw, ...),
+        with fresh random numbers for every draw, seeded by ``seed``."""
         ...
 
     def quantities_function(
         self, program: FlatProgram, data: dict[str, Any], seed: int
     ) -> Callable[[Draws], Draws]:
         """generate_quantities with the program and data bound once, for many calls."""
+        ...
+
+    def log_density_functions(
+        self, program: FlatProgram, data: dict[str, Any]
+    ) -> tuple[Callable[[Draws], np.ndarray], Callable[[np.ndarray], np.ndarray]]:
+        """(unconstrain, log_density): parameter draws (chain, draw, ...) to
+        unconstrained vectors (chain, draw, d), and the log density with its
+        Jacobian (as the sampler's lp__) at unconstrained vectors (n, d)."""
         ...

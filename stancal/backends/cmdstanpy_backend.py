@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import logging
 import os
+import tempfile
 import time
+from itertools import product
 from pathlib import Path
 from typing import Any
 
@@ -91,15 +93,73 @@ class CmdStanPyBackend:
             sample_seconds=finished - compiled,
         )
 
+    def parameter_names(self, program: FlatProgram) -> list[str]:
+        return list(self._model(program).src_info()["parameters"])
+
     def generate_quantities(
         self, program: FlatProgram, data: dict[str, Any], parameters: Draws, seed: int
     ) -> Draws:
-        # CmdStan's standalone generated quantities needs the fit's CSV files,
-        # which a result loaded from netCDF no longer has; PyStan's write_array
-        # runs the same program on any draws.
         return self.quantities_function(program, data, seed)(parameters)
 
     def quantities_function(self, program: FlatProgram, data: dict[str, Any], seed: int):
-        from .pystan_backend import PyStanBackend
+        """CmdStan's standalone generated quantities on the given draws, written
+        as Stan CSV files (a result loaded from netCDF has no fit CSVs). Its RNG
+        runs on from draw to draw, so the prediction draws need no normals in
+        the data."""
+        model = self._model(program)
 
-        return PyStanBackend().quantities_function(program, data, seed)
+        def run(parameters: Draws) -> Draws:
+            chains, draws = next(iter(parameters.values())).shape[:2]
+            with tempfile.TemporaryDirectory(prefix="stancal_gq_") as folder:
+                files = [write_stan_csv(Path(folder) / f"draws-{c + 1}.csv", parameters, c, seed)
+                         for c in range(chains)]
+                try:
+                    quantities = model.generate_quantities(data=data, previous_fit=[str(f) for f in files],
+                                                           seed=seed, gq_output_dir=folder)
+                except RuntimeError as err:
+                    raise StanRuntimeError(program.explain(f"Stan failed in generated quantities: {err}")) from None
+                values = quantities.stan_variables()
+            return {name: np.asarray(v).reshape(chains, draws, *np.asarray(v).shape[1:])
+                    for name, v in values.items() if name not in parameters}
+
+        return run
+
+
+    def log_density_functions(self, program: FlatProgram, data: dict[str, Any]):
+        # cmdstanpy evaluates log densities one CmdStan process at a time and
+        # has no unconstrain; BridgeStan would, but is not a dependency
+        raise NotImplementedError("the modes' posterior masses need log densities at many "
+                                  "unconstrained points, which the cmdstanpy backend does not "
+                                  "provide; use backend='pystan' to weigh the modes")
+
+
+def write_stan_csv(path: Path, parameters: Draws, chain: int, seed: int) -> Path:
+    """One chain of parameter draws as a Stan CSV file that CmdStan's
+    standalone generated quantities (and cmdstanpy.from_csv) accept: CmdStan's
+    header comments, the sampler columns, then each parameter's elements
+    (name.i.j, column-major)."""
+    draws = next(iter(parameters.values())).shape[1]
+    columns, values = [], []
+    for name, array in parameters.items():
+        shape = array.shape[2:]
+        # column-major: the first index varies fastest
+        for index in (tuple(reversed(i)) for i in product(*(range(n) for n in reversed(shape)))):
+            columns.append(".".join([name, *(str(i + 1) for i in index)]))
+            values.append(array[(chain, slice(None), *index)])
+    sampler = np.zeros((draws, 7))
+    table = np.column_stack([sampler, *values]) if values else sampler
+    # fixed_param: the draws are given, so there is no adaptation block to write;
+    # cmdstanpy wants warmup > 0 in the header even when none is saved
+    header = "\n".join([
+        "# stan_version_major = 2", "# stan_version_minor = 36", "# stan_version_patch = 0",
+        "# model = stancal_model", "# method = sample (Default)", "#   sample",
+        f"#     num_samples = {draws}", "#     num_warmup = 1", "#     save_warmup = false",
+        "#     thin = 1", "#     adapt", "#       engaged = false", "#     algorithm = fixed_param",
+        f"# id = {chain + 1}", "# random", f"#   seed = {seed}",
+        ",".join(["lp__", "accept_stat__", "stepsize__", "treedepth__", "n_leapfrog__",
+                  "divergent__", "energy__", *columns]),
+    ])
+    footer = "# \n#  Elapsed Time: 0 seconds (Warm-up)\n#                0 seconds (Sampling)\n" \
+             "#                0 seconds (Total)\n# "
+    np.savetxt(path, table, delimiter=",", header=header, footer=footer, comments="", fmt="%.17g")
+    return path

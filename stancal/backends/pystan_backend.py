@@ -2,15 +2,22 @@
 
 from __future__ import annotations
 
+import contextlib
+import functools
+import io
+import json
 import logging
+import subprocess
+import tempfile
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from ..stan_source import FlatProgram, StanProgramError
-from .base import SAMPLER_STATS, Draws, SampleOutput, StanRuntimeError
+from .base import SAMPLER_STATS, Draws, SampleOutput, StanRuntimeError, fresh_prediction_normals
 
 logger = logging.getLogger("stancal")
 
@@ -31,6 +38,21 @@ def _by_chain(flat: np.ndarray, dims: list[int], chains: int) -> np.ndarray:
     return np.moveaxis(flat.reshape(*dims, draws, chains), [-1, -2], [0, 1])
 
 
+@functools.cache
+def _program_info(code: str) -> dict[str, Any]:
+    """stanc's --info on a program: its variables by block."""
+    import httpstan
+
+    stanc = Path(httpstan.__file__).parent / "stanc"
+    with tempfile.TemporaryDirectory(prefix="stancal_") as folder:
+        path = Path(folder) / "program.stan"
+        path.write_text(code)
+        done = subprocess.run([str(stanc), "--info", str(path)], capture_output=True, text=True, timeout=60)
+    if done.returncode != 0:
+        raise StanProgramError(done.stderr.strip())
+    return json.loads(done.stdout)
+
+
 class PyStanBackend:
     name = "pystan"
 
@@ -38,28 +60,39 @@ class PyStanBackend:
         import stan
 
         if not _is_compiled(program.code):
-            self.check(program)
+            self.check(program, show_warnings=True)
             logger.warning(
                 "Compiling Stan program %s with PyStan; the first compile takes about a "
                 "minute, later runs use the cache.", program.origin[0][0] if program.origin else "?"
             )
+        # PyStan prints stanc's warnings about the flat program on every build,
+        # cached or not; check() has shown them once, mapped to the user's files
+        console = io.StringIO()
         try:
-            return stan.build(program.code, data=data, random_seed=seed)
+            with contextlib.redirect_stdout(console), contextlib.redirect_stderr(console):
+                return stan.build(program.code, data=data, random_seed=seed)
         except ValueError as err:  # stanc errors and data errors arrive as ValueError
             raise StanProgramError(program.explain(str(err))) from None
         except RuntimeError as err:
             raise StanRuntimeError(program.explain(str(err))) from None
 
     @staticmethod
-    def check(program: FlatProgram) -> None:
+    def check(program: FlatProgram, show_warnings: bool = False) -> None:
         """Run stanc alone (no C++, a fraction of a second). PyStan's build
-        error keeps only 'Semantic error'; stanc gives the whole message."""
+        error keeps only 'Semantic error'; stanc gives the whole message.
+        ``show_warnings``: log stanc's warnings, with the user's file and line."""
         import httpstan.compile
 
         try:
-            httpstan.compile.compile(program.code, "stancal_check")
+            _, warnings = httpstan.compile.compile(program.code, "stancal_check")
         except ValueError as err:
             raise StanProgramError(program.explain(str(err))) from None
+        if show_warnings:
+            for warning in program.users_warnings(warnings):
+                logger.warning("stanc: %s", warning)
+
+    def parameter_names(self, program: FlatProgram) -> list[str]:
+        return list(_program_info(program.code)["parameters"])
 
     def sample(
         self,
@@ -131,14 +164,16 @@ class PyStanBackend:
                             seed: int) -> Callable[[Draws], Draws]:
         """Build once, then run generated quantities for any parameter draws
         (chain, draw, ...) in this process: PyStan's constrain_pars makes two
-        HTTP round trips per draw. httpstan seeds every call's RNG with 0, so
-        _rng draws repeat from one parameter draw to the next."""
+        HTTP round trips per draw. httpstan seeds the RNG of every call with 0,
+        so the draws at the prediction points take their standard normals from
+        the data, fresh for every parameter draw (fresh_prediction_normals)."""
         import httpstan.models
 
         model = self._build(program, data, seed)
         services = httpstan.models.import_services_extension_module(model.model_name)
         names = list(model.param_names)
         dims = [list(d) for d in model.dims]
+        rng = np.random.default_rng(seed)
 
         def run(parameters: Draws) -> Draws:
             chains, draws = next(iter(parameters.values())).shape[:2]
@@ -148,7 +183,8 @@ class PyStanBackend:
                     for d in range(draws):
                         point = {k: np.asarray(v[c, d]).tolist() for k, v in parameters.items()}
                         unconstrained = services.transform_inits(model.data, point)
-                        flat_rows.append(services.write_array(model.data, unconstrained, True, True))
+                        draw_data = {**model.data, **fresh_prediction_normals(model.data, rng)}
+                        flat_rows.append(services.write_array(draw_data, unconstrained, True, True))
             except RuntimeError as err:
                 raise StanRuntimeError(program.explain(f"Stan failed in generated quantities: {err}")) from None
             flat = np.asarray(flat_rows, dtype=float)  # (chain * draw, all constrained names)
@@ -164,3 +200,26 @@ class PyStanBackend:
             return out
 
         return run
+
+    def log_density_functions(self, program: FlatProgram, data: dict[str, Any]):
+        import httpstan.models
+
+        model = self._build(program, data, seed=1)
+        services = httpstan.models.import_services_extension_module(model.model_name)
+
+        def unconstrain(parameters: Draws) -> np.ndarray:
+            chains, draws = next(iter(parameters.values())).shape[:2]
+            return np.asarray([[services.transform_inits(model.data, {k: np.asarray(v[c, d]).tolist()
+                                                                       for k, v in parameters.items()})
+                                for d in range(draws)] for c in range(chains)], dtype=float)
+
+        def log_density(points: np.ndarray) -> np.ndarray:
+            out = np.empty(len(points))
+            for i, point in enumerate(points):
+                try:
+                    out[i] = services.log_prob(model.data, point.tolist(), True)
+                except RuntimeError:  # outside the support, or the simulator rejected it
+                    out[i] = -np.inf
+            return out
+
+        return unconstrain, log_density

@@ -1,5 +1,10 @@
 // Exposes the shared functions to the tests (run with fixed_param).
 functions {
+// a simulator with known derivatives: f = exp(-theta_1 x_1) + theta_2 x_2^2
+vector simulator(matrix X, vector theta) {
+  return exp(-theta[1] * X[:, 1]) + theta[2] * square(X[:, 2]);
+}
+#include simulator_output.stan
 #include gp_kernels.stan
 #include gp_conditional.stan
 #include koh_joint.stan
@@ -35,14 +40,25 @@ data {
   array[4] int censoring;
   vector[4] lower_bound;
   vector[4] upper_bound;
+  matrix[3, 2] X_sim;                   // inputs of the simulator above
+  vector[2] theta_sim;                  // its theta, inside [theta_lo, theta_hi]
+  vector[2] theta_lo;
+  vector[2] theta_hi;
+  vector[n2] z_draw;                    // standard normals for a conditional draw
 }
 generated quantities {
   matrix[n1, n2] se_cross = ard_cross_cov(x1, x2, 1, sd_, ls);
   matrix[n1, n2] m52_cross = ard_cross_cov(x1, x2, 2, sd_, ls);
   matrix[n1, n1] se_sym = ard_cov(x1, 1, sd_, ls);
   matrix[n1, n1] m52_sym = ard_cov(x1, 2, sd_, ls);
-  vector[n1] loo = mvn_loo_log_lik(resid, cholesky_decompose(add_diag(se_sym, 0.1)));
-  vector[n1] loo_mean = mvn_loo_mean(resid, cholesky_decompose(add_diag(se_sym, 0.1)));
+  tuple(vector[n1], vector[n1]) loo_both = mvn_loo(resid, cholesky_decompose(add_diag(se_sym, 0.1)));
+  vector[n1] loo = loo_both.1;
+  vector[n1] loo_mean = loo_both.2;
+  vector[n2] conditional_draw = gp_conditional_draw(resid, cholesky_decompose(add_diag(se_sym, 0.1)),
+                                                    se_cross', ard_cov(x2, 1, sd_, ls), z_draw);
+  vector[n2] given_normals = prediction_normals_rng(to_matrix(z_draw, n2, 1), 1, n2);
+  matrix[3, 2] dfdtheta = simulator_theta_derivatives(X_sim, theta_sim, theta_lo, theta_hi, 0, 1);
+  matrix[3, 2] dfdtheta_at_bound = simulator_theta_derivatives(X_sim, theta_lo, theta_lo, theta_hi, 0, 1);
   vector[n2] conditional_mean = gp_conditional_mean(resid, cholesky_decompose(add_diag(se_sym, 0.1)),
                                                     se_cross');
   vector[3] theta = theta_from_unit(unit, lo, hi);
