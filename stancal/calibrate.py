@@ -41,6 +41,15 @@ def _latent_reason(data: CalibrationData, options: ModelOptions) -> str | None:
     return data.latent_reason or ("functional theta" if options.functional else None)
 
 
+def require_gaussian(what: str, data: CalibrationData, options: ModelOptions | None = None) -> None:
+    """The one guard of what works on the Gaussian programs only (their GP is
+    integrated out): raise a ValueError that names ``what`` and the reason."""
+    reason = _latent_reason(data, options or ModelOptions())
+    if reason:
+        raise ValueError(f"{what} needs Gaussian, uncensored outputs and scalar theta; this problem "
+                         f"has {reason}. Calibrate it with stancal calibrate")
+
+
 def choose_method(data: CalibrationData, simulator: str | Path | None, method: str | None,
                   options: ModelOptions | None = None) -> Method:
     """The program to run: the user's method, or koh with a simulator and
@@ -156,9 +165,8 @@ def calibrate(
                            tuple(functional), tuple(functional_inputs))
     check_functional(data, options.functional, options.functional_inputs)
     l2 = method == L2
-    if l2 and (reason := _latent_reason(data, options)):
-        raise ValueError(f"method 'l2' needs Gaussian, uncensored outputs and scalar theta; "
-                         f"this problem has {reason}")
+    if l2:
+        require_gaussian("method 'l2'", data, options)
     chosen = choose_method(data, simulator, None if l2 else method, options)
     spec = model_spec(chosen)
     aliases = {"simulator.stan": Path(simulator)} if simulator is not None else {}

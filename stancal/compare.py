@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from .calibrate import L2, calibrate, choose_method
+from .calibrate import L2, calibrate, choose_method, require_gaussian
 from .data import CalibrationData
 from .l2 import l2_result
 from .models import RESTRICTED_DISCREPANCIES
@@ -89,9 +89,7 @@ def compare_methods(data: CalibrationData, *, simulator: str | Path | None = Non
     unknown = set(methods) - set(METHODS)
     if unknown:
         raise ValueError(f"unknown methods {sorted(unknown)}; choose from {', '.join(METHODS)}")
-    if data.latent_reason:
-        raise ValueError("the method comparison needs Gaussian, uncensored outputs (its methods integrate "
-                         "the GP out); calibrate this problem with stancal calibrate")
+    require_gaussian("the method comparison", data)
     quadrature = input_box_quadrature(data)
     seed = command_seed(seed)
     base_method = str(choose_method(data, simulator, None))

@@ -25,17 +25,21 @@ import numpy as np
 import pandas as pd
 
 from .backends import get_backend
-from .calibrate import calibrate, choose_method
+from .calibrate import calibrate, choose_method, require_gaussian
 from .data import CalibrationData, DataError
 from .gap_location import GapLocation, interval, locate_gap
 from .mean_terms import FormulaError, build_mean_terms
 from .models import Method, model_spec
 from .result import CalibrationResult
-from .scoring import PARETO_K_LIMIT, Score, kfold_score, psis_score
+from .scoring import PARETO_K_LIMIT, Score, kfold_score, psis_score, refit_unreliable
 from .seeds import command_seed
 from .stan_source import StanProgramError, flatten
 
 logger = logging.getLogger("stancal")
+
+# more observations with a high Pareto k than this in one fit: K-fold with
+# this many folds costs less than refitting each of them
+FALLBACK_FOLDS = 5
 
 
 
@@ -98,6 +102,7 @@ class GapAnalysis:
                 "elpd_se": base.elpd_se,
                 "holdout_rmse": base.holdout_rmse(y),
                 "scheme": base.scheme,
+                "refits": base.refits,
                 "diagnostics": _sampler(self.baseline),
             },
             "where": self.location.to_json(),
@@ -123,6 +128,7 @@ class GapAnalysis:
                 "holdout_rmse": s.holdout_rmse(y),
                 "scheme": s.scheme,
                 "max_pareto_k": None if np.isnan(s.max_pareto_k) else s.max_pareto_k,
+                "refits": s.refits,
                 "diagnostics": _sampler(fit.result),
             })
         return out
@@ -132,6 +138,14 @@ def _sampler(result: CalibrationResult) -> dict[str, Any]:
     d = result.diagnostics
     return {"divergences": d.divergences, "max_rhat": d.max_rhat, "min_ess_bulk": d.min_ess_bulk,
             "warnings": d.messages} if d else {}
+
+
+def label_name(candidate: Candidate | None) -> str:
+    return "the baseline" if candidate is None else f"candidate '{candidate.name}'"
+
+
+def _counts(unreliable: dict[str, int]) -> str:
+    return ", ".join(f"{n} observation{'s' if n > 1 else ''} of {name}" for name, n in unreliable.items())
 
 
 def _slug(name: str) -> str:
@@ -200,9 +214,7 @@ def diagnose_gap(
     ``calibrate_options`` (kernel, chains, warmup, draws, backend,
     adapt_delta, ...) go to every ``calibrate`` call.
     """
-    if data.latent_reason:
-        raise ValueError("the gap diagnosis needs Gaussian, uncensored outputs (its methods integrate "
-                         "the GP out); calibrate this problem with stancal calibrate")
+    require_gaussian("the gap diagnosis", data)
     chosen = choose_method(data, simulator, method)
     stan_backend = get_backend(calibrate_options.get("backend"))
     check_candidates(data, candidates, stan_backend)
@@ -229,24 +241,26 @@ def diagnose_gap(
     labels = [None, *candidates]
     fits: list[CalibrationResult] = []
     for candidate in labels:
-        name = "baseline" if candidate is None else f"candidate '{candidate.name}'"
-        logger.info("gap: fitting the %s", name)
+        logger.info("gap: fitting %s", label_name(candidate))
         folder = None if out is None else (out / "baseline" if candidate is None
                                            else out / "candidates" / _slug(candidate.name))
         d = data_for(candidate)
         fits.append(fitter(candidate, folder)(d, d.source.reset_index(drop=True)))
 
     scores = [psis_score(r) for r in fits]
-    worst = int(np.argmax([s.max_pareto_k for s in scores]))
-    if kfold is None and scores[worst].max_pareto_k > PARETO_K_LIMIT:
-        name = "the baseline" if worst == 0 else f"candidate '{candidates[worst - 1].name}'"
-        warnings.warn(f"Pareto k up to {scores[worst].max_pareto_k:.2f} (> {PARETO_K_LIMIT}) in "
-                      f"{name}: PSIS-LOO is unreliable, so every fit is compared by 5-fold "
-                      "cross-validation instead", GapWarning, stacklevel=2)
-        kfold = 5
+    unreliable = {label_name(c): s.unreliable.size for c, s in zip(labels, scores) if s.unreliable.size}
+    if kfold is None and max(unreliable.values(), default=0) > FALLBACK_FOLDS:
+        warnings.warn(f"Pareto k above {PARETO_K_LIMIT} at more than {FALLBACK_FOLDS} observations "
+                      f"({_counts(unreliable)}): PSIS-LOO is unreliable, so every fit is compared by "
+                      f"{FALLBACK_FOLDS}-fold cross-validation instead", GapWarning, stacklevel=2)
+        kfold = FALLBACK_FOLDS
     if kfold is not None:
         scores = [kfold_score(data_for(c), fitter(c, None), kfold, seed, s.discrepancy_rms)
                   for c, s in zip(labels, scores)]
+    elif unreliable:
+        warnings.warn(f"Pareto k above {PARETO_K_LIMIT} at {_counts(unreliable)}: each of those "
+                      "observations is scored by an exact refit without it", GapWarning, stacklevel=2)
+        scores = [refit_unreliable(data_for(c), fitter(c, None), s) for c, s in zip(labels, scores)]
 
     location = locate_gap(fits[0], seed=seed)
     ranked = sorted(

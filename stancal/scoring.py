@@ -1,6 +1,7 @@
 """Held-out predictive scores of a fit: PSIS-LOO on the exact conditional
-log p(y_i | y_-i, parameters), or K-fold cross-validation by refitting. The
-gap diagnosis ranks candidates with them, and compare reports them."""
+log p(y_i | y_-i, parameters), with exact refits for the points where PSIS is
+unreliable, or K-fold cross-validation by refitting. The gap diagnosis ranks
+candidates with them, and compare reports them."""
 
 from __future__ import annotations
 
@@ -23,9 +24,19 @@ class Score:
 
     elpd_i: np.ndarray  # pointwise held-out log predictive density
     heldout_mean: np.ndarray  # held-out predictive mean of each observation
-    max_pareto_k: float  # NaN under K-fold
-    scheme: str  # "psis-loo" or "kfold"
+    pareto_k: np.ndarray  # PSIS's Pareto k per observation; NaN under K-fold
+    scheme: str  # "psis-loo", "psis-loo+refits" or "kfold"
     discrepancy_rms: np.ndarray  # draws: RMS of the GP discrepancy over the physical points
+    refits: int = 0  # observations scored by an exact refit without them
+
+    @property
+    def max_pareto_k(self) -> float:
+        return float(np.max(self.pareto_k))
+
+    @property
+    def unreliable(self) -> np.ndarray:
+        """Observations where PSIS is unreliable (Pareto k above 0.7)."""
+        return np.flatnonzero(self.pareto_k > PARETO_K_LIMIT)
 
     @property
     def elpd(self) -> float:
@@ -56,7 +67,18 @@ def psis_score(result: CalibrationResult) -> Score:
     loo_mean = np.asarray(result.idata["at_observations"]["y_loo_mean"])
     loo_mean = loo_mean.reshape(-1, loo_mean.shape[-1])
     return Score(np.asarray(loo.elpd_i), (weights * loo_mean).sum(0),
-                 float(np.max(loo.pareto_k)), "psis-loo", _discrepancy_rms(result))
+                 np.asarray(loo.pareto_k), "psis-loo", _discrepancy_rms(result))
+
+
+def _held_out(data: CalibrationData, fit, test: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """log p(y_test | y_train) and the predictive mean at the ``test`` rows,
+    from ``fit(train_data, heldout_points)`` refitted to the other rows."""
+    train = np.setdiff1d(np.arange(len(data.physical)), test)
+    result = fit(data.subset(train), data.source.iloc[test].reset_index(drop=True))
+    y = data.physical[data.output].to_numpy()[test]
+    zeta = np.asarray(result.idata["predictions"]["zeta_new"]).reshape(-1, len(test))
+    noise = np.asarray(result.idata["posterior"]["noise_sd"]).reshape(-1, 1)
+    return logsumexp(norm.logpdf(y, zeta, noise), axis=0) - np.log(len(zeta)), zeta.mean(0)
 
 
 def kfold_score(data: CalibrationData, fit, k: int, seed: int,
@@ -65,14 +87,20 @@ def kfold_score(data: CalibrationData, fit, k: int, seed: int,
     result whose predictions are at the held-out points."""
     n = len(data.physical)
     folds = np.random.default_rng(seed).permutation(n) % k
-    y = data.physical[data.output].to_numpy()
     elpd, mean = np.zeros(n), np.zeros(n)
     for fold in range(k):
         test = np.flatnonzero(folds == fold)
-        train = np.flatnonzero(folds != fold)
-        result = fit(data.subset(train), data.source.iloc[test].reset_index(drop=True))
-        zeta = np.asarray(result.idata["predictions"]["zeta_new"]).reshape(-1, len(test))
-        noise = np.asarray(result.idata["posterior"]["noise_sd"]).reshape(-1, 1)
-        elpd[test] = logsumexp(norm.logpdf(y[test], zeta, noise), axis=0) - np.log(len(zeta))
-        mean[test] = zeta.mean(0)
-    return Score(elpd, mean, float("nan"), "kfold", discrepancy_rms)
+        elpd[test], mean[test] = _held_out(data, fit, test)
+    return Score(elpd, mean, np.full(n, np.nan), "kfold", discrepancy_rms)
+
+
+def refit_unreliable(data: CalibrationData, fit, score: Score) -> Score:
+    """PSIS-LOO where it is reliable, and for each observation whose Pareto k
+    exceeds 0.7 the exact log p(y_i | y_-i) from a refit without it
+    (Vehtari, Gelman & Gabry 2017, section 2.1; the loo package's reloo):
+    a few refits instead of K-fold's K per fit."""
+    elpd, mean = score.elpd_i.copy(), score.heldout_mean.copy()
+    for i in score.unreliable:
+        (elpd[i],), (mean[i],) = _held_out(data, fit, np.array([i]))
+    return Score(elpd, mean, score.pareto_k, "psis-loo+refits" if score.unreliable.size else score.scheme,
+                 score.discrepancy_rms, refits=int(score.unreliable.size))

@@ -19,10 +19,9 @@ sys.path.insert(0, str(COOLING))
 from make_data import K_TRUE, newton  # noqa: E402  (the case study's own physics)
 
 
-@pytest.fixture(scope="session")
-def exact_cooling_data() -> stancal.CalibrationData:
-    """Data from the exact simulator at k = 0.05, plus the shipped runs."""
-    rng = np.random.default_rng(7)
+def cooling_data(seed: int) -> stancal.CalibrationData:
+    """Data from the exact simulator at k = 0.05 with noise sd 0.3, plus the shipped runs."""
+    rng = np.random.default_rng(seed)
     t = np.tile(np.linspace(2, 60, 12), 2)
     T0 = np.repeat([60.0, 90.0], 12)
     physical = pd.DataFrame({"t": t, "T0": T0,
@@ -31,6 +30,11 @@ def exact_cooling_data() -> stancal.CalibrationData:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", stancal.InputRangeWarning)
         return stancal.CalibrationData(physical, ["t", "T0"], "temperature", {"k": (0.01, 0.2)}, runs=runs)
+
+
+@pytest.fixture(scope="session")
+def exact_cooling_data() -> stancal.CalibrationData:
+    return cooling_data(seed=7)
 
 
 def fit(data, **kwargs):

@@ -96,6 +96,12 @@ def test_gp_conditional_draw_from_given_normals(gq):
     np.testing.assert_allclose(gq["given_normals"], Z_DRAW, rtol=0)
 
 
+def test_a_repeated_run_with_no_nugget_is_factorised_with_the_jitter(gq):
+    points = np.vstack([X2, X2[:1]])
+    K = se(points, points) + JITTER * SD**2 * np.eye(5)
+    np.testing.assert_allclose(gq["repeated_runs_cholesky"], np.linalg.cholesky(K), rtol=1e-6, atol=1e-9)
+
+
 def simulator_derivatives(theta):
     x1, x2 = X_SIM[:, 0], X_SIM[:, 1]
     return np.column_stack([-x1 * np.exp(-theta[0] * x1), x2**2])

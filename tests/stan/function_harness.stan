@@ -57,6 +57,9 @@ generated quantities {
   vector[n2] conditional_draw = gp_conditional_draw(resid, cholesky_decompose(add_diag(se_sym, 0.1)),
                                                     se_cross', ard_cov(x2, 1, sd_, ls), z_draw);
   vector[n2] given_normals = prediction_normals_rng(to_matrix(z_draw, n2, 1), 1, n2);
+  // runs with a repeated point and a vanishing nugget: factorisable only with the jitter
+  matrix[n2 + 1, n2 + 1] repeated_runs_cholesky = cholesky_decompose(
+    emulator_run_cov(append_array(x2, x2[1:1]), 1, sd_, ls, 0));
   matrix[3, 2] dfdtheta = simulator_theta_derivatives(X_sim, theta_sim, theta_lo, theta_hi, 0, 1);
   matrix[3, 2] dfdtheta_at_bound = simulator_theta_derivatives(X_sim, theta_lo, theta_lo, theta_hi, 0, 1);
   vector[n2] conditional_mean = gp_conditional_mean(resid, cholesky_decompose(add_diag(se_sym, 0.1)),
