@@ -52,7 +52,7 @@ def stan_simulator(result) -> SimulatorAt:
     # every parameter of the (possibly edited) program at its posterior median;
     # f does not depend on them, but generated quantities need them all
     stored = result.idata["stan_parameters"]
-    fixed = {name: np.median(np.asarray(da).reshape(-1, *da.shape[2:]), axis=0)
+    fixed = {name: np.median(np.asarray(da).reshape(da.shape[0] * da.shape[1], *da.shape[2:]), axis=0)
              for name, da in stored.data_vars.items()}
     # without a discrepancy, mean terms or rho these are empty
     fixed.update({k: np.zeros(0) for k in ("delta_sd", "delta_input_length_scale", "delta_relevance", "rho_free", "beta") if k in fixed})

@@ -30,29 +30,53 @@ def theta_star():
     return tuo_wu.l2_projection()
 
 
+def compare_on_tuo_wu(seed):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return compare_methods(tuo_wu.problem(seed), simulator=tuo_wu.SIMULATOR,
+                               methods=("koh", "l2", "orthogonal"), seed=seed, **SETTINGS)
+
+
 @pytest.fixture(scope="module")
-def tuo_wu_comparisons():
+def tuo_wu_seed_1():
+    return compare_on_tuo_wu(1)
+
+
+@pytest.fixture(scope="module")
+def tuo_wu_comparisons(tuo_wu_seed_1):
     """koh, l2 and orthogonal on the review's example with five noise seeds."""
-    out = {}
-    for seed in SEEDS:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            out[seed] = compare_methods(tuo_wu.problem(seed), simulator=tuo_wu.SIMULATOR,
-                                        methods=("koh", "l2", "orthogonal"), seed=seed, **SETTINGS)
-    return out
+    return {1: tuo_wu_seed_1, **{seed: compare_on_tuo_wu(seed) for seed in SEEDS[1:]}}
 
 
 def _estimates(comparisons, method):
     return {seed: c.table().loc[method, "theta_q50"] for seed, c in comparisons.items()}
 
 
-@pytest.mark.parametrize("method", ["l2", "orthogonal"])
-def test_tuo_wu_l2_and_orthogonal_find_the_l2_projection(tuo_wu_comparisons, theta_star, method):
+def _mode_nearest(comparison, theta_star):
+    """The orthogonal GP's theta mode nearest theta*: (its mean, its weight)."""
+    result = next(f.result for f in comparison.fits if f.name == "orthogonal")
+    mode = min(result.modes, key=lambda m: abs(m.theta_mean["theta"] - theta_star))
+    return mode.theta_mean["theta"], (mode.weight if len(result.modes) > 1 else 1.0)
+
+
+def test_tuo_wu_one_seed(tuo_wu_seed_1, theta_star):
+    """The default run's check of the review's example (the five-seed study is
+    slow): L2 within 0.12 of theta* (the estimator's own noise over seeds is
+    about 0.04), and theta* among the orthogonal GP's modes with a real share
+    of the mass."""
+    l2 = tuo_wu_seed_1.table().loc["l2", "theta_q50"]
+    assert abs(l2 - theta_star) < 0.12
+    theta, weight = _mode_nearest(tuo_wu_seed_1, theta_star)
+    assert abs(theta - theta_star) < 0.12 and weight > 0.2
+
+
+@pytest.mark.slow  # 15 fits
+def test_tuo_wu_l2_finds_the_l2_projection(tuo_wu_comparisons, theta_star):
     """The issue's bar: the mean over 5 seeds within 0.03 of theta*, each seed
     within 0.12 (the estimator's own noise is about 0.04)."""
-    estimates = _estimates(tuo_wu_comparisons, method)
+    estimates = _estimates(tuo_wu_comparisons, "l2")
     koh = _estimates(tuo_wu_comparisons, "koh")
-    print(f"\n{method}: " + ", ".join(f"seed {s}: {v:.4f}" for s, v in estimates.items())
+    print("\nl2: " + ", ".join(f"seed {s}: {v:.4f}" for s, v in estimates.items())
           + f"; mean {np.mean(list(estimates.values())):.4f} (theta* {theta_star:.4f})")
     print("koh: " + ", ".join(f"seed {s}: {v:.4f}" for s, v in koh.items())
           + f"; mean {np.mean(list(koh.values())):.4f} (the review: KOH -0.0821, L2 -0.1844)")
@@ -60,6 +84,20 @@ def test_tuo_wu_l2_and_orthogonal_find_the_l2_projection(tuo_wu_comparisons, the
     assert all(abs(v - theta_star) < 0.12 for v in estimates.values())
 
 
+@pytest.mark.slow  # shares the 15 fits above
+def test_tuo_wu_orthogonal_has_a_mode_at_the_l2_projection(tuo_wu_comparisons, theta_star):
+    """The orthogonal GP holds at every stationary point of the L2 loss, so its
+    posterior is multimodal and weighed by mass (issue 12, item 6); theta* is
+    one of its modes in every seed, with a real share of the mass, and that
+    mode's mean over seeds is within 0.03 of theta*."""
+    nearest = {seed: _mode_nearest(c, theta_star) for seed, c in tuo_wu_comparisons.items()}
+    print("\northogonal, mode nearest theta* (theta, weight): "
+          + ", ".join(f"seed {s}: {t:.4f}, {w:.2f}" for s, (t, w) in nearest.items()))
+    assert abs(np.mean([t for t, _ in nearest.values()]) - theta_star) < 0.03
+    assert all(abs(t - theta_star) < 0.12 and w > 0.2 for t, w in nearest.values())
+
+
+@pytest.mark.slow  # shares the 15 fits above
 def test_tuo_wu_l2_interval_and_discrepancy(tuo_wu_comparisons, theta_star):
     """The projected draws give an interval around theta*, and the projection
     leaves a smaller discrepancy than KOH's theta (it minimises that norm)."""
@@ -73,8 +111,8 @@ def test_tuo_wu_l2_interval_and_discrepancy(tuo_wu_comparisons, theta_star):
     assert covered >= 4
 
 
-def test_l2_predictions_use_the_projected_theta(tuo_wu_comparisons):
-    result = next(f.result for f in tuo_wu_comparisons[1].fits if f.name == "l2")
+def test_l2_predictions_use_the_projected_theta(tuo_wu_seed_1):
+    result = next(f.result for f in tuo_wu_seed_1.fits if f.name == "l2")
     points = pd.DataFrame({"x": [0.5, 3.0, 6.0]})
     table = result.predict(points)
     theta = result.theta_draws()["theta"].to_numpy()

@@ -52,9 +52,11 @@ def edited_koh(folder):
          "  real<lower=0> noise_sd_hot;                            // noise sd of the hot starts, standardised\n"),
         ("  beta ~ normal(0, beta_prior_sd);\n",
          "  beta ~ normal(0, beta_prior_sd);\n  noise_sd_hot ~ normal(0, 1);\n"),
+        ("  if (!prior_only) {\n",
+         "  if (!prior_only) {\n    vector[N] noise_var = rep_vector(square(noise_sd), N);\n"
+         "    for (i in 1:N) if (X[i, 2] > 75) noise_var[i] = square(noise_sd_hot);\n"),
         ("add_jitter(add_diag(K, square(noise_sd)), square(delta_sd[1]))));",
-         "add_jitter(add_diag(K, square(noise_sd + (X[:, 2] > 75) * (noise_sd_hot - noise_sd))),"
-         " square(delta_sd[1]))));"),
+         "add_jitter(add_diag(K, noise_var), square(delta_sd[1]))));"),
     ]
     for old, new in edits:
         assert code.count(old) == 1, old
