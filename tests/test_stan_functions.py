@@ -94,6 +94,7 @@ def test_gp_conditional_draw_from_given_normals(gq):
     expected = A.T @ RESID + np.linalg.cholesky(cov) @ Z_DRAW
     np.testing.assert_allclose(gq["conditional_draw"], expected, rtol=1e-8)
     np.testing.assert_allclose(gq["given_normals"], Z_DRAW, rtol=0)
+    assert gq["no_normals"].size == 0
 
 
 def test_a_repeated_run_with_no_nugget_is_factorised_with_the_jitter(gq):

@@ -45,9 +45,13 @@ vector gp_prior_draw(matrix K, vector z) {
 }
 
 /**
- * n fresh standard normals from Stan's RNG.
+ * n fresh standard normals from Stan's RNG (none for n = 0: Stan Math's
+ * vectorised normal_rng crashes the process on an empty vector).
  */
 vector std_normals_rng(int n) {
+  if (n == 0) {
+    return rep_vector(0, 0);
+  }
   return to_vector(normal_rng(rep_vector(0, n), 1));
 }
 

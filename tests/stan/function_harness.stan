@@ -57,6 +57,7 @@ generated quantities {
   vector[n2] conditional_draw = gp_conditional_draw(resid, cholesky_decompose(add_diag(se_sym, 0.1)),
                                                     se_cross', ard_cov(x2, 1, sd_, ls), z_draw);
   vector[n2] given_normals = prediction_normals_rng(to_matrix(z_draw, n2, 1), 1, n2);
+  vector[0] no_normals = std_normals_rng(0);  // an empty draw, as for a problem with no functional theta
   // runs with a repeated point and a vanishing nugget: factorisable only with the jitter
   matrix[n2 + 1, n2 + 1] repeated_runs_cholesky = cholesky_decompose(
     emulator_run_cov(append_array(x2, x2[1:1]), 1, sd_, ls, 0));
