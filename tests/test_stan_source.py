@@ -19,7 +19,7 @@ def test_includes_resolve_next_to_the_file_first(tmp_path):
     program.write_text("functions {\n#include gp_kernels.stan\n#include loo.stan\n}\n")
     flat = flatten(program)
     assert "// my own kernels" in flat.code
-    assert "mvn_loo_log_lik" in flat.code
+    assert "tuple(vector, vector) mvn_loo(" in flat.code
 
 
 def test_origin_maps_flat_lines_back_to_files(tmp_path):
