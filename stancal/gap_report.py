@@ -131,9 +131,7 @@ def report_markdown(summary: dict, figures: list[Path]) -> str:
             f"With it, the remaining discrepancy is {_fmt(best['discrepancy_rms'])}: shrinkage "
             f"{_fmt(best['shrinkage'])}. θ moves: {moved}. Held-out RMSE "
             f"{base['holdout_rmse']:.4g} → {best['holdout_rmse']:.4g}.", "",
-            "A formula candidate's terms are centred over the physical points, so its effect has "
-            "no level of its own: the level stays with the discrepancy's constant, and the "
-            "remaining discrepancy (GP part plus constant) compares like with like.", "",
+
             "| candidate | kind | ELPD diff ± se | shrinkage (90 %) | remaining RMS | θ | held-out RMSE |",
             "|---|---|---|---|---|---|---|",
             *(f"| {c['name']} | {c['kind']} | {c['elpd_diff']:+.1f} ± {c['elpd_diff_se']:.1f} | "

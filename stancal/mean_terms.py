@@ -26,18 +26,13 @@ def _plain(message: object) -> str:
 
 @dataclass(frozen=True)
 class MeanTerms:
-    """The terms of one formula, each column centred at its mean over the
-    physical points and scaled to unit root mean square there, so that
-    beta ~ N(0, 1) is weakly informative. Centring leaves each term's shape
-    (beta, per unit of the term, is unchanged) but keeps its level out of the
-    discrepancy's: a nearly constant term (pressure, 1016 +- 5 hPa) cannot
-    trade off with the discrepancy's level and inflate it."""
+    """The terms of one formula, each column scaled to unit root mean square
+    over the physical points so that beta ~ N(0, 1) is weakly informative."""
 
     formula: str
     names: list[str]
-    center: np.ndarray  # mean of each raw column over the physical points (0 for Intercept)
-    scale: np.ndarray  # root mean square of each centred column
-    h: np.ndarray  # (N, H) centred and scaled terms at the physical points
+    scale: np.ndarray  # root mean square of each raw column
+    h: np.ndarray  # (N, H) scaled terms at the physical points
     _spec: object  # formulaic ModelSpec, to evaluate at new points
 
     @property
@@ -66,7 +61,7 @@ class MeanTerms:
             raise FormulaError(
                 f"formula {self.formula!r}: missing values or unseen categories at new-point rows "
                 f"{list(frame.index[bad][:10])}")
-        return (values - self.center) / self.scale
+        return values / self.scale
 
 
 def build_mean_terms(formula: str | None, physical: pd.DataFrame, intercept: bool = False) -> MeanTerms:
@@ -87,10 +82,8 @@ def build_mean_terms(formula: str | None, physical: pd.DataFrame, intercept: boo
     if formula is not None and names in ([], ["Intercept"]):
         raise FormulaError(f"formula {formula!r} has no terms besides a constant")
     values = np.asarray(matrix[names], dtype=float)
-    center = np.where(np.array(names) == "Intercept", 0.0, values.mean(axis=0))
-    scale = np.sqrt(np.mean((values - center) ** 2, axis=0))
+    scale = np.sqrt(np.mean(values**2, axis=0))
     if (scale == 0).any():
-        constant = [n for n, s in zip(names, scale) if s == 0]
-        raise FormulaError(f"formula {formula!r}: term(s) {constant} take the same value at every "
-                           "physical point, so they cannot be told from the discrepancy's level")
-    return MeanTerms(formula, names, center, scale, (values - center) / scale, matrix.model_spec)
+        zero = [n for n, s in zip(names, scale) if s == 0]
+        raise FormulaError(f"formula {formula!r}: term(s) {zero} are zero at every physical point")
+    return MeanTerms(formula, names, scale, values / scale, matrix.model_spec)
