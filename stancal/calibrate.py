@@ -192,14 +192,15 @@ def calibrate(
     inits = spread_theta_inits(chains, len(data.parameters), np.random.default_rng(seed))
     logger.info("sampling %s: %d chains x (%d warmup + %d draws) with %s",
                 chosen, chains, warmup, draws, stan_backend.name)
-    sample = stan_backend.sample(flat, to_stan_json(stan_data), chains=chains, warmup=warmup,
+    stan_json = to_stan_json(stan_data)
+    sample = stan_backend.sample(flat, stan_json, chains=chains, warmup=warmup,
                                  draws=draws, seed=seed, inits=inits, adapt_delta=adapt_delta,
                                  max_treedepth=max_treedepth)
     parameter_names = stan_backend.parameter_names(flat)  # the program's own, edited or not
     tree = build_datatree(sample, data, fit_points, parameter_names, options)
     if prior:
         prior_sample = stan_backend.sample(
-            flat, to_stan_json({**stan_data, "prior_only": 1}), chains=chains, warmup=warmup,
+            flat, {**stan_json, "prior_only": 1}, chains=chains, warmup=warmup,
             draws=draws, seed=seed + 1, inits=inits, adapt_delta=adapt_delta,
             max_treedepth=max_treedepth)
         prior_tree = build_datatree(prior_sample, data, fit_points, parameter_names, options)
@@ -225,7 +226,7 @@ def calibrate(
     weights_unavailable = None
     if len(result.modes) > 1 and quadrature is None:  # L2's theta is a projection, not a density's
         try:
-            unconstrain, log_density = stan_backend.log_density_functions(flat, to_stan_json(stan_data))
+            unconstrain, log_density = stan_backend.log_density_functions(flat, stan_json)
         except NotImplementedError as err:
             weights_unavailable = str(err)
         else:

@@ -52,10 +52,10 @@ def stan_simulator(result) -> SimulatorAt:
     # every parameter of the (possibly edited) program at its posterior median;
     # f does not depend on them, but generated quantities need them all
     stored = result.idata["stan_parameters"]
-    fixed = {name: np.median(np.asarray(da).reshape(da.shape[0] * da.shape[1], *da.shape[2:]), axis=0)
-             for name, da in stored.data_vars.items()}
+    fixed = {name: _posterior_median(da) for name, da in stored.data_vars.items()}
     # without a discrepancy, mean terms or rho these are empty
-    fixed.update({k: np.zeros(0) for k in ("delta_sd", "delta_input_length_scale", "delta_relevance", "rho_free", "beta") if k in fixed})
+    fixed.update({k: np.zeros(0) for k in ("delta_sd", "delta_input_length_scale", "delta_relevance",
+                                           "rho_free", "beta") if k in fixed})
 
     def at(points: pd.DataFrame, theta: np.ndarray) -> np.ndarray:
         if last.get("points") is not points:
@@ -78,7 +78,7 @@ def emulator_mean(result) -> SimulatorAt:
         hyper = result.emulator["hyperparameters"]
     else:
         posterior = result.idata["posterior"]
-        hyper = {k: np.median(np.asarray(posterior[k]).reshape(-1, *posterior[k].shape[2:]), axis=0)
+        hyper = {k: _posterior_median(posterior[k])
                  for k in ("emulator_mean", "emulator_sd", "emulator_length_scale", "emulator_nugget")}
     runs_xt = np.hstack([s.to_unit(data.runs, data.inputs), s.to_unit(data.runs, data.theta_names)])
     y_runs = s.standardise(data.runs[data.output])
@@ -97,6 +97,12 @@ def emulator_mean(result) -> SimulatorAt:
         return s.original(f.reshape(P, S).T)
 
     return at
+
+
+def _posterior_median(draws) -> np.ndarray:
+    """Median over chains and draws of a (chain, draw, ...) array, zero-size ones included."""
+    values = np.asarray(draws)
+    return np.median(values.reshape(values.shape[0] * values.shape[1], *values.shape[2:]), axis=0)
 
 
 def _theta_unit(data, theta: np.ndarray) -> np.ndarray:

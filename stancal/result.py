@@ -20,8 +20,8 @@ from .functional import functional_grid, theta_function_summary
 from .models import Likelihood, ModelOptions
 from .modes import Mode
 from .stan_source import FlatProgram
-from .summaries import band
 from .standata import EMULATOR_HYPERPARAMETERS, build_stan_data, mean_terms_of, to_stan_json
+from .summaries import band
 
 # Stan program variables -> names in the posterior group (original units)
 _REPORTED = {

@@ -124,7 +124,6 @@ class CmdStanPyBackend:
 
         return run
 
-
     def log_density_functions(self, program: FlatProgram, data: dict[str, Any]):
         # cmdstanpy evaluates log densities one CmdStan process at a time and
         # has no unconstrain; BridgeStan would, but is not a dependency

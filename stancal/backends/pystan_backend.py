@@ -32,6 +32,11 @@ def _is_compiled(code: str) -> bool:
         return False
 
 
+def _draw(parameters: Draws, chain: int, draw: int) -> dict[str, Any]:
+    """One parameter draw as the lists the services functions take."""
+    return {k: np.asarray(v[chain, draw]).tolist() for k, v in parameters.items()}
+
+
 def _by_chain(flat: np.ndarray, dims: list[int], chains: int) -> np.ndarray:
     """PyStan's (*dims, draw * chains) with chain varying fastest -> (chain, draw, *dims)."""
     draws = flat.shape[-1] // chains
@@ -181,8 +186,7 @@ class PyStanBackend:
             try:
                 for c in range(chains):
                     for d in range(draws):
-                        point = {k: np.asarray(v[c, d]).tolist() for k, v in parameters.items()}
-                        unconstrained = services.transform_inits(model.data, point)
+                        unconstrained = services.transform_inits(model.data, _draw(parameters, c, d))
                         draw_data = {**model.data, **fresh_prediction_normals(model.data, rng)}
                         flat_rows.append(services.write_array(draw_data, unconstrained, True, True))
             except RuntimeError as err:
@@ -209,8 +213,7 @@ class PyStanBackend:
 
         def unconstrain(parameters: Draws) -> np.ndarray:
             chains, draws = next(iter(parameters.values())).shape[:2]
-            return np.asarray([[services.transform_inits(model.data, {k: np.asarray(v[c, d]).tolist()
-                                                                       for k, v in parameters.items()})
+            return np.asarray([[services.transform_inits(model.data, _draw(parameters, c, d))
                                 for d in range(draws)] for c in range(chains)], dtype=float)
 
         def log_density(points: np.ndarray) -> np.ndarray:
