@@ -1,7 +1,7 @@
 // Kennedy-O'Hagan calibration from simulator runs with latent GPs, for
 // non-Gaussian or censored outputs and functional theta (see koh_latent.stan
 // for the cheap-simulator version of the same model):
-//   g(E[y_i]) = f(x_i, theta(x_i)) + delta(x_i, z_i),
+//   g(E[y_i]) = f(x_i, theta(x_i)) + h(x_i, z_i)' beta + delta(x_i, z_i),
 //   f ~ GP(emulator_mean, ARD kernel over (x, theta)) on the link scale,
 //   trained on the runs g(y_sim_j) = f(x_sim_j, theta_sim_j) + nugget_j.
 // As in modular.stan, the emulator's hyperparameters come fixed from stage 1
@@ -19,6 +19,7 @@ functions {
 #include loo.stan
 #include latent_gp.stan
 #include observation_model.stan
+#include latent_loo.stan
 #include functional_theta.stan
 #include priors.stan
 #include scaling.stan
@@ -50,6 +51,9 @@ data {
   vector[Q] theta_lower;                // lower bounds of theta, original units (uniform prior)
   vector<lower=theta_lower>[Q] theta_upper;  // upper bounds of theta, original units
   int<lower=0, upper=1> use_discrepancy;     // 1 = GP discrepancy on the link scale, 0 = none
+  int<lower=0> H;                       // number of discrepancy mean terms (0 = zero mean)
+  matrix[N, H] h;                       // mean terms at the physical points, scaled to unit RMS
+  vector<lower=0>[H] beta_prior_sd;     // prior sd of each coefficient, model-scale units
   int<lower=1, upper=2> kernel_id;      // kernel of every GP: 1 = squared exponential, 2 = Matern 5/2
   int<lower=0, upper=Q> F;              // number of functional theta
   array[Q] int<lower=0, upper=F> functional_slot;  // 0 = scalar theta, k = the k-th functional one
@@ -64,12 +68,15 @@ data {
   array[P] vector[D] x_new;             // simulator inputs of the prediction points, scaled to [0, 1]
   array[P] vector[D_delta] x_delta_new; // discrepancy inputs of the prediction points, scaled to [0, 1]
   array[P] vector[D_fun] x_fun_new;     // functional inputs of the prediction points, scaled like x_fun
+  matrix[P, H] h_new;                   // mean terms at the prediction points, scaled like h
   array[P] int<lower=0> trials_new;     // binomial: trials of a new observation at each prediction point
   int<lower=0> P_normals;               // P = the draws at the prediction points use normals_new, 0 = Stan's RNG
   matrix[P_normals, 2 + F] normals_new; // standard normals for those draws; column 1: simulator (emulator),
                                         // 2: discrepancy, 2 + k: the k-th functional theta
 }
 transformed data {
+  // for the leave-one-out densities with the left-out discrepancy integrated out
+  tuple(vector[20], vector[20]) loo_rule = normal_quadrature(20);
   array[M] vector[D + Q] xt_sim;
   for (j in 1:M) xt_sim[j] = append_row(x_sim[j], theta_sim[j]);
   array[0] real no_discrepancy = rep_array(0.0, 0);  // koh_joint_predict draws f alone with it
@@ -85,6 +92,7 @@ parameters {
   array[use_discrepancy ? D : 0] real<lower=0> delta_input_length_scale;  // simulator inputs: fraction of input range
   array[use_discrepancy ? D_delta - D : 0] real<lower=0> delta_relevance;  // covariates: inverse length scale
   vector[use_discrepancy ? N : 0] delta_z;                // non-centred discrepancy
+  vector[H] beta;                                         // mean-term coefficients, model-scale units
   vector<lower=0>[F] theta_function_sd;                   // logit scale
   array[F] vector<lower=0>[D_fun] theta_function_length_scale;  // fraction of input range
   matrix[N_fun, F] theta_function_logit;                  // logit of functional theta (unit scale) at x_fun
@@ -118,13 +126,14 @@ model {
   delta_input_length_scale ~ discrepancy_length_scale();
   delta_relevance ~ covariate_relevance();
   delta_z ~ std_normal();
+  beta ~ normal(0, beta_prior_sd);
   theta_function_sd ~ normal(0, 1.5);
   for (k in 1:F) theta_function_length_scale[k] ~ functional_length_scale();
   theta_function_logit ~ functional_theta(theta_unit, functional_slot, x_fun, kernel_id, theta_function_sd,
                                           theta_function_length_scale);
   emulator_z ~ std_normal();
   if (!prior_only) {
-    vector[N] eta = link_from_standardised(likelihood_id, f_std, y_center, y_scale) + delta;
+    vector[N] eta = link_from_standardised(likelihood_id, f_std, y_center, y_scale) + h * beta + delta;
     target += sum(observation_log_lik(
       likelihood_id, eta, likelihood_id == 1 ? noise_sd[1] : 1, likelihood_id == 3 ? inv_square(inv_sqrt_phi[1]) : 1,
       y_real, y_int, trials, censoring, lower_bound, upper_bound));
@@ -134,12 +143,13 @@ generated quantities {
   array[likelihood_id == 1] real noise_sd_original;
   array[likelihood_id == 3] real phi;   // negbinomial precision: Var = mu + mu^2 / phi
   array[use_discrepancy] real delta_sd_original;
-  vector[N] log_lik;      // log p(y_i | latent values, parameters), original units
+  vector[N] log_lik;      // log p(y_i | delta_-i, parameters), delta_i integrated out; original units
+  vector[N] y_loo_mean;   // E(y_i | delta_-i, parameters), original units
   vector[N] y_rep;        // replicated data, original units
-  vector[N] delta_gp;     // discrepancy at the physical points, original units (link scale)
+  vector[N] delta_gp;     // discrepancy GP at the physical points, original units (link scale)
   matrix[G, F] theta_function_grid;  // functional theta on the grid, original units
   vector[P] f_new;        // emulated simulator mean at the prediction points, response scale
-  vector[P] delta_new;    // discrepancy at the prediction points (link scale)
+  vector[P] delta_new;    // discrepancy (mean terms + GP) at the prediction points (link scale)
   vector[P] zeta_new;     // mean of the real process g^-1(g(f) + delta), response scale
   vector[P] y_new;        // a new observation at each prediction point
   {
@@ -148,13 +158,20 @@ generated quantities {
     real units = discrepancy_units(likelihood_id, y_scale);
     if (likelihood_id == 1) noise_sd_original[1] = noise_sd[1] * y_scale;
     if (likelihood_id == 3) phi[1] = precision;
-    if (use_discrepancy) delta_sd_original[1] = delta_sd[1] * units;
-    vector[N] eta = link_from_standardised(likelihood_id, f_std, y_center, y_scale) + delta;
-    tuple(vector[N], vector[N]) at_points = latent_observation_quantities_rng(
-      likelihood_id, eta, sd_obs, precision, y_real, y_int, trials, censoring, lower_bound, upper_bound,
-      y_center, y_scale);
+    int n_delta = use_discrepancy ? N : 0;
+    matrix[n_delta, n_delta] L_delta = rep_matrix(0, n_delta, n_delta);  // Cholesky factor of delta's prior
+    if (use_discrepancy) {
+      delta_sd_original[1] = delta_sd[1] * units;
+      L_delta = latent_gp_cholesky(x_delta, kernel_id, delta_sd[1], delta_length_scale);
+    }
+    // the linear predictor without the discrepancy GP
+    vector[N] eta_rest = link_from_standardised(likelihood_id, f_std, y_center, y_scale) + h * beta;
+    tuple(vector[N], vector[N], vector[N]) at_points = latent_observation_quantities_rng(
+      likelihood_id, eta_rest, delta, L_delta, sd_obs, precision, y_real, y_int, trials, censoring,
+      lower_bound, upper_bound, y_center, y_scale, loo_rule);
     log_lik = at_points.1;
-    y_rep = at_points.2;
+    y_loo_mean = at_points.2;
+    y_rep = at_points.3;
     delta_gp = units * delta;
 
     // functional theta on the grid and at the prediction points, given the points
@@ -182,7 +199,7 @@ generated quantities {
     }
     vector[P] f_link_new = link_from_standardised(likelihood_id, f_std_new, y_center, y_scale);
     tuple(vector[P], vector[P], vector[P], vector[P]) at_new = latent_prediction_quantities_rng(
-      likelihood_id, f_link_new, delta, x_delta, x_delta_new, kernel_id, delta_sd, delta_length_scale,
+      likelihood_id, f_link_new, h_new * beta, delta, x_delta, x_delta_new, kernel_id, delta_sd, delta_length_scale,
       normals_new, sd_obs, precision, trials_new, units, y_center, y_scale);
     f_new = at_new.1;
     delta_new = at_new.2;

@@ -20,7 +20,7 @@ from .models import LATENT_PROGRAM, RESTRICTED_DISCREPANCIES, Method, ModelOptio
 from .quadrature import input_box_quadrature
 from .result import CalibrationResult, build_datatree
 from .seeds import command_seed
-from .stan_source import flatten
+from .stan_source import FlatProgram, flatten
 from .standata import (
     EMULATOR_HYPERPARAMETERS,
     build_emulator_data,
@@ -61,7 +61,6 @@ def choose_method(data: CalibrationData, simulator: str | Path | None, method: s
     if reason is not None:  # every method has a latent version
         unsupported = [name for name, used in (
             (f"discrepancy '{options.discrepancy}'", options.discrepancy in RESTRICTED_DISCREPANCIES),
-            ("mean_formula / mean_intercept", options.mean_formula is not None or options.mean_intercept),
             ("estimate_rho", options.estimate_rho)) if used]
         if unsupported:
             raise ValueError(f"{reason} runs on the latent-GP programs, which do not support "
@@ -81,6 +80,17 @@ def _base_method(data: CalibrationData, simulator: str | Path | None, method: st
     if model_spec(chosen).needs_runs and not data.has_runs:
         raise ValueError(f"method '{chosen}' needs simulator runs")
     return chosen
+
+
+def stan_programs(chosen: Method, simulator: str | Path | None = None,
+                  program: str | Path | None = None) -> list[FlatProgram]:
+    """The flat programs a calibration with ``chosen`` runs: the method's (or
+    the user's copy), after stage 1's emulator where it has one."""
+    aliases = {"simulator.stan": Path(simulator)} if simulator is not None else {}
+    main = flatten(Path(program) if program else model_spec(chosen).path, aliases=aliases)
+    if chosen in (Method.MODULAR, Method.KOH_LATENT_EMULATOR):  # both fix stage 1's hyperparameters
+        return [flatten(model_spec("emulator").path), main]
+    return [main]
 
 
 def fit_emulator(data: CalibrationData, options: ModelOptions, *, backend, chains: int,
@@ -168,10 +178,10 @@ def calibrate(
     if l2:
         require_gaussian("method 'l2'", data, options)
     chosen = choose_method(data, simulator, None if l2 else method, options)
-    spec = model_spec(chosen)
-    aliases = {"simulator.stan": Path(simulator)} if simulator is not None else {}
-    flat = flatten(Path(program) if program else spec.path, aliases=aliases)
+    programs = stan_programs(chosen, simulator, program)
+    flat = programs[-1]
     stan_backend = get_backend(backend)
+    stan_backend.compile(programs)
     seed = command_seed(seed)
     new_points = default_new_points(data) if new_points is None else new_points.reset_index(drop=True)
     quadrature = None
@@ -183,7 +193,7 @@ def calibrate(
         fit_points = new_points
 
     emulator: dict[str, Any] = {}
-    if chosen in (Method.MODULAR, Method.KOH_LATENT_EMULATOR):  # both fix stage 1's hyperparameters
+    if len(programs) > 1:
         logger.info("stage 1: fitting the emulator to %d runs", len(data.runs))
         emulator = fit_emulator(data, options, backend=stan_backend, chains=chains,
                                 warmup=warmup, draws=draws, seed=seed)

@@ -1,5 +1,6 @@
 """Command line: ``stancal calibrate CONFIG.toml --out DIR``,
-``stancal gap CONFIG.toml --out DIR`` and ``stancal compare CONFIG.toml --out DIR``."""
+``stancal gap CONFIG.toml --out DIR``, ``stancal compare CONFIG.toml --out DIR``
+and ``stancal compile CONFIG.toml ...``."""
 
 from __future__ import annotations
 
@@ -9,14 +10,14 @@ import sys
 import warnings
 from pathlib import Path
 
-from .backends import BACKENDS, StanRuntimeError
-from .calibrate import L2, calibrate
+from .backends import BACKENDS, StanRuntimeError, get_backend
+from .calibrate import L2, calibrate, choose_method, stan_programs
 from .compare import METHODS
 from .config import ConfigError, load_config
 from .data import DataError
-from .models import DISCREPANCIES, Method
+from .models import DISCREPANCIES, Method, ModelOptions, model_spec
 from .report import write_calibration
-from .stan_source import StanProgramError
+from .stan_source import FlatProgram, StanProgramError
 
 logger = logging.getLogger("stancal")
 
@@ -40,6 +41,11 @@ def _parser() -> argparse.ArgumentParser:
     cal.add_argument("--discrepancy", choices=list(DISCREPANCIES),
                      help="gp (KOH), orthogonal (Plumlee 2017), scaled (S-GaSP) or none")
     comp.add_argument("--methods", nargs="+", choices=METHODS, default=list(METHODS))
+    build = commands.add_parser("compile", help="compile every Stan program the configs need, in parallel")
+    build.add_argument("configs", type=Path, nargs="+", help="TOML configs")
+    build.add_argument("--all-methods", action="store_true",
+                       help="every method the problem admits, not only the configured one")
+    build.add_argument("--backend", choices=BACKENDS, default=None)
     gap.add_argument("--kfold", type=int, default=None,
                      help="compare by K-fold cross-validation instead of PSIS-LOO")
     return parser
@@ -115,6 +121,36 @@ def run_compare(args: argparse.Namespace) -> dict:
     return summary
 
 
+def config_programs(problem, all_methods: bool) -> list[FlatProgram]:
+    """The programs that calibrate and gap run on a config: its method (or
+    every method the problem admits) and its candidates' simulator variants."""
+    from .gap import variant_program
+
+    model = dict(problem.model)
+    configured = model.pop("method", None)
+    options = ModelOptions(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in model.items()
+                              if k in ModelOptions.__dataclass_fields__})
+    methods = [configured]
+    if all_methods:
+        methods += [*([Method.KOH] if problem.simulator else []),
+                    *([Method.KOH_EMULATOR, Method.MODULAR] if problem.data.has_runs else [])]
+    programs = []
+    for method in methods:
+        try:
+            chosen = choose_method(problem.data, problem.simulator, method, options)
+        except ValueError:  # a method this problem cannot run
+            continue
+        programs += stan_programs(chosen, problem.simulator if model_spec(chosen).needs_simulator else None)
+    programs += [variant_program(problem.data, c) for c in problem.candidates if c.kind == "variant"]
+    return list({p.code: p for p in programs}.values())
+
+
+def run_compile(args: argparse.Namespace) -> dict:
+    programs = [p for config in args.configs for p in config_programs(load_config(config), args.all_methods)]
+    get_backend(args.backend).compile(list({p.code: p for p in programs}.values()))
+    return {"programs": len(programs)}
+
+
 def _one_line(err: Exception) -> str:
     """stanc puts the location first and the reason last: keep both."""
     lines = [line.strip() for line in str(err).strip().splitlines() if line.strip()]
@@ -125,14 +161,19 @@ def _one_line(err: Exception) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
-    logging.basicConfig(level=logging.INFO, format="stancal: %(message)s")
-    for noisy in ("httpstan", "aiohttp", "arviz"):
-        logging.getLogger(noisy).setLevel(logging.WARNING)
+    # stancal's own messages at INFO; other libraries' (setuptools prints each
+    # g++ command of a compile) at WARNING
+    logging.basicConfig(level=logging.WARNING, format="%(name)s: %(message)s")
+    logger.setLevel(logging.INFO)
     try:
-        summary = {"gap": run_gap, "compare": run_compare, "calibrate": run_calibrate}[args.command](args)
+        summary = {"gap": run_gap, "compare": run_compare, "calibrate": run_calibrate,
+                   "compile": run_compile}[args.command](args)
     except (ConfigError, DataError, StanProgramError, StanRuntimeError, ValueError, RuntimeError) as err:
         print(f"stancal: error: {_one_line(err)}", file=sys.stderr)
         return 2
+    if args.command == "compile":
+        print(f"{summary['programs']} Stan programs compiled or found in the cache")
+        return 0
     if args.command == "gap":
         best = summary["candidates"][0]
         print(f"gap: best candidate {best['name']} (ELPD {best['elpd_diff']:+.1f} ± "

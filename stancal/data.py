@@ -232,6 +232,13 @@ class CalibrationData:
             return "censored outputs"
         return None
 
+    @property
+    def discrepancy_units(self) -> float:
+        """Output units per model-scale unit of the discrepancy: the output's
+        scale for Gaussian outputs (standardised), 1 on a link scale (the
+        Stan programs' discrepancy_units)."""
+        return self.scaling.y_scale if self.observations.is_gaussian else 1.0
+
     def trials_at(self, points: pd.DataFrame) -> np.ndarray:
         """Binomial trials of a new observation at each point: the trials
         column where the points have it, else one (a binary outcome)."""

@@ -7,9 +7,19 @@ the discrepancy mean as h(x, z)' beta beside the GP, or a simulator variant:
 another Stan ``simulator`` with extra parameters and possibly covariates as
 inputs. Every fit keeps the baseline's discrepancy inputs and a constant
 discrepancy mean, so the remaining discrepancies (GP plus constant) are
-comparable. Candidates are ranked by the ELPD
-difference to the baseline (exact-conditional PSIS-LOO, or K-fold when
-Pareto k is high).
+comparable. Candidates are ranked by the ELPD difference to the baseline
+(PSIS-LOO on the exact conditional, with exact refits where Pareto k is
+high, or K-fold).
+
+Counts, binomial and censored outputs are diagnosed the same way on the
+link scale: their latent discrepancy is integrated out at each left-out
+point for PSIS-LOO (functions/latent_loo.stan).
+
+Shrinkage is measured on the remaining discrepancy's variation over the
+physical points (its RMS about its mean there), not on its RMS: a term that
+is nearly constant over the points (air pressure, 1016 +- 5 hPa) trades its
+level with the discrepancy's constant, so the level of the remaining
+discrepancy is not identified, while its variation is.
 """
 
 from __future__ import annotations
@@ -25,15 +35,15 @@ import numpy as np
 import pandas as pd
 
 from .backends import get_backend
-from .calibrate import calibrate, choose_method, require_gaussian
+from .calibrate import calibrate, choose_method, stan_programs
 from .data import CalibrationData, DataError
 from .gap_location import GapLocation, interval, locate_gap
 from .mean_terms import FormulaError, build_mean_terms
-from .models import Method, model_spec
+from .models import Likelihood
 from .result import CalibrationResult
 from .scoring import PARETO_K_LIMIT, Score, kfold_score, psis_score, refit_unreliable
 from .seeds import command_seed
-from .stan_source import StanProgramError, flatten
+from .stan_source import FlatProgram, StanProgramError
 
 logger = logging.getLogger("stancal")
 
@@ -41,6 +51,12 @@ logger = logging.getLogger("stancal")
 # this many folds costs less than refitting each of them
 FALLBACK_FOLDS = 5
 
+
+
+# what the discrepancy is measured in, per likelihood (its link scale)
+DISCREPANCY_SCALES = {Likelihood.GAUSSIAN: "output units", Likelihood.POISSON: "log of the mean count",
+                      Likelihood.NEGBINOMIAL: "log of the mean count",
+                      Likelihood.BINOMIAL: "logit of the success probability"}
 
 
 class CandidateError(ValueError):
@@ -96,8 +112,10 @@ class GapAnalysis:
         out = {
             "baseline": {
                 "method": self.baseline.method,
+                "discrepancy_scale": DISCREPANCY_SCALES[self.baseline.data.observations.likelihood],
                 "theta": base_theta,
                 "discrepancy_rms": interval(base.discrepancy_rms),
+                "discrepancy_variation": interval(base.discrepancy_variation),
                 "elpd_loo": base.elpd,
                 "elpd_se": base.elpd_se,
                 "holdout_rmse": base.holdout_rmse(y),
@@ -112,8 +130,8 @@ class GapAnalysis:
             s = fit.score
             diff = s.elpd_i - base.elpd_i
             # the fits are independent: pair their draws at random
-            after = rng.permutation(s.discrepancy_rms)[:len(base.discrepancy_rms)]
-            before = rng.permutation(base.discrepancy_rms)[:len(after)]
+            after = rng.permutation(s.discrepancy_variation)[:len(base.discrepancy_variation)]
+            before = rng.permutation(base.discrepancy_variation)[:len(after)]
             theta = fit.result.theta_summary()
             out["candidates"].append({
                 "name": fit.candidate.name, "kind": fit.candidate.kind,
@@ -121,6 +139,7 @@ class GapAnalysis:
                 "elpd_diff": float(diff.sum()),
                 "elpd_diff_se": float(np.sqrt(len(y) * np.var(diff))),
                 "discrepancy_rms": interval(s.discrepancy_rms),
+                "discrepancy_variation": interval(s.discrepancy_variation),
                 "shrinkage": interval(1 - after / before),
                 "theta": theta,
                 "theta_change": {k: theta[k]["mean"] - base_theta[k]["mean"]
@@ -163,9 +182,15 @@ def variant_data(data: CalibrationData, candidate: Candidate) -> CalibrationData
     theta = {p.name: (p.lower, p.upper) for p in data.parameters} | dict(candidate.theta)
     covariates = [v for v in data.discrepancy_variables if v not in candidate.inputs]
     try:
-        return CalibrationData(data.source, candidate.inputs, data.output, theta, covariates)
+        return CalibrationData(data.source, candidate.inputs, data.output, theta, covariates,
+                               levels=data.levels, **data.observation_columns)
     except DataError as err:
         raise CandidateError(f"candidate '{candidate.name}': {err}") from None
+
+
+def variant_program(data: CalibrationData, candidate: Candidate) -> FlatProgram:
+    """The program a simulator variant runs: koh, or koh_latent for what needs it."""
+    return stan_programs(choose_method(data, candidate.stan, "koh"), candidate.stan)[-1]
 
 
 def check_candidates(data: CalibrationData, candidates: list[Candidate], backend) -> None:
@@ -186,9 +211,8 @@ def check_candidates(data: CalibrationData, candidates: list[Candidate], backend
         if not Path(c.stan).is_file():
             raise CandidateError(f"candidate '{c.name}': Stan file not found: {c.stan}")
         variant_data(data, c)
-        program = flatten(model_spec(Method.KOH).path, aliases={"simulator.stan": Path(c.stan)})
         try:
-            backend.check(program)
+            backend.check(variant_program(data, c))
         except StanProgramError as err:
             raise CandidateError(f"candidate '{c.name}': the variant does not compile: {err}") from None
 
@@ -214,10 +238,12 @@ def diagnose_gap(
     ``calibrate_options`` (kernel, chains, warmup, draws, backend,
     adapt_delta, ...) go to every ``calibrate`` call.
     """
-    require_gaussian("the gap diagnosis", data)
     chosen = choose_method(data, simulator, method)
     stan_backend = get_backend(calibrate_options.get("backend"))
     check_candidates(data, candidates, stan_backend)
+    # every program up front, side by side on the machine's cores
+    stan_backend.compile([*stan_programs(chosen, simulator),
+                          *(variant_program(data, c) for c in candidates if c.kind == "variant")])
     seed = command_seed(seed)
     out = Path(out_dir) if out_dir is not None else None
     # every fit has a constant in the discrepancy mean, so that no candidate
@@ -255,7 +281,7 @@ def diagnose_gap(
                       f"{FALLBACK_FOLDS}-fold cross-validation instead", GapWarning, stacklevel=2)
         kfold = FALLBACK_FOLDS
     if kfold is not None:
-        scores = [kfold_score(data_for(c), fitter(c, None), kfold, seed, s.discrepancy_rms)
+        scores = [kfold_score(data_for(c), fitter(c, None), kfold, seed, s.remaining)
                   for c, s in zip(labels, scores)]
     elif unreliable:
         warnings.warn(f"Pareto k above {PARETO_K_LIMIT} at {_counts(unreliable)}: each of those "

@@ -155,8 +155,9 @@ def discrepancy_parts(result: CalibrationResult, name: str = "delta_gp") -> tupl
     """Draws of the GP part of delta at the physical points (draws, N) and of
     the constant term of its mean (draws,), zero without one; output units.
     ``name``: delta_gp (draws of delta) or delta_gp_mean (its mean given the
-    parameters)."""
-    delta = np.asarray(result.idata["at_observations"][name])
+    parameters; the latent programs sample delta, so they have draws only)."""
+    at_observations = result.idata["at_observations"]
+    delta = np.asarray(at_observations[name if name in at_observations else "delta_gp"])
     delta = delta.reshape(-1, delta.shape[-1])
     posterior = result.idata["posterior"]
     if "beta" in posterior and "Intercept" in posterior["beta"].coords["mean_term"].values:

@@ -96,8 +96,8 @@ def report_markdown(summary: dict, figures: list[Path]) -> str:
     ranked = sorted(where["importance"].items(), key=lambda kv: -kv[1]["mean"])
     lines = ["# Sim-to-real gap", "",
              f"Baseline: {base['method']} with a GP discrepancy over "
-             f"{', '.join(where['importance'])}. Remaining discrepancy (RMS over the physical "
-             f"points): {_fmt(base['discrepancy_rms'])}; held-out RMSE {base['holdout_rmse']:.4g} "
+             f"{', '.join(where['importance'])}, in {base['discrepancy_scale']}. Remaining "
+             f"discrepancy (RMS over the physical points): {_fmt(base['discrepancy_rms'])}; held-out RMSE {base['holdout_rmse']:.4g} "
              f"({base['scheme']}).", "",
              "## Where is the simulator wrong?", "",
              f"The gap depends most on **{ranked[0][0]}** (total Sobol index {_fmt(ranked[0][1])})"
@@ -128,9 +128,14 @@ def report_markdown(summary: dict, figures: list[Path]) -> str:
             f"Best candidate: **{best['name']}** ({best['kind']}: `{best['effect']}`), ELPD "
             f"{best['elpd_diff']:+.1f} ± {best['elpd_diff_se']:.1f} over the baseline"
             + (" (more than 2 se: credible)." if credible else " (within 2 se: not decisive)."),
-            f"With it, the remaining discrepancy is {_fmt(best['discrepancy_rms'])}: shrinkage "
-            f"{_fmt(best['shrinkage'])}. θ moves: {moved}. Held-out RMSE "
-            f"{base['holdout_rmse']:.4g} → {best['holdout_rmse']:.4g}.", "",
+            f"With it, the remaining discrepancy varies over the physical points by "
+            f"{_fmt(best['discrepancy_variation'])} (RMS about its mean; baseline "
+            f"{_fmt(base['discrepancy_variation'])}): shrinkage {_fmt(best['shrinkage'])}. "
+            f"θ moves: {moved}. Held-out RMSE {base['holdout_rmse']:.4g} → {best['holdout_rmse']:.4g}.", "",
+            "Shrinkage is 1 − (variation with the candidate) / (variation of the baseline). It "
+            "leaves out the discrepancy's level: every fit has a constant in the discrepancy's "
+            "mean, and a term that is nearly constant over the points trades its level with that "
+            "constant, so only the variation is identified.", "",
 
             "| candidate | kind | ELPD diff ± se | shrinkage (90 %) | remaining RMS | θ | held-out RMSE |",
             "|---|---|---|---|---|---|---|",

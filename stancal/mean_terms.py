@@ -27,12 +27,18 @@ def _plain(message: object) -> str:
 @dataclass(frozen=True)
 class MeanTerms:
     """The terms of one formula, each column scaled to unit root mean square
-    over the physical points so that beta ~ N(0, 1) is weakly informative."""
+    over the physical points so that beta ~ N(0, 1) is weakly informative.
+    Beside a constant term, every other column is centred at its mean over
+    the physical points first: a term nearly constant there (air pressure,
+    1016 +- 5 hPa) would otherwise be collinear with the constant, and the
+    sampler would crawl along the ridge between them. The constant is then
+    the discrepancy's level at the mean of the terms."""
 
     formula: str
     names: list[str]
-    scale: np.ndarray  # root mean square of each raw column
-    h: np.ndarray  # (N, H) scaled terms at the physical points
+    center: np.ndarray  # subtracted from each raw column (zero for the constant, or without one)
+    scale: np.ndarray  # root mean square of each centred column
+    h: np.ndarray  # (N, H) centred, scaled terms at the physical points
     _spec: object  # formulaic ModelSpec, to evaluate at new points
 
     @property
@@ -61,7 +67,7 @@ class MeanTerms:
             raise FormulaError(
                 f"formula {self.formula!r}: missing values or unseen categories at new-point rows "
                 f"{list(frame.index[bad][:10])}")
-        return values / self.scale
+        return (values - self.center) / self.scale
 
 
 def build_mean_terms(formula: str | None, physical: pd.DataFrame, intercept: bool = False) -> MeanTerms:
@@ -82,8 +88,11 @@ def build_mean_terms(formula: str | None, physical: pd.DataFrame, intercept: boo
     if formula is not None and names in ([], ["Intercept"]):
         raise FormulaError(f"formula {formula!r} has no terms besides a constant")
     values = np.asarray(matrix[names], dtype=float)
-    scale = np.sqrt(np.mean(values**2, axis=0))
+    center = np.where(intercept & (np.array(names) != "Intercept"), values.mean(axis=0), 0.0)
+    scale = np.sqrt(np.mean((values - center) ** 2, axis=0))
     if (scale == 0).any():
-        zero = [n for n, s in zip(names, scale) if s == 0]
-        raise FormulaError(f"formula {formula!r}: term(s) {zero} are zero at every physical point")
-    return MeanTerms(formula, names, scale, values / scale, matrix.model_spec)
+        flat = [n for n, s in zip(names, scale) if s == 0]
+        raise FormulaError(f"formula {formula!r}: term(s) {flat} are "
+                           + ("constant at every physical point, which the constant term already is"
+                              if intercept else "zero at every physical point"))
+    return MeanTerms(formula, names, center, scale, (values - center) / scale, matrix.model_spec)

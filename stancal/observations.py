@@ -75,6 +75,30 @@ class Observations:
     def any_censored(self) -> bool:
         return not self.observed.all()
 
+    def log_density(self, rows: np.ndarray, mean: np.ndarray, noise_sd: np.ndarray | None = None,
+                    phi: np.ndarray | None = None) -> np.ndarray:
+        """log p(y_row | mean response) for draws (draws, rows) of the mean at
+        the given rows, in original units: the likelihood of the Stan
+        programs (observation_model.stan), for held-out scores. ``noise_sd``
+        (gaussian) and ``phi`` (negbinomial) are draws shaped (draws, 1)."""
+        from scipy import stats
+
+        y = self.value[rows]
+        if self.likelihood is Likelihood.POISSON:
+            return stats.poisson.logpmf(y, mean)
+        if self.likelihood is Likelihood.NEGBINOMIAL:
+            return stats.nbinom.logpmf(y, phi, phi / (phi + mean))
+        if self.likelihood is Likelihood.BINOMIAL:
+            return stats.binom.logpmf(y, self.trials[rows], mean)
+        code, lower, upper = self.censoring[rows], self.lower[rows], self.upper[rows]
+        below = stats.norm.logcdf(upper, mean, noise_sd)
+        above = stats.norm.logsf(lower, mean, noise_sd)
+        return np.select(
+            [code == Censoring.OBSERVED, code == Censoring.LEFT, code == Censoring.RIGHT],
+            [stats.norm.logpdf(np.nan_to_num(y), mean, noise_sd), below, above],
+            # interval: log(Phi(upper) - Phi(lower))
+            below + np.log1p(-np.exp(np.minimum(stats.norm.logcdf(lower, mean, noise_sd) - below, 0))))
+
     def counts_by_kind(self) -> dict[str, int]:
         """How many observations are exact and how many censored of each kind."""
         return {kind.name.lower(): int(np.sum(self.censoring == kind)) for kind in Censoring}

@@ -76,8 +76,8 @@ def build_datatree(sample: SampleOutput, data: CalibrationData,
         if name in d:
             posterior[name] = d[name]
     terms = mean_terms_of(data, options)
-    if terms is not None:  # coefficients per raw term, original units
-        posterior["beta"] = d["beta"] * data.scaling.y_scale / terms.scale
+    if terms is not None:  # coefficients per raw term, in the discrepancy's units
+        posterior["beta"] = d["beta"] * data.discrepancy_units / terms.scale
     for name in parameter_names:  # a parameter of the user's own program, as the program has it
         if name not in _REEXPRESSED and name not in posterior and d[name].size:
             posterior[name] = d[name]

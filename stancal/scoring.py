@@ -9,7 +9,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.special import logsumexp
-from scipy.stats import norm
 
 from .data import CalibrationData
 from .gap_location import discrepancy_parts
@@ -26,8 +25,20 @@ class Score:
     heldout_mean: np.ndarray  # held-out predictive mean of each observation
     pareto_k: np.ndarray  # PSIS's Pareto k per observation; NaN under K-fold
     scheme: str  # "psis-loo", "psis-loo+refits" or "kfold"
-    discrepancy_rms: np.ndarray  # draws: RMS of the GP discrepancy over the physical points
+    remaining: np.ndarray  # draws (draws, N): the discrepancy GP plus its constant at the physical points
     refits: int = 0  # observations scored by an exact refit without them
+
+    @property
+    def discrepancy_rms(self) -> np.ndarray:
+        """Draws of the remaining discrepancy's root mean square over the physical points."""
+        return np.sqrt(np.mean(self.remaining**2, axis=1))
+
+    @property
+    def discrepancy_variation(self) -> np.ndarray:
+        """Draws of its root mean square about its mean over the physical points:
+        the part of the discrepancy that a term constant over the points cannot
+        trade with its level, and so the part that shrinkage is measured on."""
+        return np.std(self.remaining, axis=1)
 
     @property
     def max_pareto_k(self) -> float:
@@ -47,13 +58,14 @@ class Score:
         return float(np.sqrt(len(self.elpd_i) * np.var(self.elpd_i)))
 
     def holdout_rmse(self, y: np.ndarray) -> float:
-        return float(np.sqrt(np.mean((y - self.heldout_mean) ** 2)))
+        """Over the exact observations (a censored one has no value)."""
+        return float(np.sqrt(np.nanmean((y - self.heldout_mean) ** 2)))
 
 
 
-def _discrepancy_rms(result: CalibrationResult) -> np.ndarray:
+def _remaining_discrepancy(result: CalibrationResult) -> np.ndarray:
     gp, constant = discrepancy_parts(result)
-    return np.sqrt(np.mean((gp + constant[:, None]) ** 2, axis=1))
+    return gp + constant[:, None]
 
 
 def psis_score(result: CalibrationResult) -> Score:
@@ -67,7 +79,7 @@ def psis_score(result: CalibrationResult) -> Score:
     loo_mean = np.asarray(result.idata["at_observations"]["y_loo_mean"])
     loo_mean = loo_mean.reshape(-1, loo_mean.shape[-1])
     return Score(np.asarray(loo.elpd_i), (weights * loo_mean).sum(0),
-                 np.asarray(loo.pareto_k), "psis-loo", _discrepancy_rms(result))
+                 np.asarray(loo.pareto_k), "psis-loo", _remaining_discrepancy(result))
 
 
 def _held_out(data: CalibrationData, fit, test: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -75,14 +87,15 @@ def _held_out(data: CalibrationData, fit, test: np.ndarray) -> tuple[np.ndarray,
     from ``fit(train_data, heldout_points)`` refitted to the other rows."""
     train = np.setdiff1d(np.arange(len(data.physical)), test)
     result = fit(data.subset(train), data.source.iloc[test].reset_index(drop=True))
-    y = data.physical[data.output].to_numpy()[test]
     zeta = np.asarray(result.idata["predictions"]["zeta_new"]).reshape(-1, len(test))
-    noise = np.asarray(result.idata["posterior"]["noise_sd"]).reshape(-1, 1)
-    return logsumexp(norm.logpdf(y, zeta, noise), axis=0) - np.log(len(zeta)), zeta.mean(0)
+    posterior = result.idata["posterior"]
+    noise, phi = (np.asarray(posterior[v]).reshape(-1, 1) if v in posterior else None
+                  for v in ("noise_sd", "phi"))
+    log_density = data.observations.log_density(test, zeta, noise, phi)
+    return logsumexp(log_density, axis=0) - np.log(len(zeta)), zeta.mean(0)
 
 
-def kfold_score(data: CalibrationData, fit, k: int, seed: int,
-                discrepancy_rms: np.ndarray) -> Score:
+def kfold_score(data: CalibrationData, fit, k: int, seed: int, remaining: np.ndarray) -> Score:
     """K-fold cross-validation: ``fit(train_data, heldout_points)`` returns a
     result whose predictions are at the held-out points."""
     n = len(data.physical)
@@ -91,7 +104,7 @@ def kfold_score(data: CalibrationData, fit, k: int, seed: int,
     for fold in range(k):
         test = np.flatnonzero(folds == fold)
         elpd[test], mean[test] = _held_out(data, fit, test)
-    return Score(elpd, mean, np.full(n, np.nan), "kfold", discrepancy_rms)
+    return Score(elpd, mean, np.full(n, np.nan), "kfold", remaining)
 
 
 def refit_unreliable(data: CalibrationData, fit, score: Score) -> Score:
@@ -103,4 +116,4 @@ def refit_unreliable(data: CalibrationData, fit, score: Score) -> Score:
     for i in score.unreliable:
         (elpd[i],), (mean[i],) = _held_out(data, fit, np.array([i]))
     return Score(elpd, mean, score.pareto_k, "psis-loo+refits" if score.unreliable.size else score.scheme,
-                 score.discrepancy_rms, refits=int(score.unreliable.size))
+                 score.remaining, refits=int(score.unreliable.size))

@@ -89,3 +89,21 @@ def test_the_cmdstanpy_backend_runs_without_pystan():
     imported = {alias.name for node in ast.walk(tree) if isinstance(node, ast.Import) for alias in node.names}
     imported |= {node.module or "" for node in ast.walk(tree) if isinstance(node, ast.ImportFrom)}
     assert not {m for m in imported if m.split(".")[0] in ("stan", "httpstan") or "pystan" in m}, imported
+
+
+def test_programs_compile_side_by_side_quietly_into_the_cache(capfd):
+    """compile() builds uncached programs in worker processes (one per core)
+    into httpstan's cache, where sampling then finds them; g++ prints nothing."""
+    from stancal.backends.pystan_backend import PyStanBackend, _is_compiled
+    from stancal.stan_source import FlatProgram
+
+    programs = [FlatProgram(f"parameters {{ real {name}; }}\nmodel {{ {name} ~ std_normal(); }}\n",
+                            (("side_by_side.stan", 1), ("side_by_side.stan", 2)))
+                for name in ("first", "second")]
+    capfd.readouterr()
+    PyStanBackend().compile(programs)
+    assert all(_is_compiled(p.code) for p in programs)
+    assert "g++" not in capfd.readouterr().err
+    sample = PyStanBackend().sample(programs[1], {}, chains=1, warmup=50, draws=50, seed=1, inits=None,
+                                    adapt_delta=0.8, max_treedepth=10)
+    assert sample.compile_seconds < 30  # found in the cache, not built again

@@ -191,3 +191,20 @@ def test_intercept_only_mean_terms():
     terms = build_mean_terms(None, with_batch(), intercept=True)
     assert terms.names == ["Intercept"] and np.all(terms.h == 1)
     assert build_mean_terms("x", with_batch(), intercept=True).names == ["Intercept", "x"]
+
+
+def test_terms_beside_a_constant_are_centred():
+    """A nearly constant term (pressure, 1016 +- 5 hPa) must not be collinear
+    with the constant: centred at the physical points' mean, it is orthogonal
+    to it, and new points are centred the same way."""
+    from stancal.mean_terms import FormulaError, build_mean_terms
+
+    frame = with_batch().assign(pressure=lambda f: 1016 + 5 * np.sin(np.arange(len(f))))
+    terms = build_mean_terms("pressure", frame, intercept=True)
+    np.testing.assert_allclose(terms.h[:, 0], 1)
+    np.testing.assert_allclose(terms.h[:, 1].mean(), 0, atol=1e-12)
+    np.testing.assert_allclose(np.sqrt(np.mean(terms.h[:, 1] ** 2)), 1)
+    new = pd.DataFrame({"pressure": [frame.pressure.mean(), frame.pressure.mean() + terms.scale[1]]})
+    np.testing.assert_allclose(terms.at(new), [[1, 0], [1, 1]], atol=1e-9)
+    with pytest.raises(FormulaError, match="constant at every physical point"):
+        build_mean_terms("I(x * 0 + 3)", frame, intercept=True)

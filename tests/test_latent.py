@@ -10,7 +10,7 @@ import warnings
 import numpy as np
 import pandas as pd
 import pytest
-from conftest import ROOT, fit
+from conftest import ROOT, assert_healthy, fit
 
 import stancal
 from stancal.design import latin_hypercube_with_corners
@@ -103,6 +103,34 @@ def test_count_predictions_at_new_points(poisson_fit):
     assert np.all(table["y_q95"] - table["y_q05"] >= table["zeta_q95"] - table["zeta_q05"])
 
 
+def test_poisson_mean_terms_match_maximum_likelihood():
+    """A log-linear covariate effect on counts as a discrepancy mean term (no
+    GP): the posterior of (mu, beta) against the Poisson maximum-likelihood fit
+    of the same model. The priors are flat on this scale; the tolerance, 0.2
+    posterior sd, leaves room for Monte Carlo error (about 0.06 sd here)."""
+    from scipy.optimize import minimize
+
+    rng = np.random.default_rng(5)
+    d, s = (v.ravel() for v in np.meshgrid([0.5, 0.75, 1.0, 1.5, 2.0, 2.5, 3.0], [0.0, 1.0, 2.5, 4.0, 5.0]))
+    z = rng.uniform(0, 10, d.size)
+    counts = rng.poisson(detector.simulator(d, s, detector.MU_TRUE) * np.exp(0.04 * z))
+    frame = pd.DataFrame({"d": d, "s": s, "z": z, "counts": counts})
+    data = stancal.CalibrationData(frame, ["d", "s"], "counts", {"mu": (0.05, 1.0)}, likelihood="poisson")
+    result = fit(data, simulator=COUNTS / "simulator.stan", discrepancy="none", mean_formula="z")
+    assert_healthy(result)
+
+    def negative_log_lik(p):
+        eta = np.log(detector.simulator(d, s, p[0])) + p[1] * z
+        return -(counts * eta - np.exp(eta)).sum()
+
+    best = minimize(negative_log_lik, [0.3, 0.0], method="Nelder-Mead", options={"xatol": 1e-9, "fatol": 1e-9}).x
+    posterior = result.idata["posterior"]
+    mu = np.asarray(posterior["theta"].sel(theta_name="mu")).ravel()
+    beta = np.asarray(posterior["beta"].sel(mean_term="z")).ravel()
+    for name, draws, reference in (("mu", mu, best[0]), ("beta", beta, best[1])):
+        assert abs(draws.mean() - reference) < 0.2 * draws.std(), (name, draws.mean(), reference, draws.std())
+
+
 def test_counts_case_study_from_runs():
     """The shipped case study (a finite-size detector the simulator lacks)
     from the simulator runs alone: the emulator on the log scale."""
@@ -111,9 +139,15 @@ def test_counts_case_study_from_runs():
                                    likelihood="poisson", runs=runs)
     result = fit(data)
     assert result.method == "koh_latent_emulator"
-    low, high = interval(result, "mu")
-    # the finite-size effect is partly confounded with mu: measured 0.380 [0.349, 0.411]
-    assert low < detector.MU_TRUE < high + 0.01
+    assert_healthy(result)
+    # the reference: the same model with the exact simulator in place of the
+    # emulator. The finite-size effect is partly confounded with mu, so
+    # neither centres on 0.35 (measured 0.380 [0.349, 0.411] from the runs)
+    exact = fit(data, simulator=COUNTS / "simulator.stan", method="koh")
+    assert exact.method == "koh_latent"
+    mu, mu_exact = result.theta_summary()["mu"], exact.theta_summary()["mu"]
+    assert abs(mu["mean"] - mu_exact["mean"]) < 0.5 * mu_exact["sd"], (mu, mu_exact)
+    assert mu["sd"] >= 0.9 * mu_exact["sd"]  # the emulator adds uncertainty, never removes it
     # the discrepancy found is the solid-angle factor: below zero close to the source
     delta = np.asarray(result.idata["at_observations"]["delta_gp"]).reshape(-1, len(physical))
     close, far = physical.d.to_numpy() <= 0.5, physical.d.to_numpy() >= 2.5
@@ -196,6 +230,7 @@ def test_censored_model_recovers_k_and_beats_naive_fits(censored_case_study):
     assert error["censored"] < error["drop"] and error["censored"] < error["impute"], error
 
 
+@pytest.mark.slow  # 18 fits; the default run keeps the shipped case study's comparison
 def test_censoring_beats_naive_fits_over_seeds():
     """Over 6 noise seeds the censored model's mean error is below both naive
     fits'. (Maximum-likelihood study of this design over 100 seeds: mean
@@ -386,11 +421,8 @@ def test_latent_problems_reject_gaussian_only_methods():
         stancal.calibrate(counts, simulator=COUNTS / "simulator.stan", method="l2")
     with pytest.raises(ValueError, match="do not support discrepancy 'orthogonal'"):
         stancal.calibrate(counts, simulator=COUNTS / "simulator.stan", discrepancy="orthogonal")
-    with pytest.raises(ValueError, match="do not support mean_formula"):
-        stancal.calibrate(counts, simulator=COUNTS / "simulator.stan", mean_formula="I(x**2)")
-    with pytest.raises(ValueError, match="gap diagnosis needs Gaussian, uncensored outputs"):
-        stancal.diagnose_gap(counts, [stancal.Candidate("q", formula="I(x**2)")],
-                             simulator=COUNTS / "simulator.stan")
+    with pytest.raises(ValueError, match="do not support estimate_rho"):
+        stancal.calibrate(counts, simulator=COUNTS / "simulator.stan", estimate_rho=True)
 
 
 def test_codes_agree_with_stan():

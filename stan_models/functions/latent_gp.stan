@@ -63,7 +63,8 @@ vector emulator_latent(matrix L_sim, array[] vector xt_sim, vector y_sim, array[
  *
  * @param likelihood_id the observation model (observation_model.stan)
  * @param f_link_new the simulator at the prediction points, model scale
- * @param delta the latent discrepancy at the physical points, model scale
+ * @param mean_terms_new the discrepancy's mean terms h_new * beta at the prediction points, model scale
+ * @param delta the latent discrepancy GP at the physical points, model scale
  * @param x_delta, x_delta_new discrepancy inputs of the physical and the prediction points
  * @param delta_sd, delta_length_scale the discrepancy's hyperparameters (empty: none)
  * @param normals_new standard normals for the draws at the prediction points
@@ -74,14 +75,14 @@ vector emulator_latent(matrix L_sim, array[] vector xt_sim, vector y_sim, array[
  * @return (f_new, delta_new, zeta_new, y_new), original units
  */
 tuple(vector, vector, vector, vector) latent_prediction_quantities_rng(
-    int likelihood_id, vector f_link_new, vector delta, array[] vector x_delta,
+    int likelihood_id, vector f_link_new, vector mean_terms_new, vector delta, array[] vector x_delta,
     array[] vector x_delta_new, int kernel_id, array[] real delta_sd,
     array[] real delta_length_scale, matrix normals_new, real sd_obs, real precision,
     array[] int trials_new, real units, real y_center, real y_scale) {
   int p = rows(f_link_new);
-  vector[p] delta_new = rep_vector(0, p);
+  vector[p] delta_new = mean_terms_new;
   if (size(delta_sd) > 0) {
-    delta_new = latent_gp_predict(delta, x_delta, x_delta_new, kernel_id, delta_sd[1], delta_length_scale,
+    delta_new += latent_gp_predict(delta, x_delta, x_delta_new, kernel_id, delta_sd[1], delta_length_scale,
                                   prediction_normals_rng(normals_new, 2, p));
   }
   vector[p] eta_new = f_link_new + delta_new;

@@ -146,23 +146,3 @@ vector log_lik_original_units(int likelihood_id, vector log_lik, array[] int cen
 vector observations_original_units(int likelihood_id, vector y, real y_center, real y_scale) {
   return likelihood_id == 1 ? y_center + y_scale * y : y;
 }
-
-/**
- * The generated quantities at the physical points that both latent programs
- * share: the pointwise log-likelihood and replicated data, original units.
- *
- * @param eta linear predictor at the physical points, model scale
- * @param other arguments as in observation_log_lik
- * @return (log_lik, y_rep)
- */
-tuple(vector, vector) latent_observation_quantities_rng(
-    int likelihood_id, vector eta, real sd_obs, real precision, vector y_real, array[] int y_int,
-    array[] int trials, array[] int censoring, vector lower_bound, vector upper_bound,
-    real y_center, real y_scale) {
-  return (log_lik_original_units(
-            likelihood_id, observation_log_lik(likelihood_id, eta, sd_obs, precision, y_real, y_int,
-                                               trials, censoring, lower_bound, upper_bound),
-            censoring, y_scale),
-          observations_original_units(
-            likelihood_id, observation_rng(likelihood_id, eta, sd_obs, precision, trials), y_center, y_scale));
-}

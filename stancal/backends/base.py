@@ -58,6 +58,11 @@ class StanBackend(Protocol):
         """Raise StanProgramError, with the user's file and line, if stanc rejects the program."""
         ...
 
+    def compile(self, programs: list[FlatProgram]) -> None:
+        """Compile the programs that are not compiled yet, in parallel over
+        the machine's cores, so that the fits after it start at once."""
+        ...
+
     def sample(
         self,
         program: FlatProgram,

@@ -54,6 +54,13 @@ class CmdStanPyBackend:
     def check(self, program: FlatProgram) -> None:
         self._model(program)
 
+    def compile(self, programs: list[FlatProgram]) -> None:
+        # each compile is a make subprocess: threads are enough to run them side by side
+        from concurrent.futures import ThreadPoolExecutor
+
+        with ThreadPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
+            list(pool.map(self._model, programs))
+
     def sample(
         self,
         program: FlatProgram,

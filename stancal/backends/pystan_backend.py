@@ -7,6 +7,7 @@ import functools
 import io
 import json
 import logging
+import os
 import subprocess
 import tempfile
 import time
@@ -30,6 +31,54 @@ def _is_compiled(code: str) -> bool:
         return httpstan.cache.model_directory(name).exists()
     except Exception:  # cache layout is httpstan's business; assume a compile
         return False
+
+
+@contextlib.contextmanager
+def _quiet_build():
+    """Hold back what a build prints: PyStan's stanc warnings about the flat
+    program (print) and g++'s pages of warnings (a subprocess writing to file
+    descriptors 1 and 2). Shown only if the build fails."""
+    with tempfile.TemporaryFile(mode="w+b") as held, \
+            contextlib.redirect_stdout(io.StringIO()) as printed, contextlib.redirect_stderr(printed):
+        saved = [os.dup(1), os.dup(2)]
+        try:
+            for fd in (1, 2):
+                os.dup2(held.fileno(), fd)
+            yield
+        except Exception:
+            for fd, copy in zip((1, 2), saved):
+                os.dup2(copy, fd)
+            held.seek(0)
+            tail = (printed.getvalue() + held.read().decode(errors="replace")).strip().splitlines()[-20:]
+            if tail:
+                logger.warning("the failed build printed:\n%s", "\n".join(tail))
+            raise
+        finally:
+            for fd, copy in zip((1, 2), saved):
+                os.dup2(copy, fd)
+                os.close(copy)
+
+
+def _compile_into_cache(code: str) -> None:
+    """Build a program's extension module into httpstan's cache, as httpstan's
+    own create-model request does (httpstan.views.handle_create_model), in
+    this process: PyStan builds one program at a time, this runs in one
+    worker process per core."""
+    import asyncio
+
+    import httpstan.cache
+    import httpstan.compile
+    import httpstan.models
+
+    name = httpstan.models.calculate_model_name(code)
+    if _is_compiled(code):
+        return
+    httpstan.cache.delete_model_directory(name)
+    with _quiet_build():
+        _, stanc_warnings = httpstan.compile.compile(code, f"model_{name.split('/')[1]}")
+        httpstan.cache.dump_stanc_warnings(stanc_warnings, name)
+        output = asyncio.run(httpstan.models.build_services_extension_module(code))
+    httpstan.cache.dump_services_extension_module_compiler_output(output, name)
 
 
 def _draw(parameters: Draws, chain: int, draw: int) -> dict[str, Any]:
@@ -64,22 +113,34 @@ class PyStanBackend:
     def _build(self, program: FlatProgram, data: dict[str, Any], seed: int):
         import stan
 
-        if not _is_compiled(program.code):
-            self.check(program, show_warnings=True)
-            logger.warning(
-                "Compiling Stan program %s with PyStan; the first compile takes about a "
-                "minute, later runs use the cache.", program.origin[0][0] if program.origin else "?"
-            )
-        # PyStan prints stanc's warnings about the flat program on every build,
-        # cached or not; check() has shown them once, mapped to the user's files
-        console = io.StringIO()
+        # compiled here rather than by stan.build, whose HTTP request to httpstan
+        # times out after 5 minutes: a compile can take longer on a busy 2-core machine
+        self.compile([program])
         try:
-            with contextlib.redirect_stdout(console), contextlib.redirect_stderr(console):
+            with _quiet_build():
                 return stan.build(program.code, data=data, random_seed=seed)
         except ValueError as err:  # stanc errors and data errors arrive as ValueError
             raise StanProgramError(program.explain(str(err))) from None
         except RuntimeError as err:
             raise StanRuntimeError(program.explain(str(err))) from None
+
+    def compile(self, programs: list[FlatProgram]) -> None:
+        from concurrent.futures import ProcessPoolExecutor
+        from multiprocessing import get_context
+
+        todo = {p.code: p for p in programs if not _is_compiled(p.code)}
+        if not todo:
+            return
+        for program in todo.values():  # stanc's errors and warnings first, with the user's lines
+            self.check(program, show_warnings=True)
+        workers = min(len(todo), os.cpu_count() or 1)
+        logger.warning("Compiling %d Stan program%s with PyStan, %d at a time (%s); each takes one to "
+                       "five minutes the first time, later runs use the cache.", len(todo),
+                       "s" if len(todo) > 1 else "", workers,
+                       ", ".join(Path(p.origin[0][0]).name if p.origin else "?" for p in todo.values()))
+        # spawn, not fork: the parent may hold httpstan's event loop and threads
+        with ProcessPoolExecutor(max_workers=workers, mp_context=get_context("spawn")) as pool:
+            list(pool.map(_compile_into_cache, todo))
 
     @staticmethod
     def check(program: FlatProgram, show_warnings: bool = False) -> None:

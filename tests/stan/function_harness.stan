@@ -13,6 +13,7 @@ vector simulator(matrix X, vector theta) {
 #include restricted_gp.stan
 #include latent_gp.stan
 #include observation_model.stan
+#include latent_loo.stan
 #include functional_theta.stan
 array[] vector first_coordinate(array[] vector x) {
   array[size(x)] vector[1] out;
@@ -91,4 +92,23 @@ generated quantities {
                                                 [0, 10]', [1, 20]');
   matrix[n2 + n1, n2 + n1] joint = koh_joint_cov(
     x2, append_theta(first_coordinate(x1), [0.3]'), x1, 1, sd_, ls, 0.01, 1.3, {0.7}, {0.4, 0.6}, 0.2);
+  // latent LOO of the four observations with delta = resid[1:4] at x2 (nugget 0.01), for each
+  // observation model (row k: likelihood_id k), y_center 0.2 and y_scale 1.5
+  matrix[4, 4] latent_loo_lik;
+  matrix[4, 4] latent_loo_mean;
+  vector[20] quadrature_nodes;
+  vector[20] quadrature_weights;
+  {
+    tuple(vector[20], vector[20]) rule = normal_quadrature(20);
+    quadrature_nodes = rule.1;
+    quadrature_weights = rule.2;
+    matrix[4, 4] L_latent = cholesky_decompose(add_diag(ard_cov(x2, 1, sd_, ls), 0.01));
+    for (k in 1:4) {
+      tuple(vector[4], vector[4]) out = latent_loo(k, eta, resid[1:4], L_latent, 0.7, 3.5, y_real, y_int,
+                                                   trials, censoring, lower_bound, upper_bound, 0.2, 1.5,
+                                                   rule);
+      latent_loo_lik[k] = out.1';
+      latent_loo_mean[k] = out.2';
+    }
+  }
 }
