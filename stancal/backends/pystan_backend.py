@@ -9,6 +9,7 @@ import json
 import logging
 import os
 import subprocess
+import sys
 import tempfile
 import time
 from collections.abc import Callable
@@ -61,24 +62,35 @@ def _quiet_build():
 
 def _compile_into_cache(code: str) -> None:
     """Build a program's extension module into httpstan's cache, as httpstan's
-    own create-model request does (httpstan.views.handle_create_model), in
-    this process: PyStan builds one program at a time, this runs in one
-    worker process per core."""
+    own create-model request does (httpstan.views.handle_create_model), but
+    without stan.build's HTTP request, which times out after 5 minutes."""
     import asyncio
 
     import httpstan.cache
     import httpstan.compile
     import httpstan.models
 
-    name = httpstan.models.calculate_model_name(code)
     if _is_compiled(code):
         return
+    name = httpstan.models.calculate_model_name(code)
     httpstan.cache.delete_model_directory(name)
-    with _quiet_build():
-        _, stanc_warnings = httpstan.compile.compile(code, f"model_{name.split('/')[1]}")
-        httpstan.cache.dump_stanc_warnings(stanc_warnings, name)
-        output = asyncio.run(httpstan.models.build_services_extension_module(code))
+    _, stanc_warnings = httpstan.compile.compile(code, f"model_{name.split('/')[1]}")
+    httpstan.cache.dump_stanc_warnings(stanc_warnings, name)
+    output = asyncio.run(httpstan.models.build_services_extension_module(code))
     httpstan.cache.dump_services_extension_module_compiler_output(output, name)
+
+
+def _compile_in_subprocess(program: FlatProgram) -> None:
+    """One compile in its own Python process (its g++ output held back), so
+    that several run side by side; a subprocess rather than multiprocessing,
+    which would re-import the user's script in every worker."""
+    script = ("import sys; from stancal.backends.pystan_backend import _compile_into_cache; "
+              "_compile_into_cache(sys.stdin.read())")
+    done = subprocess.run([sys.executable, "-c", script], input=program.code, capture_output=True, text=True)
+    if done.returncode != 0:
+        tail = "\n".join((done.stdout + done.stderr).strip().splitlines()[-20:])
+        raise StanRuntimeError(f"compiling {program.origin[0][0] if program.origin else 'the program'} "
+                               f"failed:\n{tail}")
 
 
 def _draw(parameters: Draws, chain: int, draw: int) -> dict[str, Any]:
@@ -125,8 +137,7 @@ class PyStanBackend:
             raise StanRuntimeError(program.explain(str(err))) from None
 
     def compile(self, programs: list[FlatProgram]) -> None:
-        from concurrent.futures import ProcessPoolExecutor
-        from multiprocessing import get_context
+        from concurrent.futures import ThreadPoolExecutor
 
         todo = {p.code: p for p in programs if not _is_compiled(p.code)}
         if not todo:
@@ -138,9 +149,8 @@ class PyStanBackend:
                        "five minutes the first time, later runs use the cache.", len(todo),
                        "s" if len(todo) > 1 else "", workers,
                        ", ".join(Path(p.origin[0][0]).name if p.origin else "?" for p in todo.values()))
-        # spawn, not fork: the parent may hold httpstan's event loop and threads
-        with ProcessPoolExecutor(max_workers=workers, mp_context=get_context("spawn")) as pool:
-            list(pool.map(_compile_into_cache, todo))
+        with ThreadPoolExecutor(max_workers=workers) as pool:  # each thread waits on one subprocess
+            list(pool.map(_compile_in_subprocess, todo.values()))
 
     @staticmethod
     def check(program: FlatProgram, show_warnings: bool = False) -> None:
