@@ -93,11 +93,10 @@ def stan_programs(chosen: Method, simulator: str | Path | None = None,
     return [main]
 
 
-def fit_emulator(data: CalibrationData, options: ModelOptions, *, backend, chains: int,
-                 warmup: int, draws: int, seed: int) -> dict[str, Any]:
+def fit_emulator(data: CalibrationData, options: ModelOptions, program: FlatProgram, *, backend,
+                 chains: int, warmup: int, draws: int, seed: int) -> dict[str, Any]:
     """Stage 1 of modular calibration: the emulator's hyperparameters at their
     posterior medians, and its leave-one-out accuracy on the runs."""
-    program = flatten(model_spec("emulator").path)
     sample = backend.sample(program, to_stan_json(build_emulator_data(data, options)),
                             chains=chains, warmup=warmup, draws=draws, seed=seed, inits=None,
                             adapt_delta=0.9, max_treedepth=10)
@@ -179,7 +178,7 @@ def calibrate(
         require_gaussian("method 'l2'", data, options)
     chosen = choose_method(data, simulator, None if l2 else method, options)
     programs = stan_programs(chosen, simulator, program)
-    flat = programs[-1]
+    *stage_one, flat = programs
     stan_backend = get_backend(backend)
     stan_backend.compile(programs)
     seed = command_seed(seed)
@@ -193,9 +192,9 @@ def calibrate(
         fit_points = new_points
 
     emulator: dict[str, Any] = {}
-    if len(programs) > 1:
+    if stage_one:
         logger.info("stage 1: fitting the emulator to %d runs", len(data.runs))
-        emulator = fit_emulator(data, options, backend=stan_backend, chains=chains,
+        emulator = fit_emulator(data, options, stage_one[0], backend=stan_backend, chains=chains,
                                 warmup=warmup, draws=draws, seed=seed)
     stan_data = build_stan_data(data, chosen, options, fit_points,
                                 emulator_hyperparameters=emulator.get("hyperparameters"))

@@ -141,14 +141,13 @@ def config_programs(problem, all_methods: bool) -> list[FlatProgram]:
         except ValueError:  # a method this problem cannot run
             continue
         programs += stan_programs(chosen, problem.simulator if model_spec(chosen).needs_simulator else None)
-    programs += [variant_program(problem.data, c) for c in problem.candidates if c.kind == "variant"]
-    return list({p.code: p for p in programs}.values())
+    return programs + [variant_program(problem.data, c) for c in problem.candidates if c.kind == "variant"]
 
 
 def run_compile(args: argparse.Namespace) -> dict:
     programs = [p for config in args.configs for p in config_programs(load_config(config), args.all_methods)]
-    get_backend(args.backend).compile(list({p.code: p for p in programs}.values()))
-    return {"programs": len(programs)}
+    get_backend(args.backend).compile(programs)
+    return {"programs": len({p.code for p in programs})}
 
 
 def _one_line(err: Exception) -> str:

@@ -39,7 +39,7 @@ from .calibrate import calibrate, choose_method, stan_programs
 from .data import CalibrationData, DataError
 from .gap_location import GapLocation, interval, locate_gap
 from .mean_terms import FormulaError, build_mean_terms
-from .models import Likelihood
+from .observations import LINKS
 from .result import CalibrationResult
 from .scoring import PARETO_K_LIMIT, Score, kfold_score, psis_score, refit_unreliable
 from .seeds import command_seed
@@ -51,12 +51,6 @@ logger = logging.getLogger("stancal")
 # this many folds costs less than refitting each of them
 FALLBACK_FOLDS = 5
 
-
-
-# what the discrepancy is measured in, per likelihood (its link scale)
-DISCREPANCY_SCALES = {Likelihood.GAUSSIAN: "output units", Likelihood.POISSON: "log of the mean count",
-                      Likelihood.NEGBINOMIAL: "log of the mean count",
-                      Likelihood.BINOMIAL: "logit of the success probability"}
 
 
 class CandidateError(ValueError):
@@ -112,7 +106,7 @@ class GapAnalysis:
         out = {
             "baseline": {
                 "method": self.baseline.method,
-                "discrepancy_scale": DISCREPANCY_SCALES[self.baseline.data.observations.likelihood],
+                "discrepancy_scale": LINKS[self.baseline.data.observations.likelihood].scale,
                 "theta": base_theta,
                 "discrepancy_rms": interval(base.discrepancy_rms),
                 "discrepancy_variation": interval(base.discrepancy_variation),

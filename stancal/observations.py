@@ -30,15 +30,18 @@ class Link:
     transform: Callable[[np.ndarray], np.ndarray]
     defined: Callable[[np.ndarray], np.ndarray]
     requirement: str
+    scale: str  # what the discrepancy is measured in on this scale
 
 
-_LOG = Link(np.log, lambda v: v > 0, "a mean count > 0 (log link)")
+_LOG = Link(np.log, lambda v: v > 0, "a mean count > 0 (log link)", "log of the mean count")
 LINKS = {
-    Likelihood.GAUSSIAN: Link(lambda v: v, lambda v: np.ones(v.shape, dtype=bool), "a real number"),
+    Likelihood.GAUSSIAN: Link(lambda v: v, lambda v: np.ones(v.shape, dtype=bool), "a real number",
+                              "output units"),
     Likelihood.POISSON: _LOG,
     Likelihood.NEGBINOMIAL: _LOG,
     Likelihood.BINOMIAL: Link(lambda v: np.log(v / (1 - v)), lambda v: (v > 0) & (v < 1),
-                              "a success probability strictly between 0 and 1 (logit link)"),
+                              "a success probability strictly between 0 and 1 (logit link)",
+                              "logit of the success probability"),
 }
 
 

@@ -59,8 +59,9 @@ class StanBackend(Protocol):
         ...
 
     def compile(self, programs: list[FlatProgram]) -> None:
-        """Compile the programs that are not compiled yet, in parallel over
-        the machine's cores, so that the fits after it start at once."""
+        """Compile the programs that are not compiled yet (each once, however
+        often it is listed), in parallel over the machine's cores, so that the
+        fits after it start at once."""
         ...
 
     def sample(

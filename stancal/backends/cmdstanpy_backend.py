@@ -59,7 +59,7 @@ class CmdStanPyBackend:
         from concurrent.futures import ThreadPoolExecutor
 
         with ThreadPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
-            list(pool.map(self._model, programs))
+            list(pool.map(self._model, {p.code: p for p in programs}.values()))  # each program once
 
     def sample(
         self,
