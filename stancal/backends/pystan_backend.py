@@ -4,10 +4,8 @@ from __future__ import annotations
 
 import contextlib
 import functools
-import io
 import json
 import logging
-import os
 import subprocess
 import sys
 import tempfile
@@ -20,77 +18,9 @@ import numpy as np
 
 from ..stan_source import FlatProgram, StanProgramError
 from .base import SAMPLER_STATS, Draws, SampleOutput, StanRuntimeError, fresh_prediction_normals
+from .pystan_compile import compile_programs, is_compiled, held_output
 
 logger = logging.getLogger("stancal")
-
-def _is_compiled(code: str) -> bool:
-    import httpstan.cache
-    import httpstan.models
-
-    try:
-        name = httpstan.models.calculate_model_name(code)
-        return httpstan.cache.model_directory(name).exists()
-    except Exception:  # cache layout is httpstan's business; assume a compile
-        return False
-
-
-@contextlib.contextmanager
-def _quiet_build():
-    """Hold back what a build prints: PyStan's stanc warnings about the flat
-    program (print) and g++'s pages of warnings (a subprocess writing to file
-    descriptors 1 and 2). Shown only if the build fails."""
-    with tempfile.TemporaryFile(mode="w+b") as held, \
-            contextlib.redirect_stdout(io.StringIO()) as printed, contextlib.redirect_stderr(printed):
-        saved = [os.dup(1), os.dup(2)]
-        try:
-            for fd in (1, 2):
-                os.dup2(held.fileno(), fd)
-            yield
-        except Exception:
-            for fd, copy in zip((1, 2), saved):
-                os.dup2(copy, fd)
-            held.seek(0)
-            tail = (printed.getvalue() + held.read().decode(errors="replace")).strip().splitlines()[-20:]
-            if tail:
-                logger.warning("the failed build printed:\n%s", "\n".join(tail))
-            raise
-        finally:
-            for fd, copy in zip((1, 2), saved):
-                os.dup2(copy, fd)
-                os.close(copy)
-
-
-def _compile_into_cache(code: str) -> None:
-    """Build a program's extension module into httpstan's cache, as httpstan's
-    own create-model request does (httpstan.views.handle_create_model), but
-    without stan.build's HTTP request, which times out after 5 minutes."""
-    import asyncio
-
-    import httpstan.cache
-    import httpstan.compile
-    import httpstan.models
-
-    if _is_compiled(code):
-        return
-    name = httpstan.models.calculate_model_name(code)
-    httpstan.cache.delete_model_directory(name)
-    _, stanc_warnings = httpstan.compile.compile(code, f"model_{name.split('/')[1]}")
-    httpstan.cache.dump_stanc_warnings(stanc_warnings, name)
-    output = asyncio.run(httpstan.models.build_services_extension_module(code))
-    httpstan.cache.dump_services_extension_module_compiler_output(output, name)
-
-
-def _compile_in_subprocess(program: FlatProgram) -> None:
-    """One compile in its own Python process (its g++ output held back), so
-    that several run side by side; a subprocess rather than multiprocessing,
-    which would re-import the user's script in every worker."""
-    script = ("import sys; from stancal.backends.pystan_backend import _compile_into_cache; "
-              "_compile_into_cache(sys.stdin.read())")
-    done = subprocess.run([sys.executable, "-c", script], input=program.code, capture_output=True, text=True)
-    if done.returncode != 0:
-        tail = "\n".join((done.stdout + done.stderr).strip().splitlines()[-20:])
-        raise StanRuntimeError(f"compiling {program.origin[0][0] if program.origin else 'the program'} "
-                               f"failed:\n{tail}")
 
 
 def _draw(parameters: Draws, chain: int, draw: int) -> dict[str, Any]:
@@ -102,6 +32,26 @@ def _by_chain(flat: np.ndarray, dims: list[int], chains: int) -> np.ndarray:
     """PyStan's (*dims, draw * chains) with chain varying fastest -> (chain, draw, *dims)."""
     draws = flat.shape[-1] // chains
     return np.moveaxis(flat.reshape(*dims, draws, chains), [-1, -2], [0, 1])
+
+
+@contextlib.contextmanager
+def _sampling_output(model_name: str):
+    """PyStan's sampling output, tamed. In a terminal its progress bar stays;
+    otherwise (a log file, CI) its line per progress step and Stan's
+    informational messages are held back (shown if sampling fails), stancal
+    logs one line per fit instead. httpstan keeps every seeded fit's draws in
+    its cache, gigabytes over time, and would serve the same draws again for
+    the same seed and data: the fits made here are deleted once read."""
+    import httpstan.cache
+
+    fits = httpstan.cache.model_directory(model_name) / "fits"
+    before = set(fits.glob("*")) if fits.is_dir() else set()
+    try:
+        with contextlib.nullcontext() if sys.stderr.isatty() else held_output():
+            yield
+    finally:
+        for path in (set(fits.glob("*")) if fits.is_dir() else set()) - before:
+            path.unlink(missing_ok=True)
 
 
 @functools.cache
@@ -129,7 +79,7 @@ class PyStanBackend:
         # times out after 5 minutes: a compile can take longer on a busy 2-core machine
         self.compile([program])
         try:
-            with _quiet_build():
+            with held_output():
                 return stan.build(program.code, data=data, random_seed=seed)
         except ValueError as err:  # stanc errors and data errors arrive as ValueError
             raise StanProgramError(program.explain(str(err))) from None
@@ -137,20 +87,9 @@ class PyStanBackend:
             raise StanRuntimeError(program.explain(str(err))) from None
 
     def compile(self, programs: list[FlatProgram]) -> None:
-        from concurrent.futures import ThreadPoolExecutor
-
-        todo = {p.code: p for p in programs if not _is_compiled(p.code)}
-        if not todo:
-            return
-        for program in todo.values():  # stanc's errors and warnings first, with the user's lines
-            self.check(program, show_warnings=True)
-        workers = min(len(todo), os.cpu_count() or 1)
-        logger.warning("Compiling %d Stan program%s with PyStan, %d at a time (%s); each takes one to "
-                       "five minutes the first time, later runs use the cache.", len(todo),
-                       "s" if len(todo) > 1 else "", workers,
-                       ", ".join(Path(p.origin[0][0]).name if p.origin else "?" for p in todo.values()))
-        with ThreadPoolExecutor(max_workers=workers) as pool:  # each thread waits on one subprocess
-            list(pool.map(_compile_in_subprocess, todo.values()))
+        for program in {p.code: p for p in programs if not is_compiled(p.code)}.values():
+            self.check(program, show_warnings=True)  # stanc's errors first, with the user's lines
+        compile_programs(programs)
 
     @staticmethod
     def check(program: FlatProgram, show_warnings: bool = False) -> None:
@@ -192,11 +131,14 @@ class PyStanBackend:
         )
         if inits is not None:
             kwargs["init"] = inits
+        logger.info("sampling %d chains x (%d warmup + %d draws)", chains, warmup, draws)
         try:
-            fit = model.sample(**kwargs)
+            with _sampling_output(model.model_name):
+                fit = model.sample(**kwargs)
         except RuntimeError as err:
             raise StanRuntimeError(self._explain_failure(model, program, inits, err)) from None
         finished = time.perf_counter()
+        logger.info("sampled in %.0f s", finished - compiled)
         names = [n for n in fit.param_names]
         draws_out = {
             n: _by_chain(np.asarray(fit[n]), list(fit.dims[i]), chains)
