@@ -32,8 +32,8 @@ def _parser() -> argparse.ArgumentParser:
         command.add_argument("config", type=Path, help="TOML config (paths inside are relative to it)")
         command.add_argument("--out", type=Path, required=True, help="output folder")
         command.add_argument("--chains", type=int, default=4)
-        command.add_argument("--warmup", type=int, default=500)
-        command.add_argument("--draws", type=int, default=500)
+        command.add_argument("--warmup", type=int, default=1000)
+        command.add_argument("--draws", type=int, default=1000)
         command.add_argument("--seed", type=int, default=None)
         command.add_argument("--backend", choices=BACKENDS, default=None)
     for command in (cal, gap):
