@@ -28,7 +28,8 @@ timed() {  # timed LABEL TARGET_SECONDS SCRATCH COMMAND...: run in the clone, pr
   printf '%-48s %5s s   target %4s s   %s   (log: %s)\n' "$label" "$seconds" "$target" \
       "$([ "$status" -eq 0 ] && { [ "$seconds" -le "$target" ] && echo met || echo MISSED; } || echo "FAILED ($status)")" \
       "$scratch/output.log"
-  grep -h "stage\|^gap:\|^koh\|^modular" "$scratch/output.log" | sed 's/^/    /' || true
+  grep -h "set-up\|compiled\|sampled in\|^gap:\|^koh\|^modular\|^Time:" "$scratch/output.log" \
+      "$scratch"/stancal/*/report.md 2>/dev/null | sed 's/^/    /' || true
 }
 
 if [ "$which" = demo ] || [ "$which" = both ]; then

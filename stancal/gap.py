@@ -43,6 +43,7 @@ from .observations import LINKS
 from .result import CalibrationResult
 from .scoring import PARETO_K_LIMIT, Score, kfold_score, psis_score, refit_unreliable
 from .seeds import command_seed
+from .stopwatch import Stopwatch
 from .stan_source import FlatProgram, StanProgramError
 
 logger = logging.getLogger("stancal")
@@ -97,6 +98,8 @@ class GapAnalysis:
     baseline_score: Score
     location: GapLocation
     candidates: list[CandidateFit]  # best first
+    # wall-clock seconds of each stage: compile, fits, refits (K-fold or exact LOO), locate
+    timing: dict[str, float] = field(default_factory=dict)
 
     def to_json(self) -> dict[str, Any]:
         y = self.baseline.data.physical[self.baseline.data.output].to_numpy()
@@ -119,6 +122,7 @@ class GapAnalysis:
             },
             "where": self.location.to_json(),
             "candidates": [],
+            "timing": {k: round(v, 1) for k, v in self.timing.items()},
         }
         for fit in self.candidates:
             s = fit.score
@@ -235,9 +239,11 @@ def diagnose_gap(
     chosen = choose_method(data, simulator, method)
     stan_backend = get_backend(calibrate_options.get("backend"))
     check_candidates(data, candidates, stan_backend)
+    clock = Stopwatch()
     # every program up front, side by side on the machine's cores
     stan_backend.compile([*stan_programs(chosen, simulator),
                           *(variant_program(data, c) for c in candidates if c.kind == "variant")])
+    clock.lap("compile")
     seed = command_seed(seed)
     out = Path(out_dir) if out_dir is not None else None
     # every fit has a constant in the discrepancy mean, so that no candidate
@@ -267,6 +273,7 @@ def diagnose_gap(
         d = data_for(candidate)
         fits.append(fitter(candidate, folder)(d, d.source.reset_index(drop=True)))
 
+    clock.lap("fits")
     scores = [psis_score(r) for r in fits]
     unreliable = {label_name(c): s.unreliable.size for c, s in zip(labels, scores) if s.unreliable.size}
     if kfold is None and max(unreliable.values(), default=0) > FALLBACK_FOLDS:
@@ -282,8 +289,10 @@ def diagnose_gap(
                       "observations is scored by an exact refit without it", GapWarning, stacklevel=2)
         scores = [refit_unreliable(data_for(c), fitter(c, None), s) for c, s in zip(labels, scores)]
 
+    clock.lap("refits")
     location = locate_gap(fits[0], seed=seed)
+    clock.lap("locate")
     ranked = sorted(
         (CandidateFit(c, r, s) for c, r, s in zip(candidates, fits[1:], scores[1:])),
         key=lambda f: -(f.score.elpd_i - scores[0].elpd_i).sum())
-    return GapAnalysis(fits[0], scores[0], location, ranked)
+    return GapAnalysis(fits[0], scores[0], location, ranked, clock.laps)

@@ -143,6 +143,10 @@ def report_markdown(summary: dict, figures: list[Path]) -> str:
               f"{_fmt(c['shrinkage'])} | {_fmt(c['discrepancy_rms'])} | "
               + "; ".join(f"{k} {_fmt(v)}" for k, v in c["theta"].items())
               + f" | {c['holdout_rmse']:.4g} |" for c in cands)]
+    timing = summary.get("timing", {})
+    if timing:
+        lines += ["", "Time: " + ", ".join(f"{stage} {seconds:.0f} s" for stage, seconds in timing.items())
+                  + f" (refits: {base['refits'] + sum(c['refits'] for c in cands)} fits)."]
     warned = [(c["name"], w) for c in [{"name": "baseline", **base}, *cands]
               for w in c["diagnostics"].get("warnings", [])]
     if warned:

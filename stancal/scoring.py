@@ -26,7 +26,7 @@ class Score:
     pareto_k: np.ndarray  # PSIS's Pareto k per observation; NaN under K-fold
     scheme: str  # "psis-loo", "psis-loo+refits" or "kfold"
     remaining: np.ndarray  # draws (draws, N): the discrepancy GP plus its constant at the physical points
-    refits: int = 0  # observations scored by an exact refit without them
+    refits: int = 0  # fits beyond the main one: one per refitted observation, or K under K-fold
 
     @property
     def discrepancy_rms(self) -> np.ndarray:
@@ -104,7 +104,7 @@ def kfold_score(data: CalibrationData, fit, k: int, seed: int, remaining: np.nda
     for fold in range(k):
         test = np.flatnonzero(folds == fold)
         elpd[test], mean[test] = _held_out(data, fit, test)
-    return Score(elpd, mean, np.full(n, np.nan), "kfold", remaining)
+    return Score(elpd, mean, np.full(n, np.nan), "kfold", remaining, refits=k)
 
 
 def refit_unreliable(data: CalibrationData, fit, score: Score) -> Score:

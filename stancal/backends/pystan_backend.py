@@ -131,7 +131,6 @@ class PyStanBackend:
         )
         if inits is not None:
             kwargs["init"] = inits
-        logger.info("sampling %d chains x (%d warmup + %d draws)", chains, warmup, draws)
         try:
             with _sampling_output(model.model_name):
                 fit = model.sample(**kwargs)

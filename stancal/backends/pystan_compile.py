@@ -22,6 +22,7 @@ import shutil
 import subprocess
 import sys
 import tempfile
+import time
 from concurrent.futures import ThreadPoolExecutor
 from importlib.machinery import EXTENSION_SUFFIXES
 from pathlib import Path
@@ -125,7 +126,11 @@ def _install(code: str, module: Path) -> None:
     _, stanc_warnings = httpstan.compile.compile(code, f"model_{name.split('/')[1]}")
     httpstan.cache.dump_stanc_warnings(stanc_warnings, name)
     httpstan.cache.dump_services_extension_module_compiler_output("", name)
-    shutil.copy2(module, folder / f"stan_services_model_{name.split('/')[1]}{EXTENSION_SUFFIXES[0]}")
+    target = folder / f"stan_services_model_{name.split('/')[1]}{EXTENSION_SUFFIXES[0]}"
+    try:
+        os.link(module, target)  # one copy on disk; either name may be deleted
+    except OSError:  # another file system
+        shutil.copy2(module, target)
 
 
 def compile_into_cache(code: str) -> None:
@@ -193,5 +198,9 @@ def compile_programs(programs: list[FlatProgram]) -> None:
                        "three minutes the first time on this machine, later runs use the cache.",
                        len(building), "s" if len(building) > 1 else "", workers,
                        ", ".join(Path(p.origin[0][0]).name if p.origin else "?" for p in building))
+    started = time.perf_counter()
     with ThreadPoolExecutor(max_workers=os.cpu_count() or 1) as pool:  # each thread waits on one subprocess
         list(pool.map(_compile_in_subprocess, todo.values()))
+    if building:
+        logger.info("compiled %d program%s in %.0f s", len(building), "s" if len(building) > 1 else "",
+                    time.perf_counter() - started)
