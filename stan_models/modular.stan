@@ -55,6 +55,11 @@ transformed data {
     emulator_run_cov(xt_sim, kernel_id, emulator_sd, emulator_length_scale, emulator_nugget));
   vector[M] alpha_sim = mdivide_right_tri_low(mdivide_left_tri_low(L_sim, y_sim - emulator_mean)',
                                               L_sim)';
+  // the physical points share theta, so the emulator's covariance among them
+  // has no theta part: data. Squared exponential: the points' covariance with
+  // the runs factorises into an x part (data here) and a theta part (theta_factor).
+  matrix[N, N] K_obs = ard_cov(x, kernel_id, emulator_sd, emulator_length_scale[1:D]);
+  matrix[N, M] K_obs_sim_x = gp_exp_quad_cov(x, x_sim, emulator_sd, emulator_length_scale[1:D]);
   if (P_normals != 0 && P_normals != P) reject("P_normals must be 0 or P = ", P, "; got ", P_normals);
 }
 parameters {
@@ -81,13 +86,14 @@ model {
   rho_free ~ normal(1, 0.25);
   beta ~ normal(0, beta_prior_sd);
   if (!prior_only) {
-    array[N] vector[D + Q] xt_obs = append_theta(x, theta_unit);
-    matrix[N, M] K_obs_sim = ard_cross_cov(xt_obs, xt_sim, kernel_id, emulator_sd,
-                                           emulator_length_scale);
+    matrix[N, M] K_obs_sim = kernel_id == 1
+      ? diag_post_multiply(K_obs_sim_x, theta_factor(theta_unit, theta_sim,
+                                                     emulator_length_scale[(D + 1):(D + Q)]))
+      : ard_cross_cov(append_theta(x, theta_unit), xt_sim, kernel_id, emulator_sd,
+                      emulator_length_scale);
     matrix[M, N] A = mdivide_left_tri_low(L_sim, K_obs_sim');
     vector[N] emulator_mean_obs = emulator_mean + K_obs_sim * alpha_sim;
-    matrix[N, N] K = square(rho) * (ard_cov(xt_obs, kernel_id, emulator_sd, emulator_length_scale)
-                                    - crossprod(A));
+    matrix[N, N] K = square(rho) * (K_obs - crossprod(A));
     if (use_discrepancy) {
       K += ard_cov(x_delta, kernel_id, delta_sd[1], delta_length_scale);
     }

@@ -31,7 +31,6 @@ from .standata import (
 
 logger = logging.getLogger("stancal")
 
-STAGE_ONE_WARMUP, STAGE_ONE_DRAWS = 300, 150  # per chain, for modular's emulator fit
 L2 = "l2"  # not a Stan program: the projection of another method's zeta draws
 _DIAGNOSED = ["theta", "noise_sd", "delta_sd", "delta_length_scale", "delta_relevance", "rho", "beta", "phi",
               "theta_function_sd", *EMULATOR_HYPERPARAMETERS]
@@ -195,11 +194,8 @@ def calibrate(
     emulator: dict[str, Any] = {}
     if stage_one:
         logger.info("stage 1: fitting the emulator to %d runs", len(data.runs))
-        # stage 1 yields plug-in medians: a few hundred draws fix them to a
-        # small fraction of their posterior sd, and cost a third of the full run
         emulator = fit_emulator(data, options, stage_one[0], backend=stan_backend, chains=chains,
-                                warmup=min(warmup, STAGE_ONE_WARMUP), draws=min(draws, STAGE_ONE_DRAWS),
-                                seed=seed)
+                                warmup=warmup, draws=draws, seed=seed)
     stan_data = build_stan_data(data, chosen, options, fit_points,
                                 emulator_hyperparameters=emulator.get("hyperparameters"))
     inits = spread_theta_inits(chains, len(data.parameters), np.random.default_rng(seed))

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
+from stancal.backends.pystan_compile import compile_programs
 from stancal.kernels import ard_cross_cov
 from stancal.models import Kernel
 from stancal.stan_source import flatten
@@ -52,7 +53,9 @@ def gq():
                 A_restrict=A_RESTRICT.tolist(), ridge=RIDGE, X_sim=X_SIM.tolist(),
                 theta_sim=THETA_SIM.tolist(), theta_lo=THETA_LO.tolist(), theta_hi=THETA_HI.tolist(),
                 z_draw=Z_DRAW.tolist(), **OBSERVATIONS)
-    model = stan.build(flatten(HARNESS).code, data=data, random_seed=1)
+    harness = flatten(HARNESS)
+    compile_programs([harness])  # stancal's build: no debug information, and no 5-minute HTTP timeout
+    model = stan.build(harness.code, data=data, random_seed=1)
     fit = model.fixed_param(num_samples=1, num_chains=1)
     return {name: np.asarray(fit[name])[..., 0] for name in fit.param_names}
 
@@ -60,6 +63,12 @@ def gq():
 def test_squared_exponential(gq):
     np.testing.assert_allclose(gq["se_cross"], se(X1, X2), rtol=1e-10)
     np.testing.assert_allclose(gq["se_sym"], se(X1, X1), rtol=1e-10)
+
+
+def test_the_squared_exponential_factorises_into_x_and_theta(gq):
+    shared_theta = X1.copy()
+    shared_theta[:, 1] = X1[0, 1]
+    np.testing.assert_allclose(gq["se_cross_shared_theta"], se(shared_theta, X2), rtol=1e-10)
 
 
 def test_matern52(gq):

@@ -100,3 +100,23 @@ array[] vector append_theta(array[] vector x, vector theta_unit) {
   }
   return xt;
 }
+
+/**
+ * The theta factor of the squared-exponential kernel over (x, theta)
+ * between one theta and each run's theta: the kernel is the x factor times
+ * exp(-0.5 sum_q ((theta_q - theta_jq) / l_q)^2). A program whose only
+ * parameter among the kernel's inputs is theta keeps the x factor as data
+ * (modular.stan).
+ *
+ * @param theta_unit theta on the unit cube
+ * @param theta_sim the runs' theta on the unit cube
+ * @param length_scale the emulator's theta length scales
+ * @return one factor per run
+ */
+vector theta_factor(vector theta_unit, array[] vector theta_sim, array[] real length_scale) {
+  int m = size(theta_sim);
+  vector[num_elements(theta_unit)] inv_length_scale = inv(to_vector(length_scale));
+  vector[m] factor;
+  for (j in 1:m) factor[j] = exp(-0.5 * dot_self((theta_unit - theta_sim[j]) .* inv_length_scale));
+  return factor;
+}

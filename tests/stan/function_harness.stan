@@ -20,6 +20,11 @@ array[] vector first_coordinate(array[] vector x) {
   for (i in 1:size(x)) out[i] = x[i][1:1];
   return out;
 }
+array[] vector second_coordinate(array[] vector x) {
+  array[size(x)] vector[1] out;
+  for (i in 1:size(x)) out[i] = x[i][2:2];
+  return out;
+}
 }
 data {
   int<lower=1> n1;
@@ -52,6 +57,11 @@ generated quantities {
   matrix[n1, n2] m52_cross = ard_cross_cov(x1, x2, 2, sd_, ls);
   matrix[n1, n1] se_sym = ard_cov(x1, 1, sd_, ls);
   matrix[n1, n1] m52_sym = ard_cov(x1, 2, sd_, ls);
+  // points x1 that share the second coordinate of x1[1] (a theta), against x2:
+  // the x factor times theta_factor, as modular.stan computes it
+  matrix[n1, n2] se_cross_shared_theta = diag_post_multiply(
+    gp_exp_quad_cov(first_coordinate(x1), first_coordinate(x2), sd_, ls[1:1]),
+    theta_factor(x1[1][2:2], second_coordinate(x2), ls[2:2]));
   tuple(vector[n1], vector[n1]) loo_both = mvn_loo(resid, cholesky_decompose(add_diag(se_sym, 0.1)));
   vector[n1] loo = loo_both.1;
   vector[n1] loo_mean = loo_both.2;
