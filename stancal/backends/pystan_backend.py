@@ -18,7 +18,7 @@ import numpy as np
 
 from ..stan_source import FlatProgram, StanProgramError
 from .base import SAMPLER_STATS, Draws, SampleOutput, StanRuntimeError, fresh_prediction_normals
-from .pystan_compile import compile_programs, is_compiled, held_output
+from .pystan_compile import compile_programs, held_output, is_compiled
 
 logger = logging.getLogger("stancal")
 

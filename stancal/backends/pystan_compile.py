@@ -151,7 +151,7 @@ def compile_into_cache(code: str) -> None:
 def held_output():
     """Hold back what a build or a run prints: PyStan's stanc warnings about the flat
     program (print) and g++'s pages of warnings (a subprocess writing to file
-    descriptors 1 and 2). Shown only if the build fails."""
+    descriptors 1 and 2). Shown only if it fails."""
     with tempfile.TemporaryFile(mode="w+b") as held, \
             contextlib.redirect_stdout(io.StringIO()) as printed, contextlib.redirect_stderr(printed):
         saved = [os.dup(1), os.dup(2)]
