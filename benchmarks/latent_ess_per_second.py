@@ -3,7 +3,7 @@ latent-GP programs on their case studies: Poisson counts with a GP
 discrepancy (cheap simulator and runs), censored decay data, and a
 functional Young's modulus.
 
-    .venv/bin/python benchmarks/latent_ess_per_second.py [--chains 2] [--draws 1000]
+    .venv/bin/python benchmarks/latent_ess_per_second.py [--chains 4] [--warmup 500] [--draws 500]
 
 ESS/s = min bulk ESS of theta / seconds of sampling (warmup included; with
 runs, stage 1's emulator fit too), chains in parallel on the machine's cores.

@@ -2,7 +2,7 @@
 // calibration written as a user would write it by hand in Stan, with no
 // stancal machinery. One GP emulator over (x, theta) trained on the runs,
 // a GP discrepancy over x, Gaussian noise, everything sampled jointly:
-//   y_sim_j = f(x_sim_j, t_sim_j),   y_i = f(x_i, theta) + delta(x_i) + eps_i.
+//   y_sim_j = f(x_sim_j, theta_sim_j),   y_i = f(x_i, theta) + delta(x_i) + eps_i.
 // Inputs and theta on the unit cube, outputs standardised (by the caller).
 data {
   int<lower=1> N;
@@ -12,12 +12,12 @@ data {
   array[N] vector[D] x;
   vector[N] y;
   array[M] vector[D] x_sim;
-  array[M] vector[Q] t_sim;
+  array[M] vector[Q] theta_sim;
   vector[M] y_sim;
 }
 transformed data {
   array[M] vector[D + Q] xt_sim;
-  for (j in 1:M) xt_sim[j] = append_row(x_sim[j], t_sim[j]);
+  for (j in 1:M) xt_sim[j] = append_row(x_sim[j], theta_sim[j]);
   vector[M + N] z = append_row(y_sim, y);
 }
 parameters {

@@ -12,7 +12,6 @@ version), and installs it into httpstan's cache on demand.
 
 from __future__ import annotations
 
-import asyncio
 import contextlib
 import hashlib
 import io
@@ -44,7 +43,8 @@ def store_directory() -> Path:
     """The machine's store of compiled modules ($STANCAL_CACHE, else the user cache)."""
     import httpstan
 
-    root = os.environ.get("STANCAL_CACHE") or Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "stancal"
+    user_cache = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
+    root = os.environ.get("STANCAL_CACHE") or user_cache / "stancal"
     tag = f"httpstan-{httpstan.__version__}-py{sys.version_info[0]}{sys.version_info[1]}"
     return Path(root) / "pystan" / tag
 
@@ -115,16 +115,16 @@ def _build_module(code: str, folder: Path) -> Path:
 
 
 def _install(code: str, module: Path) -> None:
-    """Put a built module where httpstan looks for the program."""
+    """Put a built module where httpstan looks for the program. stanc's
+    warnings are left out: stancal shows them itself, with the user's file
+    and line (PyStanBackend.check), and holds back what stan.build prints."""
     import httpstan.cache
-    import httpstan.compile
 
     name = _model_name(code)
     httpstan.cache.delete_model_directory(name)
     folder = httpstan.cache.model_directory(name)
     folder.mkdir(parents=True)
-    _, stanc_warnings = httpstan.compile.compile(code, f"model_{name.split('/')[1]}")
-    httpstan.cache.dump_stanc_warnings(stanc_warnings, name)
+    httpstan.cache.dump_stanc_warnings("", name)
     httpstan.cache.dump_services_extension_module_compiler_output("", name)
     target = folder / f"stan_services_model_{name.split('/')[1]}{EXTENSION_SUFFIXES[0]}"
     try:
@@ -165,7 +165,7 @@ def held_output():
             held.seek(0)
             tail = (printed.getvalue() + held.read().decode(errors="replace")).strip().splitlines()[-20:]
             if tail:
-                logger.warning("the failed build printed:\n%s", "\n".join(tail))
+                logger.warning("before failing, it printed:\n%s", "\n".join(tail))
             raise
         finally:
             for fd, copy in zip((1, 2), saved):
@@ -192,14 +192,14 @@ def compile_programs(programs: list[FlatProgram]) -> None:
     if not todo:
         return
     building = [p for p in todo.values() if not _stored_module(p.code).is_file()]
+    workers = min(len(todo), os.cpu_count() or 1)
     if building:
-        workers = min(len(building), os.cpu_count() or 1)
-        logger.warning("Compiling %d Stan program%s with PyStan, %d at a time (%s); each takes one to "
-                       "three minutes the first time on this machine, later runs use the cache.",
-                       len(building), "s" if len(building) > 1 else "", workers,
+        logger.warning("Compiling %d Stan program%s with PyStan, %d at a time (%s); each takes two to "
+                       "four minutes on a 2-core machine, once per machine.",
+                       len(building), "s" if len(building) > 1 else "", min(len(building), workers),
                        ", ".join(Path(p.origin[0][0]).name if p.origin else "?" for p in building))
     started = time.perf_counter()
-    with ThreadPoolExecutor(max_workers=os.cpu_count() or 1) as pool:  # each thread waits on one subprocess
+    with ThreadPoolExecutor(max_workers=workers) as pool:  # each thread waits on one subprocess
         list(pool.map(_compile_in_subprocess, todo.values()))
     if building:
         logger.info("compiled %d program%s in %.0f s", len(building), "s" if len(building) > 1 else "",

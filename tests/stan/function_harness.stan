@@ -15,14 +15,9 @@ vector simulator(matrix X, vector theta) {
 #include observation_model.stan
 #include latent_loo.stan
 #include functional_theta.stan
-array[] vector first_coordinate(array[] vector x) {
+array[] vector coordinate(array[] vector x, int k) {
   array[size(x)] vector[1] out;
-  for (i in 1:size(x)) out[i] = x[i][1:1];
-  return out;
-}
-array[] vector second_coordinate(array[] vector x) {
-  array[size(x)] vector[1] out;
-  for (i in 1:size(x)) out[i] = x[i][2:2];
+  for (i in 1:size(x)) out[i] = x[i][k:k];
   return out;
 }
 }
@@ -60,8 +55,8 @@ generated quantities {
   // points x1 that share the second coordinate of x1[1] (a theta), against x2:
   // the x factor times theta_factor, as modular.stan computes it
   matrix[n1, n2] se_cross_shared_theta = diag_post_multiply(
-    gp_exp_quad_cov(first_coordinate(x1), first_coordinate(x2), sd_, ls[1:1]),
-    theta_factor(x1[1][2:2], second_coordinate(x2), ls[2:2]));
+    gp_exp_quad_cov(coordinate(x1, 1), coordinate(x2, 1), sd_, ls[1:1]),
+    theta_factor(x1[1][2:2], coordinate(x2, 2), ls[2:2]));
   tuple(vector[n1], vector[n1]) loo_both = mvn_loo(resid, cholesky_decompose(add_diag(se_sym, 0.1)));
   vector[n1] loo = loo_both.1;
   vector[n1] loo_mean = loo_both.2;
@@ -96,12 +91,12 @@ generated quantities {
   // the latent emulator at x1 (with theta 0.3) given runs x2 and outputs resid[1:4], z = 0: its mean
   vector[n1] emulator_mean_at = emulator_latent(
     cholesky_decompose(add_diag(ard_cov(x2, 1, sd_, ls), 0.01)), x2, resid[1:n2],
-    append_theta(first_coordinate(x1), [0.3]'), 1, 0.2, sd_, ls, rep_vector(0, n1));
+    append_theta(coordinate(x1, 1), [0.3]'), 1, 0.2, sd_, ls, rep_vector(0, n1));
   // theta rows: theta 1 scalar, theta 2 functional with logit values at two points
   matrix[2, 2] theta_rows = theta_rows_original(theta_unit_rows([0.25, 0.5]', {0, 1}, [[0.0], [2.0]]),
                                                 [0, 10]', [1, 20]');
   matrix[n2 + n1, n2 + n1] joint = koh_joint_cov(
-    x2, append_theta(first_coordinate(x1), [0.3]'), x1, 1, sd_, ls, 0.01, 1.3, {0.7}, {0.4, 0.6}, 0.2);
+    x2, append_theta(coordinate(x1, 1), [0.3]'), x1, 1, sd_, ls, 0.01, 1.3, {0.7}, {0.4, 0.6}, 0.2);
   // latent LOO of the four observations with delta = resid[1:4] at x2 (nugget 0.01), for each
   // observation model (row k: likelihood_id k), y_center 0.2 and y_scale 1.5
   matrix[4, 4] latent_loo_lik;
