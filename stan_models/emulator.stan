@@ -2,7 +2,8 @@
 // modular calibration (Bayarri et al. 2007b; Liu et al. 2009).
 //   y_sim_j = f(x_sim_j, theta_sim_j) + nugget_j,
 //   f ~ GP(emulator_mean, ARD kernel over (x, theta)).
-// Stancal fixes the hyperparameters at their posterior medians for stage 2.
+// Stancal fixes the hyperparameters at their posterior mode on the
+// unconstrained scale (found by optimisation) for stage 2.
 functions {
 #include gp_kernels.stan
 #include loo.stan

@@ -99,6 +99,14 @@ class StanBackend(Protocol):
         """generate_quantities with the program and data bound once, for many calls."""
         ...
 
+    def posterior_mode(
+        self, program: FlatProgram, data: dict[str, Any], *, starts: int, seed: int
+    ) -> tuple[Draws, float]:
+        """The posterior's mode on the unconstrained scale (the log density with
+        its Jacobian, as lp__), the best of ``starts`` L-BFGS runs from Stan's
+        random inits: the parameters as one draw (1, 1, ...), and its lp."""
+        ...
+
     def log_density_functions(
         self, program: FlatProgram, data: dict[str, Any]
     ) -> tuple[Callable[[Draws], np.ndarray], Callable[[np.ndarray], np.ndarray]]:

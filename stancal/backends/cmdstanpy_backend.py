@@ -131,6 +131,25 @@ class CmdStanPyBackend:
 
         return run
 
+    def posterior_mode(self, program: FlatProgram, data: dict[str, Any], *, starts: int,
+                       seed: int) -> tuple[Draws, float]:
+        model = self._model(program)
+        names = self.parameter_names(program)
+        best = None
+        for start in range(starts):
+            try:
+                fit = model.optimize(data=data, seed=seed + start, jacobian=True, algorithm="lbfgs")
+            except RuntimeError as err:
+                logger.info("optimisation from start %d failed: %s", start + 1, err)
+                continue
+            lp = float(fit.optimized_params_dict["lp__"])
+            if best is None or lp > best[1]:
+                best = ({n: np.asarray(fit.stan_variable(n)).reshape(1, 1, *np.shape(fit.stan_variable(n)))
+                         for n in names}, lp)
+        if best is None:
+            raise StanRuntimeError(program.explain(f"optimisation failed from all {starts} starting points"))
+        return best
+
     def log_density_functions(self, program: FlatProgram, data: dict[str, Any]):
         # cmdstanpy evaluates log densities one CmdStan process at a time and
         # has no unconstrain; BridgeStan would, but is not a dependency

@@ -217,6 +217,43 @@ class PyStanBackend:
 
         return run
 
+    def posterior_mode(self, program: FlatProgram, data: dict[str, Any], *, starts: int,
+                       seed: int) -> tuple[Draws, float]:
+        import httpstan.models
+        from scipy.optimize import minimize
+
+        model = self._build(program, data, seed)
+        services = httpstan.models.import_services_extension_module(model.model_name)
+        names = self.parameter_names(program)
+        dims = [list(d) for d in model.dims[: len(names)]]
+        dimension = len(services.transform_inits(
+            model.data, {n: np.full(d, 0.5).tolist() for n, d in zip(names, dims)}))
+
+        def negative_log_density(point: np.ndarray) -> tuple[float, np.ndarray]:
+            try:
+                lp = services.log_prob(model.data, point.tolist(), True)
+                gradient = services.log_prob_grad(model.data, point.tolist(), True)
+            except RuntimeError:  # outside the support: L-BFGS's line search backs off
+                return np.inf, np.zeros(dimension)
+            return -lp, -np.asarray(gradient)
+
+        rng = np.random.default_rng(seed)
+        runs = [minimize(negative_log_density, rng.uniform(-2, 2, dimension), jac=True, method="L-BFGS-B")
+                for _ in range(starts)]  # Stan's default inits: uniform(-2, 2) unconstrained
+        best = min(runs, key=lambda run: run.fun)
+        if not np.isfinite(best.fun):
+            raise StanRuntimeError(program.explain(
+                f"no finite log density found from {starts} starting points: {best.message}"))
+        flat = np.asarray(services.write_array(model.data, best.x.tolist(), False, False))
+        mode: Draws = {}
+        offset = 0
+        for name, shape in zip(names, dims):
+            size = int(np.prod(shape))
+            # Stan flattens column-major
+            mode[name] = flat[offset: offset + size].reshape(shape[::-1]).T.reshape(1, 1, *shape)
+            offset += size
+        return mode, -float(best.fun)
+
     def log_density_functions(self, program: FlatProgram, data: dict[str, Any]):
         import httpstan.models
 
