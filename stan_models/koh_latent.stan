@@ -54,6 +54,7 @@ data {
   int<lower=0> N_fun;                   // number of distinct values of those inputs among the physical points
   array[N_fun] vector[D_fun] x_fun;     // the distinct values, scaled to [0, 1]
   array[F > 0 ? N : 0] int<lower=1, upper=N_fun> fun_point;  // which of them each physical point has
+  int<lower=0, upper=1> functional_centred;  // 1 = sample theta(x)'s logit values, 0 = their standard normals
   int<lower=0> G;                       // number of grid points for the theta(x) curves
   array[G] vector[D_fun] x_fun_grid;    // the grid, scaled like x_fun
   int<lower=0, upper=1> prior_only;     // 1 = ignore y: draws from the prior
@@ -83,9 +84,13 @@ parameters {
   vector[H] beta;                                         // mean-term coefficients, model-scale units
   vector<lower=0>[F] theta_function_sd;                   // logit scale
   array[F] vector<lower=0>[D_fun] theta_function_length_scale;  // fraction of input range
-  matrix[N_fun, F] theta_function_logit;                  // logit of functional theta (unit scale) at x_fun
+  matrix[N_fun, F] theta_function_raw;    // its logit at x_fun (centred) or their standard normals
 }
 transformed parameters {
+  // logit of functional theta (unit scale) at x_fun
+  matrix[N_fun, F] theta_function_logit = functional_logit_values(
+    theta_function_raw, functional_centred, theta_unit, functional_slot, x_fun, kernel_id, theta_function_sd,
+    theta_function_length_scale);
   // the discrepancy's length scales over all its inputs: a covariate's is 1 / relevance
   array[use_discrepancy ? D_delta : 0] real delta_length_scale
     = discrepancy_length_scales(delta_input_length_scale, delta_relevance);
@@ -111,8 +116,12 @@ model {
   beta ~ normal(0, beta_prior_sd);
   theta_function_sd ~ normal(0, 1.5);
   for (k in 1:F) theta_function_length_scale[k] ~ functional_length_scale();
-  theta_function_logit ~ functional_theta(theta_unit, functional_slot, x_fun, kernel_id, theta_function_sd,
-                                          theta_function_length_scale);
+  if (functional_centred) {
+    theta_function_logit ~ functional_theta(theta_unit, functional_slot, x_fun, kernel_id, theta_function_sd,
+                                            theta_function_length_scale);
+  } else {
+    to_vector(theta_function_raw) ~ std_normal();
+  }
   if (!prior_only) {
     vector[N] eta = simulator_model_scale(likelihood_id, simulator_at_rows(X, theta_points, 0, 1), X,
                                           y_center, y_scale) + h * beta + delta;

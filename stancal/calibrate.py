@@ -14,7 +14,7 @@ from . import diagnostics as sampler_checks
 from . import modes as mode_checks
 from .backends import get_backend
 from .data import CalibrationData
-from .functional import check_functional
+from .functional import check_functional, parametrization_advice
 from .inits import spread_theta_inits
 from .l2 import l2_result
 from .models import LATENT_PROGRAM, RESTRICTED_DISCREPANCIES, Method, ModelOptions, model_spec
@@ -139,6 +139,7 @@ def calibrate(
     scaled_lambda: float | None = None,
     functional: tuple[str, ...] | list[str] = (),
     functional_inputs: tuple[str, ...] | list[str] = (),
+    functional_parametrization: str = "centred",
     new_points: pd.DataFrame | None = None,
     chains: int = 4,
     warmup: int = 1000,
@@ -164,7 +165,10 @@ def calibrate(
     penalty ``scaled_lambda``, default sqrt(N)) or none. orthogonal and scaled
     need method koh. Default: gp, or none with functional theta.
     ``functional``, ``functional_inputs``: theta that vary over inputs,
-    theta_j(x) = lo + (hi - lo) logistic(GP_j(x)) (review section 8.2).
+    theta_j(x) = lo + (hi - lo) logistic(GP_j(x)) (review section 8.2);
+    ``functional_parametrization`` of that GP: centred (data that pin theta(x)
+    closely) or non_centred (noisy or sparse data); a fit whose sampler
+    struggles is told to try the other.
     Non-Gaussian (``CalibrationData(likelihood=...)``) or censored outputs and
     functional theta run on the latent-GP programs koh_latent (simulator) and
     koh_latent_emulator (runs).
@@ -178,7 +182,7 @@ def calibrate(
     if discrepancy is None:  # functional theta are flexible enough without one (review section 8.2)
         discrepancy = "none" if functional else "gp"
     options = ModelOptions(discrepancy, kernel, estimate_rho, mean_formula, mean_intercept, scaled_lambda,
-                           tuple(functional), tuple(functional_inputs))
+                           tuple(functional), tuple(functional_inputs), functional_parametrization)
     check_functional(data, options.functional, options.functional_inputs)
     l2 = method == L2
     if l2:
@@ -251,6 +255,8 @@ def calibrate(
     result.diagnostics = sampler_checks.check_sampler(
         posterior, tree["sample_stats"].to_dataset(), max_treedepth,
         [v for v in posterior if v in _DIAGNOSED or v in parameter_names], [m.chains for m in result.modes])
+    if options.functional:
+        result.diagnostics.messages.extend(parametrization_advice(options, result.diagnostics))
     sampler_checks.report(result.diagnostics)
     mode_checks.report(result.modes, weights_unavailable)
     if out_dir is not None:

@@ -107,6 +107,8 @@ class ModelOptions:
     scaled_lambda: float | None = None  # scaled GP penalty lambda_z; None = sqrt(N)
     functional: tuple[str, ...] = ()  # theta that vary over functional_inputs (review section 8.2)
     functional_inputs: tuple[str, ...] = ()
+    # theta(x)'s latent GP: "centred" (data that pin theta(x)) or "non_centred" (data that do not)
+    functional_parametrization: str = "centred"
 
     def __post_init__(self) -> None:
         # lists from a config or a saved result
@@ -115,6 +117,9 @@ class ModelOptions:
         if self.discrepancy not in DISCREPANCIES:
             raise ValueError(f"discrepancy must be one of {', '.join(DISCREPANCIES)}; "
                              f"got {self.discrepancy!r}")
+        if self.functional_parametrization not in FUNCTIONAL_PARAMETRIZATIONS:
+            raise ValueError(f"functional_parametrization must be one of "
+                             f"{', '.join(FUNCTIONAL_PARAMETRIZATIONS)}; got {self.functional_parametrization!r}")
         if self.kernel not in ("se", "matern52"):
             raise ValueError(f"kernel must be 'se' or 'matern52'; got {self.kernel!r}")
         if self.scaled_lambda is not None and not (np.isfinite(self.scaled_lambda) and self.scaled_lambda > 0):
@@ -128,6 +133,8 @@ class ModelOptions:
     def has_discrepancy(self) -> bool:
         return self.discrepancy != "none"
 
+
+FUNCTIONAL_PARAMETRIZATIONS = ("centred", "non_centred")
 
 # discrepancy_form in koh.stan; "none" switches the discrepancy off
 DISCREPANCIES = {"gp": 1, "orthogonal": 2, "scaled": 3, "none": 1}

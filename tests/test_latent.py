@@ -323,6 +323,61 @@ def test_scalar_theta_misfits_where_the_functional_one_fits(functional_fit):
     assert np.mean((beam.modulus(temperature) > low) & (beam.modulus(temperature) < high)) < 0.2
 
 
+def noisy_beam_data(noise_sd: float = 1.0, points: int = 20, seed: int = 1) -> stancal.CalibrationData:
+    """One load per temperature and ten times the shipped noise: data that
+    pin E(T) only loosely, where a centred theta(x) GP is a funnel (measured at
+    4 x (500 + 500): 1,409 of 2,000 transitions at the maximum tree depth,
+    R-hat 1.03)."""
+    rng = np.random.default_rng(seed)
+    temperature, load = rng.uniform(20, 90, points), rng.choice([50.0, 100.0, 150.0], points)
+    deflection = beam.simulator(load, beam.modulus(temperature)) + noise_sd * rng.standard_normal(points)
+    return stancal.CalibrationData(pd.DataFrame({"load": load, "temperature": temperature, "deflection": deflection}),
+                                   ["load"], "deflection", {"E": beam.E_BOUNDS}, covariates=["temperature"])
+
+
+NOISY_BEAM_SETTINGS = dict(simulator=BEAM / "simulator.stan", functional=["E"], functional_inputs=["temperature"],
+                           chains=4, warmup=500, draws=500)
+
+
+@pytest.fixture(scope="session")
+def non_centred_noisy_beam():
+    return fit(noisy_beam_data(), functional_parametrization="non_centred", **NOISY_BEAM_SETTINGS)
+
+
+def test_non_centred_functional_theta_samples_loosely_pinned_data(non_centred_noisy_beam):
+    diagnostics = non_centred_noisy_beam.diagnostics
+    assert diagnostics.treedepth_hits == 0 and not diagnostics.low_bfmi_chains
+    # 5 of 2,000 measured: the GP's sd near zero, where the curve is flat
+    assert_healthy(non_centred_noisy_beam, divergences=10)
+
+
+@pytest.mark.slow  # 80 s: the centred fit of these data is the slow one
+def test_both_parametrizations_of_functional_theta_give_one_posterior(non_centred_noisy_beam):
+    """The centred program gets there slowly (bulk ESS ~100, enough for the
+    curve's mean): the mean curves agree within 0.25 posterior sd on average."""
+    centred = fit(noisy_beam_data(), **NOISY_BEAM_SETTINGS).theta_functions()["E"]
+    curve = non_centred_noisy_beam.theta_functions()["E"]
+    sd = (np.array(curve["q95"]) - np.array(curve["q05"])) / 3.29
+    shift = np.abs(np.array(curve["mean"]) - np.array(centred["mean"])) / sd
+    assert shift.mean() < 0.25, shift
+
+
+def test_a_struggling_functional_fit_is_told_the_other_parametrization():
+    from stancal.diagnostics import Diagnostics
+    from stancal.functional import parametrization_advice
+    from stancal.models import ModelOptions
+
+    healthy = Diagnostics(0, 2000, 1.004, "theta", 800.0, 800.0, "theta", 0, [])
+    funnel = Diagnostics(4, 2000, 1.03, "theta_function_sd", 115.0, 300.0, "theta_function_sd", 1409, [])
+    centred = ModelOptions(functional=("E",), functional_inputs=("T",))
+    assert parametrization_advice(centred, healthy) == []
+    assert 'functional_parametrization = "non_centred"' in parametrization_advice(centred, funnel)[0]
+    non_centred = ModelOptions(functional=("E",), functional_inputs=("T",), functional_parametrization="non_centred")
+    assert 'functional_parametrization = "centred"' in parametrization_advice(non_centred, funnel)[0]
+    with pytest.raises(ValueError, match="functional_parametrization must be one of centred, non_centred"):
+        ModelOptions(functional_parametrization="auto")
+
+
 @pytest.mark.slow  # 90 s: the default run covers this program with counts and binomial outputs
 def test_functional_theta_from_runs():
     """E(T) from 30 runs over (load, E): measured band coverage 100 %, wider

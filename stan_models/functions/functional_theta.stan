@@ -3,8 +3,10 @@
  * Plumlee et al. 2016, Brown & Atamturktur 2018). On the unit scale of its
  * box, theta_j(x) = logistic(g_j(x)) with g_j ~ GP(logit(level_j), K_j): the
  * level has the same uniform prior as a scalar theta, and theta_j(x) never
- * leaves its box. g_j is sampled at the distinct functional-input values
- * (centred: the data pin theta(x) closely, where a non-centred GP mixes slowly).
+ * leaves its box. g_j lives at the distinct functional-input values, centred
+ * (the parameters are g_j: best when the data pin theta(x) closely) or
+ * non-centred (g_j = logit(level) + L z with z standard normal: best when they
+ * do not, where the centred form is a funnel in the GP's sd).
  * functional_slot[j] = k > 0 when theta_j is the k-th functional one.
  */
 
@@ -37,6 +39,28 @@ matrix theta_rows_original(matrix unit_rows, vector lower_bound, vector upper_bo
   matrix[rows(unit_rows), cols(unit_rows)] out;
   for (i in 1:rows(unit_rows)) {
     out[i] = theta_from_unit(unit_rows[i]', lower_bound, upper_bound)';
+  }
+  return out;
+}
+
+/**
+ * The functional thetas' logit values at the distinct points from the
+ * sampler's parameters: themselves when centred, else logit(level) + L z.
+ *
+ * @param raw the parameters (n x F): the logit values, or their standard normals z
+ * @return the logit values g_k at the distinct points (n x F)
+ */
+matrix functional_logit_values(matrix raw, int centred, vector theta_unit, array[] int functional_slot,
+                               array[] vector x_fun, int kernel_id, vector marginal_sd,
+                               array[] vector length_scale) {
+  if (centred) return raw;
+  matrix[rows(raw), cols(raw)] out;
+  for (j in 1:rows(theta_unit)) {
+    int k = functional_slot[j];
+    if (k > 0) {
+      out[:, k] = logit(theta_unit[j])
+                  + latent_gp_cholesky(x_fun, kernel_id, marginal_sd[k], to_array_1d(length_scale[k])) * raw[:, k];
+    }
   }
   return out;
 }
