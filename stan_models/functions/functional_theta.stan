@@ -54,7 +54,7 @@ matrix functional_logit_values(matrix raw, int centred, vector theta_unit, array
                                array[] vector x_fun, int kernel_id, vector marginal_sd,
                                array[] vector length_scale) {
   if (centred) return raw;
-  matrix[rows(raw), cols(raw)] out;
+  matrix[rows(raw), cols(raw)] out = raw;  // every column is overwritten: one per functional theta
   for (j in 1:rows(theta_unit)) {
     int k = functional_slot[j];
     if (k > 0) {
