@@ -104,24 +104,17 @@ def fit_emulator(data: CalibrationData, options: ModelOptions, program: FlatProg
     parameter with a near log-normal posterior is its median; found by
     optimisation, a fraction of a sampler's cost (and the only affordable route
     for many runs). Also the emulator's leave-one-out accuracy on the runs."""
-    stan_data = to_stan_json(build_emulator_data(data, options))
     started = time.perf_counter()
-    mode, _ = backend.posterior_mode(program, stan_data, starts=EMULATOR_STARTS, seed=seed)
-    quantities = backend.generate_quantities(program, stan_data, mode, seed)
+    mode, _ = backend.posterior_mode(program, to_stan_json(build_emulator_data(data, options)),
+                                     starts=EMULATOR_STARTS, seed=seed)
     seconds = time.perf_counter() - started
-    hyper = {
-        "emulator_mean": float(mode["emulator_mean"].item()),
-        "emulator_sd": float(mode["emulator_sd"].item()),
-        "emulator_length_scale": mode["emulator_length_scale"].reshape(-1).tolist(),
-        "emulator_nugget": float(mode["emulator_nugget"].item()),
-    }
-    loo_error = quantities["loo_error"].reshape(-1)
     logger.info("stage 1: emulator hyperparameters by optimisation in %.1f s", seconds)
+    loo_error = mode["loo_error"].reshape(-1)  # generated quantities at the mode
     return {
-        "hyperparameters": hyper,
+        "hyperparameters": {name: mode[name][0, 0].tolist() for name in EMULATOR_HYPERPARAMETERS},
         "loo_rmse": float(np.sqrt(np.mean(loo_error**2))),
         "runs_sd": float(data.runs_on_link_scale().std(ddof=1)),  # the scale the emulator works on
-        "sample_s": seconds,
+        "fit_s": seconds,
     }
 
 
@@ -226,7 +219,7 @@ def calibrate(
         tree["prior"] = prior_tree["posterior"]
         tree["prior_predictive"] = prior_tree["posterior_predictive"]
     timing = {"compile_s": sample.compile_seconds,
-              "sample_s": sample.sample_seconds + emulator.get("sample_s", 0.0)}
+              "sample_s": sample.sample_seconds + emulator.get("fit_s", 0.0)}
     posterior = tree["posterior"].to_dataset()
     result = CalibrationResult(
         idata=tree, data=data, method=str(chosen), backend=stan_backend.name, options=options,
@@ -255,8 +248,7 @@ def calibrate(
     result.diagnostics = sampler_checks.check_sampler(
         posterior, tree["sample_stats"].to_dataset(), max_treedepth,
         [v for v in posterior if v in _DIAGNOSED or v in parameter_names], [m.chains for m in result.modes])
-    if options.functional:
-        result.diagnostics.messages.extend(parametrization_advice(options, result.diagnostics))
+    result.diagnostics.messages.extend(parametrization_advice(options, result.diagnostics))
     sampler_checks.report(result.diagnostics)
     mode_checks.report(result.modes, weights_unavailable)
     if out_dir is not None:

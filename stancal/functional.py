@@ -10,7 +10,7 @@ import numpy as np
 import pandas as pd
 
 from .data import CalibrationData
-from .diagnostics import Diagnostics
+from .diagnostics import RHAT_LIMIT, Diagnostics
 from .models import ModelOptions
 from .summaries import band
 from .validation import DataError
@@ -44,14 +44,14 @@ def check_functional(data: CalibrationData, functional: tuple[str, ...],
 
 
 def parametrization_advice(options: ModelOptions, diagnostics: Diagnostics) -> list[str]:
-    """The other parametrization of theta(x)'s latent GP, when the sampler
-    struggled. Measured on the beam case: centred mixes well when the data pin
+    """The other parametrization of theta(x)'s latent GP, when a fit with
+    functional theta struggled. Measured on the beam case: centred mixes well when the data pin
     theta(x) (noise 0.1 mm, 3 loads per temperature: no tree-depth hits) and
     hits the maximum tree depth in 70 % of transitions when they do not
     (noise 1 mm, one load per temperature); non-centred is the reverse."""
-    struggled = diagnostics.treedepth_hits or diagnostics.low_bfmi_chains or diagnostics.max_rhat > 1.01 \
-        or diagnostics.divergences
-    if not struggled:
+    struggled = (diagnostics.treedepth_hits or diagnostics.low_bfmi_chains or diagnostics.divergences
+                 or diagnostics.max_rhat > RHAT_LIMIT)
+    if not options.functional or not struggled:
         return []
     other = "non_centred" if options.functional_parametrization == "centred" else "centred"
     when = ("suits noisy or sparse data, which leave theta(x) loosely pinned" if other == "non_centred"

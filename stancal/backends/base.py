@@ -104,7 +104,9 @@ class StanBackend(Protocol):
     ) -> tuple[Draws, float]:
         """The posterior's mode on the unconstrained scale (the log density with
         its Jacobian, as lp__), the best of ``starts`` L-BFGS runs from Stan's
-        random inits: the parameters as one draw (1, 1, ...), and its lp."""
+        random inits: every variable of the program there (parameters,
+        transformed parameters, generated quantities) as one draw (1, 1, ...),
+        and its lp."""
         ...
 
     def log_density_functions(

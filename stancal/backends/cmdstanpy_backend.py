@@ -134,7 +134,6 @@ class CmdStanPyBackend:
     def posterior_mode(self, program: FlatProgram, data: dict[str, Any], *, starts: int,
                        seed: int) -> tuple[Draws, float]:
         model = self._model(program)
-        names = self.parameter_names(program)
         best = None
         for start in range(starts):
             try:
@@ -144,8 +143,8 @@ class CmdStanPyBackend:
                 continue
             lp = float(fit.optimized_params_dict["lp__"])
             if best is None or lp > best[1]:
-                best = ({n: np.asarray(fit.stan_variable(n)).reshape(1, 1, *np.shape(fit.stan_variable(n)))
-                         for n in names}, lp)
+                best = ({name: np.asarray(v).reshape(1, 1, *np.shape(v)) for name, v in fit.stan_variables().items()},
+                        lp)
         if best is None:
             raise StanRuntimeError(program.explain(f"optimisation failed from all {starts} starting points"))
         return best

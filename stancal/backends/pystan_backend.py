@@ -34,6 +34,26 @@ def _by_chain(flat: np.ndarray, dims: list[int], chains: int) -> np.ndarray:
     return np.moveaxis(flat.reshape(*dims, draws, chains), [-1, -2], [0, 1])
 
 
+def _by_variable(flat: np.ndarray, model, leading: tuple[int, ...]) -> Draws:
+    """Rows of write_array's output (every variable, flattened column-major as
+    Stan does) -> variable name -> (*leading, *its shape)."""
+    out: Draws = {}
+    offset = 0
+    for name, shape in zip(model.param_names, model.dims):
+        size = int(np.prod(shape))
+        block = flat[:, offset : offset + size].reshape(*leading, *reversed(shape))
+        n = len(leading)
+        out[name] = block.transpose(*range(n), *range(block.ndim - 1, n - 1, -1))  # the variable's axes in order
+        offset += size
+    return out
+
+
+def _interior_point(model) -> dict[str, Any]:
+    """0.5 for every variable: inside every constraint stancal's programs use
+    (transform_inits reads the parameters and ignores the rest)."""
+    return {name: np.full(dims, 0.5).tolist() for name, dims in zip(model.param_names, model.dims)}
+
+
 @contextlib.contextmanager
 def _sampling_output(model_name: str):
     """PyStan's sampling output, tamed. In a terminal its progress bar stays;
@@ -162,9 +182,7 @@ class PyStanBackend:
         evaluating the log density at the first init usually recovers it."""
         message = str(err)
         if inits:
-            # variables the init leaves to Stan get 0.5, inside every constraint stancal's
-            # programs use (transformed parameters and generated quantities are ignored)
-            point = {name: np.full(dims, 0.5).tolist() for name, dims in zip(model.param_names, model.dims)}
+            point = _interior_point(model)  # for the variables the init leaves to Stan
             point.update(inits[0])
             try:
                 model.log_prob(model.unconstrain_pars(point))
@@ -188,8 +206,6 @@ class PyStanBackend:
 
         model = self._build(program, data, seed)
         services = httpstan.models.import_services_extension_module(model.model_name)
-        names = list(model.param_names)
-        dims = [list(d) for d in model.dims]
         rng = np.random.default_rng(seed)
 
         def run(parameters: Draws) -> Draws:
@@ -203,17 +219,8 @@ class PyStanBackend:
                         flat_rows.append(services.write_array(draw_data, unconstrained, True, True))
             except RuntimeError as err:
                 raise StanRuntimeError(program.explain(f"Stan failed in generated quantities: {err}")) from None
-            flat = np.asarray(flat_rows, dtype=float)  # (chain * draw, all constrained names)
-            out: Draws = {}
-            offset = 0
-            for name, shape in zip(names, dims):
-                size = int(np.prod(shape))
-                if name not in parameters:
-                    block = flat[:, offset : offset + size].reshape(chains, draws, *reversed(shape))
-                    # Stan flattens column-major: put the variable's axes back in order
-                    out[name] = block.transpose(0, 1, *range(block.ndim - 1, 1, -1))
-                offset += size
-            return out
+            values = _by_variable(np.asarray(flat_rows, dtype=float), model, (chains, draws))
+            return {name: v for name, v in values.items() if name not in parameters}
 
         return run
 
@@ -224,10 +231,7 @@ class PyStanBackend:
 
         model = self._build(program, data, seed)
         services = httpstan.models.import_services_extension_module(model.model_name)
-        names = self.parameter_names(program)
-        dims = [list(d) for d in model.dims[: len(names)]]
-        dimension = len(services.transform_inits(
-            model.data, {n: np.full(d, 0.5).tolist() for n, d in zip(names, dims)}))
+        dimension = len(services.transform_inits(model.data, _interior_point(model)))
 
         def negative_log_density(point: np.ndarray) -> tuple[float, np.ndarray]:
             try:
@@ -244,15 +248,8 @@ class PyStanBackend:
         if not np.isfinite(best.fun):
             raise StanRuntimeError(program.explain(
                 f"no finite log density found from {starts} starting points: {best.message}"))
-        flat = np.asarray(services.write_array(model.data, best.x.tolist(), False, False))
-        mode: Draws = {}
-        offset = 0
-        for name, shape in zip(names, dims):
-            size = int(np.prod(shape))
-            # Stan flattens column-major
-            mode[name] = flat[offset: offset + size].reshape(shape[::-1]).T.reshape(1, 1, *shape)
-            offset += size
-        return mode, -float(best.fun)
+        at_mode = services.write_array(model.data, best.x.tolist(), True, True)
+        return _by_variable(np.asarray([at_mode], dtype=float), model, (1, 1)), -float(best.fun)
 
     def log_density_functions(self, program: FlatProgram, data: dict[str, Any]):
         import httpstan.models
