@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 import time
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -15,18 +16,30 @@ from . import modes as mode_checks
 from .backends import get_backend
 from .data import CalibrationData
 from .functional import check_functional, parametrization_advice
+from .hsgp import BasisTooLargeError, HSGPBasis, basis_problems, first_basis, refined_basis
 from .inits import spread_theta_inits
 from .l2 import l2_result
-from .models import LATENT_PROGRAM, RESTRICTED_DISCREPANCIES, Method, ModelOptions, model_spec
+from .models import (
+    EXACT_SIZE_LIMIT,
+    HSGP_METHODS,
+    LATENT_PROGRAM,
+    RESTRICTED_DISCREPANCIES,
+    SCALABLE_PROGRAM,
+    Method,
+    ModelOptions,
+    model_spec,
+)
 from .quadrature import input_box_quadrature
 from .result import CalibrationResult, build_datatree
 from .seeds import command_seed
 from .stan_source import FlatProgram, flatten
+from .scalable_emulator import NEIGHBOURS, ScalableEmulator, least_squares_theta
 from .standata import (
     EMULATOR_HYPERPARAMETERS,
     build_emulator_data,
     build_stan_data,
     default_new_points,
+    emulator_run_data,
     to_stan_json,
 )
 
@@ -62,12 +75,54 @@ def choose_method(data: CalibrationData, simulator: str | Path | None, method: s
     if reason is not None:  # every method has a latent version
         unsupported = [name for name, used in (
             (f"discrepancy '{options.discrepancy}'", options.discrepancy in RESTRICTED_DISCREPANCIES),
-            ("estimate_rho", options.estimate_rho)) if used]
+            ("estimate_rho", options.estimate_rho),
+            ("approximation 'hsgp'", options.approximation == "hsgp")) if used]
         if unsupported:
             raise ValueError(f"{reason} runs on the latent-GP programs, which do not support "
                              f"{', '.join(unsupported)}")
         return LATENT_PROGRAM[base]
-    return base
+    return SCALABLE_PROGRAM[base] if _scalable(data, base, options) else base
+
+
+def dense_size(data: CalibrationData, method: Method) -> int:
+    """The size of the dense matrix the exact program factorises at every
+    gradient: the points, plus the runs for an emulator."""
+    runs = len(data.runs) if data.runs is not None and model_spec(method).needs_runs else 0
+    return len(data.physical) + runs
+
+
+def _scalable(data: CalibrationData, base: Method, options: ModelOptions) -> bool:
+    """Whether the scalable (hsgp) program runs: asked for, or auto above
+    EXACT_SIZE_LIMIT, said in one line. What it cannot do is an error, under
+    auto too when the problem is above the limit: never a silent dense
+    matrix of thousands of rows."""
+    if base in HSGP_METHODS:
+        return True
+    if options.approximation == "exact" or base not in SCALABLE_PROGRAM:
+        return False
+    size = dense_size(data, base)
+    obstacles = [why for why, present in (
+        (f"discrepancy '{options.discrepancy}' (needs the dense GP)", options.discrepancy in RESTRICTED_DISCREPANCIES),
+        ("covariates in the discrepancy (a Hilbert-space basis vanishes at its boundary, so it cannot "
+         "switch a covariate off)", options.has_discrepancy and len(data.discrepancy_inputs) > len(data.inputs)),
+    ) if present]
+    if options.approximation == "hsgp":
+        if obstacles:
+            raise ValueError(f"approximation 'hsgp' does not support {'; '.join(obstacles)}. Use "
+                             f"approximation = 'exact', or leave them out")
+        return True
+    if size <= EXACT_SIZE_LIMIT:
+        return False
+    if obstacles:
+        raise ValueError(f"{len(data.physical)} points" + (f" and {size - len(data.physical)} runs" if
+                         size > len(data.physical) else "") + f" exceed the exact programs' limit of "
+                         f"{EXACT_SIZE_LIMIT}, but the scalable programs do not support {'; '.join(obstacles)}. "
+                         f"Leave them out, or set approximation = 'exact' to run the dense GP anyway (slow)")
+    logger.info("%d points%s: above %d, so %s runs (Hilbert-space discrepancy%s); approximation = 'exact' "
+                "keeps the dense GP", len(data.physical), f" + {size - len(data.physical)} runs" if
+                size > len(data.physical) else "", EXACT_SIZE_LIMIT, SCALABLE_PROGRAM[base],
+                ", precomputed-weight emulator" if model_spec(base).needs_runs else "")
+    return True
 
 
 def _base_method(data: CalibrationData, simulator: str | Path | None, method: str | None) -> Method:
@@ -94,6 +149,9 @@ def stan_programs(chosen: Method, simulator: str | Path | None = None,
     return [main]
 
 
+# a discrepancy below this fraction of the noise sd is not checked against its basis
+NEGLIGIBLE_DISCREPANCY = 0.1
+VARIANCE_TOLERANCE = 0.05  # relative change of the observations' predictive sd worth telling
 EMULATOR_STARTS = 4  # L-BFGS runs from random inits: the runs' likelihood can have more than one mode
 
 
@@ -118,6 +176,109 @@ def fit_emulator(data: CalibrationData, options: ModelOptions, program: FlatProg
     }
 
 
+def fit_scalable_emulator(data: CalibrationData, seed: int) -> dict[str, Any]:
+    """Stage 1 of modular_hsgp (stancal.scalable_emulator): hyperparameters,
+    weights and theta interpolant; then the theta whose emulator mean fits
+    the data best, where the emulator's variance is taken."""
+    started = time.perf_counter()
+    runs = emulator_run_data(data)
+    x_points = data.scaling.to_unit(data.physical, data.inputs)
+    state, emulator = ScalableEmulator.fit(runs["x_sim"], runs["theta_sim"], runs["y_sim"], x_points, seed)
+    logger.info("stage 1: emulator hyperparameters at their posterior mode (scipy L-BFGS) on %d of %d "
+                "runs; its mean from all runs, interpolated in theta through %d Chebyshev nodes "
+                "(error %.1g sd of the output)", emulator["hyperparameter_runs"], len(data.runs),
+                emulator["theta_interpolation_points"], emulator["theta_interpolation_error"])
+    y = data.scaling.standardise(data.physical[data.output].to_numpy())
+    theta_unit = least_squares_theta(state.mean_weights(x_points), state.interpolant.degrees,
+                                     state.hyperparameters.mean, y)
+    emulator["hyperparameters"]["variance_theta"] = theta_unit.tolist()
+    emulator["stage1"] = (f"hyperparameters at their posterior mode by scipy L-BFGS on "
+                          f"{emulator['hyperparameter_runs']} of {len(data.runs)} runs; mean from all runs; "
+                          f"variance by local GPs of {NEIGHBOURS} runs at theta's least-squares fit")
+    emulator["runs_sd"] = float(data.runs_on_link_scale().std(ddof=1))
+    emulator["fit_s"] = time.perf_counter() - started
+    logger.info("stage 1 in %.1f s in all", emulator["fit_s"])
+    return emulator
+
+
+def _check_emulator_variance(tree, data: CalibrationData, emulator: dict[str, Any],
+                             stan_json: dict[str, Any]) -> list[str]:
+    """The emulator's variance entered as one number, its mean over the
+    points at one theta: how far each observation's predictive sd is from
+    the one the fit used, at posterior draws of theta; told when it matters."""
+    theta_unit = (np.asarray(tree["posterior"]["theta"]).reshape(-1, len(data.parameters))
+                  - data.theta_lower) / (data.theta_upper - data.theta_lower)
+    runs = emulator_run_data(data)
+    state = ScalableEmulator.of(runs["x_sim"], runs["theta_sim"], runs["y_sim"], emulator["hyperparameters"])
+    x = data.scaling.to_unit(data.physical, data.inputs)
+    noise_var = (float(np.median(np.asarray(tree["posterior"]["noise_sd"]))) / data.scaling.y_scale) ** 2
+    plug_in = noise_var + float(stan_json["emulator_variance"])
+    rng = np.random.default_rng(0)
+    variances = [state.variance(x, theta) for theta in theta_unit[rng.choice(len(theta_unit), 8, replace=False)]]
+    # the sd each observation should have had, against the one the fit gave all of them
+    moved = max(float(np.max(np.abs(np.sqrt((noise_var + v) / plug_in) - 1))) for v in variances)
+    emulator["variance_check"] = {
+        "max_relative_change_of_sd": moved,
+        "max_emulator_sd_over_noise_sd": float(np.sqrt(max(v.max() for v in variances) / noise_var))}
+    if moved <= VARIANCE_TOLERANCE:
+        return []
+    return [f"the emulator's variance entered the fit as its mean over the points at theta's posterior mode; "
+            f"at posterior draws of theta an observation's predictive sd differs from the one used by up to "
+            f"{moved:.0%}: theta's band may be off by about as much. More runs where the posterior lies, or "
+            f"approximation = 'exact' on a subsample, would settle it"]
+
+
+def _with_basis(options: ModelOptions, basis: HSGPBasis) -> ModelOptions:
+    return replace(options, basis_functions=basis.counts, boundary_factor=basis.boundary_factors)
+
+
+def _check_basis(tree, data: CalibrationData, options: ModelOptions,
+                 chosen_by_user: bool) -> tuple[ModelOptions, bool, list[str]]:
+    """Riutort-Mayol et al.'s check of the basis against the fitted length
+    scales; a basis stancal chose is rebuilt from them once (refit = True)."""
+    posterior = tree["posterior"]
+    if np.median(posterior["delta_sd"]) < NEGLIGIBLE_DISCREPANCY * np.median(posterior["noise_sd"]):
+        return options, False, []  # no shape worth representing: its length scales are the prior's
+    widths = np.array([data.scaling.width[c] for c in data.discrepancy_inputs])
+    fitted = np.asarray(posterior["delta_length_scale"]).reshape(-1, len(widths)) / widths
+    basis = HSGPBasis(options.basis_functions, options.boundary_factor)
+    problems = basis_problems(basis, options.kernel, fitted.mean(axis=0), data.discrepancy_inputs)
+    if not problems:
+        return options, False, []
+    advice = "set basis_functions and boundary_factor per input to change it"
+    if not chosen_by_user:
+        try:
+            better = refined_basis(options.kernel, basis, fitted, data.discrepancy_inputs)
+        except BasisTooLargeError as err:
+            advice = str(err)
+        else:
+            logger.info("Hilbert-space basis: %s; refitting with %s", "; ".join(problems), better.describe())
+            return _with_basis(options, better), True, []
+    return options, False, [f"the Hilbert-space discrepancy's basis ({basis.describe()}) may be inadequate: "
+                            f"{'; '.join(problems)}. {advice}"]
+
+
+def _sample(stan_backend, flat: FlatProgram, data: CalibrationData, chosen: Method, options: ModelOptions,
+            fit_points: pd.DataFrame, emulator: dict[str, Any], prior: bool, sampler: dict[str, Any]):
+    """One fit of the program: (sample, its Stan data, DataTree, parameter names)."""
+    stan_data = build_stan_data(data, chosen, options, fit_points,
+                                emulator_hyperparameters=emulator.get("hyperparameters"))
+    inits = spread_theta_inits(sampler["chains"], len(data.parameters), np.random.default_rng(sampler["seed"]))
+    logger.info("sampling %s: %d chains x (%d warmup + %d draws) with %s",
+                chosen, sampler["chains"], sampler["warmup"], sampler["draws"], stan_backend.name)
+    stan_json = to_stan_json(stan_data)
+    sample = stan_backend.sample(flat, stan_json, inits=inits, **sampler)
+    parameter_names = stan_backend.parameter_names(flat)  # the program's own, edited or not
+    tree = build_datatree(sample, data, fit_points, parameter_names, options)
+    if prior:
+        prior_sample = stan_backend.sample(flat, {**stan_json, "prior_only": 1}, inits=inits,
+                                           **{**sampler, "seed": sampler["seed"] + 1})
+        prior_tree = build_datatree(prior_sample, data, fit_points, parameter_names, options)
+        tree["prior"] = prior_tree["posterior"]
+        tree["prior_predictive"] = prior_tree["posterior_predictive"]
+    return sample, stan_json, tree, parameter_names
+
+
 def calibrate(
     data: CalibrationData,
     *,
@@ -133,6 +294,9 @@ def calibrate(
     functional: tuple[str, ...] | list[str] = (),
     functional_inputs: tuple[str, ...] | list[str] = (),
     functional_parametrization: str = "centred",
+    approximation: str = "auto",
+    basis_functions: tuple[int, ...] | list[int] = (),
+    boundary_factor: tuple[float, ...] | list[float] = (),
     new_points: pd.DataFrame | None = None,
     chains: int = 4,
     warmup: int = 1000,
@@ -168,6 +332,13 @@ def calibrate(
     ``mean_formula``: terms h(x, z) of a discrepancy mean h' beta, a formula
     over the physical data's columns such as ``"I(v**2) + C(batch)"``;
     ``mean_intercept`` adds a constant term ``Intercept``.
+    ``approximation``: exact (dense GPs), hsgp (for thousands of points and
+    runs: a Hilbert-space discrepancy, Riutort-Mayol et al. 2023, and with
+    runs a modular emulator of precomputed weights; programs koh_hsgp and
+    modular_hsgp) or auto (hsgp above models.EXACT_SIZE_LIMIT points plus
+    runs). ``basis_functions`` and ``boundary_factor``: the Hilbert-space
+    basis per discrepancy input (default: chosen from the length scales,
+    checked after the fit and refitted once if it cannot represent them).
     ``out_dir``: the posterior is written there as soon as sampling ends.
     ``prior``: also draw from the prior (same program, ``prior_only = 1``) into
     the ``prior`` and ``prior_predictive`` groups.
@@ -175,7 +346,8 @@ def calibrate(
     if discrepancy is None:  # functional theta are flexible enough without one (review section 8.2)
         discrepancy = "none" if functional else "gp"
     options = ModelOptions(discrepancy, kernel, estimate_rho, mean_formula, mean_intercept, scaled_lambda,
-                           tuple(functional), tuple(functional_inputs), functional_parametrization)
+                           tuple(functional), tuple(functional_inputs), functional_parametrization,
+                           approximation, tuple(basis_functions), tuple(boundary_factor))
     check_functional(data, options.functional, options.functional_inputs)
     l2 = method == L2
     if l2:
@@ -199,25 +371,26 @@ def calibrate(
     if stage_one:
         logger.info("stage 1: fitting the emulator to %d runs", len(data.runs))
         emulator = fit_emulator(data, options, stage_one[0], backend=stan_backend, seed=seed)
-    stan_data = build_stan_data(data, chosen, options, fit_points,
-                                emulator_hyperparameters=emulator.get("hyperparameters"))
-    inits = spread_theta_inits(chains, len(data.parameters), np.random.default_rng(seed))
-    logger.info("sampling %s: %d chains x (%d warmup + %d draws) with %s",
-                chosen, chains, warmup, draws, stan_backend.name)
-    stan_json = to_stan_json(stan_data)
-    sample = stan_backend.sample(flat, stan_json, chains=chains, warmup=warmup,
-                                 draws=draws, seed=seed, inits=inits, adapt_delta=adapt_delta,
-                                 max_treedepth=max_treedepth)
-    parameter_names = stan_backend.parameter_names(flat)  # the program's own, edited or not
-    tree = build_datatree(sample, data, fit_points, parameter_names, options)
-    if prior:
-        prior_sample = stan_backend.sample(
-            flat, {**stan_json, "prior_only": 1}, chains=chains, warmup=warmup,
-            draws=draws, seed=seed + 1, inits=inits, adapt_delta=adapt_delta,
-            max_treedepth=max_treedepth)
-        prior_tree = build_datatree(prior_sample, data, fit_points, parameter_names, options)
-        tree["prior"] = prior_tree["posterior"]
-        tree["prior_predictive"] = prior_tree["posterior_predictive"]
+    sampler = dict(chains=chains, warmup=warmup, draws=draws, seed=seed, adapt_delta=adapt_delta,
+                   max_treedepth=max_treedepth)
+    if chosen is Method.MODULAR_HSGP:
+        emulator = fit_scalable_emulator(data, seed)
+    approximation_messages: list[str] = []
+    if chosen in HSGP_METHODS:
+        options = replace(options, approximation="hsgp")
+        if not options.basis_functions:
+            options = _with_basis(options, first_basis(options.kernel, data.discrepancy_inputs))
+    sample, stan_json, tree, parameter_names = _sample(
+        stan_backend, flat, data, chosen, options, fit_points, emulator, prior, sampler)
+    if chosen in HSGP_METHODS and options.has_discrepancy:
+        options, refit, approximation_messages = _check_basis(tree, data, options,
+                                                              chosen_by_user=bool(basis_functions))
+        if refit:
+            sample, stan_json, tree, parameter_names = _sample(
+                stan_backend, flat, data, chosen, options, fit_points, emulator, prior, sampler)
+            _, _, approximation_messages = _check_basis(tree, data, options, chosen_by_user=True)
+    if chosen is Method.MODULAR_HSGP:
+        approximation_messages += _check_emulator_variance(tree, data, emulator, stan_json)
     timing = {"compile_s": sample.compile_seconds,
               "sample_s": sample.sample_seconds + emulator.get("fit_s", 0.0)}
     posterior = tree["posterior"].to_dataset()
@@ -249,6 +422,7 @@ def calibrate(
         posterior, tree["sample_stats"].to_dataset(), max_treedepth,
         [v for v in posterior if v in _DIAGNOSED or v in parameter_names], [m.chains for m in result.modes])
     result.diagnostics.messages.extend(parametrization_advice(options, result.diagnostics))
+    result.diagnostics.messages.extend(approximation_messages)
     sampler_checks.report(result.diagnostics)
     mode_checks.report(result.modes, weights_unavailable)
     if out_dir is not None:

@@ -15,7 +15,7 @@ from .calibrate import L2, calibrate, choose_method, stan_programs
 from .compare import METHODS
 from .config import ConfigError, load_config
 from .data import DataError
-from .models import DISCREPANCIES, Method, ModelOptions, model_spec
+from .models import APPROXIMATIONS, DISCREPANCIES, EXACT_SIZE_LIMIT, Method, ModelOptions, model_spec
 from .report import write_calibration
 from .stan_source import FlatProgram, StanProgramError
 
@@ -36,6 +36,10 @@ def _parser() -> argparse.ArgumentParser:
         command.add_argument("--draws", type=int, default=1000)
         command.add_argument("--seed", type=int, default=None)
         command.add_argument("--backend", choices=BACKENDS, default=None)
+    for command in (cal, gap, comp):
+        command.add_argument("--approximation", choices=APPROXIMATIONS, default=None,
+                             help="exact (dense GPs), hsgp (scalable) or auto (hsgp above "
+                                  f"{EXACT_SIZE_LIMIT} points plus runs)")
     for command in (cal, gap):
         command.add_argument("--method", choices=[*(m.value for m in Method), *([L2] if command is cal else [])])
     cal.add_argument("--discrepancy", choices=list(DISCREPANCIES),
@@ -69,6 +73,7 @@ def run_gap(args: argparse.Namespace) -> dict:
         warnings.simplefilter("always")
         analysis = diagnose_gap(problem.data, problem.candidates, simulator=problem.simulator,
                                 method=method, kernel=model.get("kernel", "se"),
+                                approximation=args.approximation or model.get("approximation", "auto"),
                                 chains=args.chains, warmup=args.warmup, draws=args.draws,
                                 seed=args.seed, backend=args.backend, out_dir=args.out,
                                 kfold=args.kfold)
@@ -87,6 +92,8 @@ def run_calibrate(args: argparse.Namespace) -> dict:
     method = args.method or configured_method
     if args.discrepancy:
         model["discrepancy"] = args.discrepancy
+    if args.approximation:
+        model["approximation"] = args.approximation
     args.out.mkdir(parents=True, exist_ok=True)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
@@ -104,6 +111,8 @@ def run_compare(args: argparse.Namespace) -> dict:
 
     problem = load_config(args.config)
     model = {k: v for k, v in problem.model.items() if k not in ("method", "discrepancy")}
+    if args.approximation:
+        model["approximation"] = args.approximation
     args.out.mkdir(parents=True, exist_ok=True)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")

@@ -16,7 +16,7 @@ import pandas as pd
 from .calibrate import L2, calibrate, choose_method, require_gaussian
 from .data import CalibrationData
 from .l2 import l2_result
-from .models import RESTRICTED_DISCREPANCIES
+from .models import HSGP_METHODS, RESTRICTED_DISCREPANCIES, ModelOptions
 from .quadrature import Quadrature, input_box_quadrature
 from .result import CalibrationResult
 from .scoring import psis_score
@@ -92,7 +92,9 @@ def compare_methods(data: CalibrationData, *, simulator: str | Path | None = Non
     require_gaussian("the method comparison", data)
     quadrature = input_box_quadrature(data)
     seed = command_seed(seed)
-    base_method = str(choose_method(data, simulator, None))
+    chosen = choose_method(data, simulator, None,
+                           ModelOptions(approximation=calibrate_options.get("approximation", "auto")))
+    base_method = str(chosen)
     fits: list[MethodFit] = []
     koh: MethodFit | None = None
 
@@ -106,6 +108,9 @@ def compare_methods(data: CalibrationData, *, simulator: str | Path | None = Non
     for name in methods:
         if name in RESTRICTED_DISCREPANCIES and simulator is None:
             fits.append(MethodFit(name, None, skipped="needs a simulator written in Stan (method koh)"))
+        elif name in RESTRICTED_DISCREPANCIES and chosen in HSGP_METHODS:
+            fits.append(MethodFit(name, None, skipped=f"needs the dense GP, and this problem is on the scalable "
+                                                      f"path ({chosen}); approximation = 'exact' forces it"))
         elif name == "koh":
             koh = run("koh", method=base_method)
             fits.append(koh)

@@ -28,7 +28,8 @@ class Problem:
 _OBSERVATION_KEYS = {"likelihood", "trials", "lower", "upper"}  # go to CalibrationData
 _MODEL_KEYS = {"method", "discrepancy", "kernel", "estimate_rho", "program", "mean_formula",
                "mean_intercept", "scaled_lambda", "functional", "functional_inputs",
-               "functional_parametrization", *_OBSERVATION_KEYS}
+               "functional_parametrization", "approximation", "basis_functions", "boundary_factor",
+               *_OBSERVATION_KEYS}
 _VARIANT_KEYS = {"stan", "inputs", "theta"}
 
 

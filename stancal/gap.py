@@ -39,6 +39,7 @@ from .calibrate import calibrate, choose_method, stan_programs
 from .data import CalibrationData, DataError
 from .gap_location import GapLocation, interval, locate_gap
 from .mean_terms import FormulaError, build_mean_terms
+from .models import HSGP_METHODS, ModelOptions
 from .observations import LINKS
 from .result import CalibrationResult
 from .scoring import PARETO_K_LIMIT, Score, kfold_score, psis_score, refit_unreliable
@@ -236,7 +237,10 @@ def diagnose_gap(
     ``calibrate_options`` (kernel, chains, warmup, draws, backend,
     adapt_delta, ...) go to every ``calibrate`` call.
     """
-    chosen = choose_method(data, simulator, method)
+    chosen = choose_method(data, simulator, method,
+                           ModelOptions(approximation=calibrate_options.get("approximation", "auto")))
+    # K-fold's training sets are smaller: every fit keeps the baseline's approximation
+    calibrate_options["approximation"] = "hsgp" if chosen in HSGP_METHODS else "exact"
     stan_backend = get_backend(calibrate_options.get("backend"))
     check_candidates(data, candidates, stan_backend)
     clock = Stopwatch()

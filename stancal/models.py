@@ -42,6 +42,8 @@ class Method(StrEnum):
     MODULAR = "modular"
     KOH_LATENT = "koh_latent"
     KOH_LATENT_EMULATOR = "koh_latent_emulator"
+    KOH_HSGP = "koh_hsgp"
+    MODULAR_HSGP = "modular_hsgp"
 
 
 # the latent-GP program that takes over a method's job when the outputs are
@@ -50,6 +52,15 @@ LATENT_PROGRAM = {Method.KOH: Method.KOH_LATENT, Method.KOH_EMULATOR: Method.KOH
                   Method.MODULAR: Method.KOH_LATENT_EMULATOR,
                   Method.KOH_LATENT: Method.KOH_LATENT,
                   Method.KOH_LATENT_EMULATOR: Method.KOH_LATENT_EMULATOR}
+
+# the scalable program that takes over a method's job for many points or runs
+# (review section 8.4): a Hilbert-space discrepancy, and an emulator of
+# precomputed weights in place of the joint or modular GP emulator
+SCALABLE_PROGRAM = {Method.KOH: Method.KOH_HSGP, Method.KOH_EMULATOR: Method.MODULAR_HSGP,
+                    Method.MODULAR: Method.MODULAR_HSGP, Method.KOH_HSGP: Method.KOH_HSGP,
+                    Method.MODULAR_HSGP: Method.MODULAR_HSGP}
+HSGP_METHODS = (Method.KOH_HSGP, Method.MODULAR_HSGP)
+APPROXIMATIONS = ("auto", "exact", "hsgp")
 
 
 @dataclass(frozen=True)
@@ -82,6 +93,11 @@ MODELS: dict[str, ModelSpec] = {
                   "KOH with latent GPs: counts, binomial, censored outputs, functional theta"),
         ModelSpec("koh_latent_emulator", "koh_latent_emulator.stan", False, True,
                   "koh_latent from simulator runs: stage-1 emulator on the link scale, latent at the data"),
+        ModelSpec("koh_hsgp", "koh_hsgp.stan", True, False,
+                  "koh for thousands of points: Hilbert-space GP discrepancy"),
+        ModelSpec("modular_hsgp", "modular_hsgp.stan", False, True,
+                  "modular for thousands of runs and points: precomputed-weight emulator, "
+                  "Hilbert-space GP discrepancy"),
     )
 }
 
@@ -109,11 +125,25 @@ class ModelOptions:
     functional_inputs: tuple[str, ...] = ()
     # theta(x)'s latent GP: "centred" (data that pin theta(x)) or "non_centred" (data that do not)
     functional_parametrization: str = "centred"
+    # exact dense GPs, the scalable hsgp programs, or auto (by size: models.EXACT_SIZE_LIMIT)
+    approximation: str = "auto"
+    # the Hilbert-space discrepancy's basis per discrepancy input (stancal.hsgp);
+    # empty: chosen by stancal from the length scales, and checked after the fit
+    basis_functions: tuple[int, ...] = ()
+    boundary_factor: tuple[float, ...] = ()
 
     def __post_init__(self) -> None:
         # lists from a config or a saved result
-        object.__setattr__(self, "functional", tuple(self.functional))
-        object.__setattr__(self, "functional_inputs", tuple(self.functional_inputs))
+        for name in ("functional", "functional_inputs", "basis_functions", "boundary_factor"):
+            object.__setattr__(self, name, tuple(getattr(self, name)))
+        if self.approximation not in APPROXIMATIONS:
+            raise ValueError(f"approximation must be one of {', '.join(APPROXIMATIONS)}; "
+                             f"got {self.approximation!r}")
+        if (len(self.basis_functions) != len(self.boundary_factor)
+                or any(m < 1 for m in self.basis_functions) or any(c < 1 for c in self.boundary_factor)):
+            raise ValueError(f"basis_functions (counts >= 1) and boundary_factor (>= 1) need one value "
+                             f"each per discrepancy input; got {list(self.basis_functions)} and "
+                             f"{list(self.boundary_factor)}")
         if self.discrepancy not in DISCREPANCIES:
             raise ValueError(f"discrepancy must be one of {', '.join(DISCREPANCIES)}; "
                              f"got {self.discrepancy!r}")
@@ -135,6 +165,12 @@ class ModelOptions:
 
 
 FUNCTIONAL_PARAMETRIZATIONS = ("centred", "non_centred")
+
+# approximation = "auto" switches to the scalable programs when the dense
+# matrix factorised at every gradient would be larger than this: N physical
+# points for koh, N points + M runs for the emulators (benchmarks/scaling.py:
+# past it a dense fit of 4 x (500 + 500) draws takes more than about ten minutes)
+EXACT_SIZE_LIMIT = 1000
 
 # discrepancy_form in koh.stan; "none" switches the discrepancy off
 DISCREPANCIES = {"gp": 1, "orthogonal": 2, "scaled": 3, "none": 1}

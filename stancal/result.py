@@ -91,6 +91,8 @@ def build_datatree(sample: SampleOutput, data: CalibrationData,
     }
     if options.functional:
         sampled["theta_functions"] = {"theta_function": d["theta_function_grid"]}
+    if "delta_basis_weights" in d and d["delta_basis_weights"].shape[-1]:  # the Hilbert-space discrepancy's
+        sampled["discrepancy_basis"] = {"weights": d["delta_basis_weights"]}
     dims = {
         "theta": ["theta_name"], "delta_length_scale": ["delta_input"], "delta_relevance": ["delta_covariate"],
         "emulator_length_scale": ["emulator_input"], "y": ["obs"], "beta": ["mean_term"],
@@ -99,6 +101,7 @@ def build_datatree(sample: SampleOutput, data: CalibrationData,
         "theta_function_sd": ["functional_theta"],
         "theta_function_length_scale": ["functional_theta", "functional_input"],
         "theta_function": ["grid_point", "functional_theta"],
+        "weights": ["basis_function"],
     }
     grid = functional_grid(data, options.functional_inputs)
     coords = {

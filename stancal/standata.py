@@ -10,20 +10,32 @@ import pandas as pd
 from .data import CalibrationData
 from .functional import functional_grid
 from .mean_terms import MeanTerms, build_mean_terms
-from .models import DISCREPANCIES, RESTRICTED_DISCREPANCIES, Method, ModelOptions
+from .hsgp import HALF_RANGE, HSGPBasis, first_basis
+from .models import DISCREPANCIES, HSGP_METHODS, RESTRICTED_DISCREPANCIES, Method, ModelOptions
 from .quadrature import input_box_quadrature
+from .scalable_emulator import ScalableEmulator
 
 
 EMULATOR_HYPERPARAMETERS = ("emulator_mean", "emulator_sd", "emulator_length_scale", "emulator_nugget")
 
 
+# more physical points than this: the default prediction points are a subsample,
+# since every prediction point adds three values to every stored draw
+MAX_DEFAULT_PREDICTION_POINTS = 500
+
+
 def default_new_points(data: CalibrationData, size: int = 60) -> pd.DataFrame:
     """A grid over the one input when there is one; otherwise the physical
-    points (every column, so that formulas over them can be evaluated)."""
+    points (every column, so that formulas over them can be evaluated), a
+    fixed random subsample of them when there are many."""
     if len(data.discrepancy_inputs) == 1:
         values = data.physical[data.inputs[0]]
         return pd.DataFrame({data.inputs[0]: np.linspace(values.min(), values.max(), size)})
-    return data.source.reset_index(drop=True)
+    points = data.source.reset_index(drop=True)
+    if len(points) > MAX_DEFAULT_PREDICTION_POINTS:
+        chosen = np.random.default_rng(0).choice(len(points), MAX_DEFAULT_PREDICTION_POINTS, replace=False)
+        points = points.iloc[np.sort(chosen)].reset_index(drop=True)
+    return points
 
 
 def mean_terms_of(data: CalibrationData, options: ModelOptions) -> MeanTerms | None:
@@ -75,7 +87,9 @@ def build_stan_data(
         out.update(latent_data(data, options, new_points, trials_new))
     else:
         out["y"] = data.scaling.standardise(data.physical[data.output].to_numpy())
-    if method in (Method.KOH, Method.KOH_LATENT):
+    if method in HSGP_METHODS:
+        out.update(hsgp_data(data, options, out["x_delta_new"]))
+    if method in (Method.KOH, Method.KOH_LATENT, Method.KOH_HSGP):
         out["X"] = data.physical[data.inputs].to_numpy()
         out["X_new"] = new_points[data.inputs].to_numpy()
         if method is Method.KOH:
@@ -86,6 +100,11 @@ def build_stan_data(
                          f"written in Stan); got method '{method}'")
     if data.runs is None:
         raise ValueError(f"method '{method}' needs simulator runs")
+    if method is Method.MODULAR_HSGP:
+        if emulator_hyperparameters is None:
+            raise ValueError(f"method '{method}' needs the stage-1 emulator")
+        out.update(scalable_emulator_data(data, emulator_hyperparameters, new_points))
+        return out
     out.update(emulator_run_data(data))
     out["x"] = s.to_unit(data.physical, data.inputs)
     out["x_new"] = s.to_unit(new_points, data.inputs)
@@ -128,6 +147,49 @@ def latent_data(data: CalibrationData, options: ModelOptions, new_points: pd.Dat
         x_fun_grid=data.scaling.to_unit(grid, fun_inputs).reshape(len(grid), len(fun_inputs)),
         x_fun_new=data.scaling.to_unit(new_points, fun_inputs),
         trials_new=trials_new,
+    )
+
+
+def hsgp_data(data: CalibrationData, options: ModelOptions, x_delta_new: np.ndarray) -> dict[str, Any]:
+    """The Hilbert-space discrepancy's basis (hsgp.stan); prediction points
+    must lie inside its boundary, where the basis functions are defined."""
+    inputs = data.discrepancy_inputs
+    basis = (HSGPBasis(options.basis_functions, options.boundary_factor) if options.basis_functions
+             else first_basis(options.kernel, inputs))
+    if len(basis.counts) != len(inputs):
+        raise ValueError(f"basis_functions and boundary_factor need one value per discrepancy input "
+                         f"({', '.join(inputs)}); got {len(basis.counts)}")
+    outside = np.abs(x_delta_new - HALF_RANGE) >= basis.boundary
+    if outside.any():
+        row, column = np.argwhere(outside)[0]
+        raise ValueError(f"prediction point {row} lies outside the Hilbert-space discrepancy's boundary "
+                         f"in '{inputs[column]}' ({outside.any(axis=1).sum()} points do): the basis "
+                         f"covers {basis.boundary_factors[column]:.2f} half-ranges about the centre of "
+                         f"the data; raise boundary_factor for it, or predict closer to the data")
+    # Stan's RNG draws the basis weights; the PyStan backend gives normals per draw (backends.base)
+    return {**basis.stan_data(), "B_normals": 0, "basis_normals": np.zeros(0),
+            "longest_length_scale": basis.longest_length_scale(options.kernel)[:len(data.inputs)]}
+
+
+def scalable_emulator_data(data: CalibrationData, emulator: dict[str, Any],
+                           new_points: pd.DataFrame) -> dict[str, Any]:
+    """modular_hsgp.stan's emulator: the mean's weights at the physical and
+    the prediction points, and the predictive variance at the physical
+    points at emulator["variance_theta"], averaged (zero before it is known)."""
+    assert data.runs is not None
+    s = data.scaling
+    runs = emulator_run_data(data)
+    state = ScalableEmulator.of(runs["x_sim"], runs["theta_sim"], runs["y_sim"], emulator)
+    x = s.to_unit(data.physical, data.inputs)
+    theta = emulator.get("variance_theta")
+    return dict(
+        emulator_mean=state.hyperparameters.mean,
+        theta_degree=list(state.interpolant.degrees),
+        G=int(np.prod([p + 1 for p in state.interpolant.degrees])),
+        emulator_weights=state.mean_weights(x),
+        emulator_weights_new=state.mean_weights(s.to_unit(new_points, data.inputs)),
+        # one variance for all points (the marginal likelihood needs a scalar noise); its spread is checked
+        emulator_variance=0.0 if theta is None else float(state.variance(x, np.asarray(theta)).mean()),
     )
 
 
