@@ -42,7 +42,7 @@ data {
   vector<lower=0.5>[D_delta] boundary;  // L per input: the basis lives on [0.5 - L, 0.5 + L]
   array[D] real<lower=0> longest_length_scale;  // per simulator input: what the boundary represents
   // the stage-1 emulator (stancal.scalable_emulator), standardised units
-  real emulator_mean;
+  real emulator_mean;                   // the emulator's constant mean
   array[Q] int<lower=0> theta_degree;   // Chebyshev degree per parameter
   int<lower=1> G;                       // prod(theta_degree + 1)
   matrix[N, G] emulator_weights;        // m_i(theta) = emulator_mean + row i . T(theta)

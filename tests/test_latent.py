@@ -140,11 +140,12 @@ def test_counts_case_study_from_runs():
     # latent GPs for both the emulator and a small discrepancy leave a few
     # divergences even at adapt_delta 0.95 (8 of 1,600 measured; 2 x 400 draws
     # at 0.9 also left R-hat 1.015): allowed up to 1 %, and the answer is
-    # checked against the exact-simulator fit below
-    sampling = dict(draws=800, adapt_delta=0.95)
+    # checked against the exact-simulator fit below. 4 chains: 2 x 800 draws
+    # left R-hat 1.015 on delta's length scale on a freshly compiled module
+    sampling = dict(draws=800, adapt_delta=0.95, chains=4)
     result = fit(data, **sampling)
     assert result.method == "koh_latent_emulator"
-    assert_healthy(result, divergences=16)
+    assert_healthy(result, divergences=32)
     # the reference: the same model with the exact simulator in place of the
     # emulator. The finite-size effect is partly confounded with mu, so
     # neither centres on 0.35 (measured 0.380 [0.349, 0.411] from the runs)
