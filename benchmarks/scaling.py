@@ -6,8 +6,8 @@ scalable one (issue: thousands of points and runs).
 For each size n = N (n physical points and N runs drawn from the sensor-log
 case study) it times `modular` with approximation = "exact" (dense GPs) and
 "hsgp" (the scalable programs), 4 chains x (500 + 500) draws, programs
-compiled before the clock starts. The exact path stops after the first size
-that takes more than 10 minutes. It fits the log-log slope of time against n
+compiled before the clock starts, each fit in its own process. The exact
+path stops at the first size that takes more than 10 minutes. It fits the log-log slope of time against n
 for each path, prints a table, and writes scaling.json, scaling.png and the
 peak resident memory of the whole process tree (PyStan samples in child
 processes) for each fit.
@@ -19,6 +19,8 @@ import argparse
 import json
 import logging
 import os
+import subprocess
+import sys
 import threading
 import time
 import warnings
@@ -114,22 +116,41 @@ def slope(rows: list[dict]) -> float | None:
     return float(np.polyfit(n, t, 1)[0])
 
 
+def run_one(size: int, approximation: str) -> dict | None:
+    """One fit in its own process, stopped at EXACT_LIMIT_S (a dense fit
+    cannot be interrupted from inside): its row, or None when it ran out."""
+    command = [sys.executable, __file__, "--one", str(size), approximation]
+    try:
+        done = subprocess.run(command, capture_output=True, text=True, timeout=EXACT_LIMIT_S + 60, check=True)
+    except subprocess.TimeoutExpired:
+        return None
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--sizes", type=int, nargs="+", default=[250, 500, 1000, 2000, 5000])
     parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "scaling")
+    parser.add_argument("--one", nargs=2, metavar=("SIZE", "APPROXIMATION"), help=argparse.SUPPRESS)
     args = parser.parse_args()
     logging.basicConfig(level=logging.WARNING)
+    if args.one:  # a child process: one fit, its row as JSON on the last line
+        size, approximation = int(args.one[0]), args.one[1]
+        print(json.dumps({"size": size, **time_fit(problem(size), approximation)}))
+        return
     results: dict[str, list[dict]] = {"exact": [], "hsgp": []}
     for approximation in ("hsgp", "exact"):
         for size in args.sizes:
-            row = {"size": size, **time_fit(problem(size), approximation)}
+            row = run_one(size, approximation)
+            if row is None or row["seconds"] > EXACT_LIMIT_S:
+                print(f"{approximation}: n = N = {size} took more than {EXACT_LIMIT_S:.0f} s; larger sizes skipped")
+                if row is None:
+                    break
             results[approximation].append(row)
             print(f"{approximation:>6} n = N = {size:>5}: {row['seconds']:7.1f} s, peak memory "
                   f"{row['peak_memory_gb']:.2f} GB, R-hat {row['max_rhat']:.3f}, {row['divergences']} divergences",
                   flush=True)
-            if row["seconds"] > EXACT_LIMIT_S and approximation == "exact":
-                print(f"exact path: {size} took more than {EXACT_LIMIT_S:.0f} s; larger sizes skipped")
+            if row["seconds"] > EXACT_LIMIT_S:
                 break
     slopes = {k: slope(v) for k, v in results.items()}
     for k, v in slopes.items():
