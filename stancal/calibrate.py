@@ -242,7 +242,7 @@ def _check_basis(tree, data: CalibrationData, options: ModelOptions,
     widths = np.array([data.scaling.width[c] for c in data.discrepancy_inputs])
     fitted = np.asarray(posterior["delta_length_scale"]).reshape(-1, len(widths)) / widths
     basis = HSGPBasis(options.basis_functions, options.boundary_factor)
-    problems = basis_problems(basis, options.kernel, fitted.mean(axis=0), data.discrepancy_inputs)
+    problems = basis_problems(basis, options.kernel, fitted, data.discrepancy_inputs)
     if not problems:
         return options, False, []
     advice = "set basis_functions and boundary_factor per input to change it"
