@@ -40,6 +40,7 @@ from .standata import (
     build_stan_data,
     default_new_points,
     emulator_run_data,
+    scalable_emulator_of,
     to_stan_json,
 )
 
@@ -208,8 +209,7 @@ def _check_emulator_variance(tree, data: CalibrationData, emulator: dict[str, An
     the one the fit used, at posterior draws of theta; told when it matters."""
     theta_unit = (np.asarray(tree["posterior"]["theta"]).reshape(-1, len(data.parameters))
                   - data.theta_lower) / (data.theta_upper - data.theta_lower)
-    runs = emulator_run_data(data)
-    state = ScalableEmulator.of(runs["x_sim"], runs["theta_sim"], runs["y_sim"], emulator["hyperparameters"])
+    state = scalable_emulator_of(data, emulator["hyperparameters"])
     x = data.scaling.to_unit(data.physical, data.inputs)
     noise_var = (float(np.median(np.asarray(tree["posterior"]["noise_sd"]))) / data.scaling.y_scale) ** 2
     plug_in = noise_var + float(stan_json["emulator_variance"])

@@ -307,5 +307,8 @@ _BUILT: dict[tuple, ScalableEmulator] = {}
 
 
 def _key(x_runs: np.ndarray, theta_runs: np.ndarray, y_runs: np.ndarray, stored: dict) -> tuple:
+    """What defines an emulator: the runs, hyperparameters and degrees (not
+    calibrate's variance_theta, added later: the N x N factor is not redone)."""
+    defining = {k: v for k, v in stored.items() if k != "variance_theta"}
     return (hash(np.asarray(x_runs).tobytes()), hash(np.asarray(theta_runs).tobytes()),
-            hash(np.asarray(y_runs).tobytes()), json.dumps(stored, sort_keys=True))
+            hash(np.asarray(y_runs).tobytes()), json.dumps(defining, sort_keys=True))

@@ -178,8 +178,7 @@ def scalable_emulator_data(data: CalibrationData, emulator: dict[str, Any],
     points at emulator["variance_theta"], averaged (zero before it is known)."""
     assert data.runs is not None
     s = data.scaling
-    runs = emulator_run_data(data)
-    state = ScalableEmulator.of(runs["x_sim"], runs["theta_sim"], runs["y_sim"], emulator)
+    state = scalable_emulator_of(data, emulator)
     x = s.to_unit(data.physical, data.inputs)
     theta = emulator.get("variance_theta")
     return dict(
@@ -191,6 +190,12 @@ def scalable_emulator_data(data: CalibrationData, emulator: dict[str, Any],
         # one variance for all points (the marginal likelihood needs a scalar noise); its spread is checked
         emulator_variance=0.0 if theta is None else float(state.variance(x, np.asarray(theta)).mean()),
     )
+
+
+def scalable_emulator_of(data: CalibrationData, stored: dict[str, Any]) -> ScalableEmulator:
+    """The stage-1 emulator of modular_hsgp that ``stored`` describes, on the data's runs."""
+    runs = emulator_run_data(data)
+    return ScalableEmulator.of(runs["x_sim"], runs["theta_sim"], runs["y_sim"], stored)
 
 
 def restricted_gp_data(data: CalibrationData, options: ModelOptions) -> dict[str, Any]:
