@@ -58,10 +58,8 @@ parameters {
   vector<lower=0, upper=1>[Q] theta_unit;                // theta rescaled to [0, 1]
   real<lower=0> noise_sd;                                // standardised units
   array[use_discrepancy] real<lower=0> delta_sd;         // standardised units
-  // simulator inputs, fraction of the input's range; the prior is truncated where the
-  // basis stops representing the kernel (a longer one would shrink the discrepancy to 0)
-  array[use_discrepancy ? D : 0] real<lower=0, upper=longest_length_scale[1:(use_discrepancy ? D : 0)]>
-    delta_input_length_scale;
+  // simulator inputs, fraction of the input's range (the basis caps it at longest_length_scale)
+  array[use_discrepancy ? D : 0] real<lower=0> delta_input_length_scale;
   array[use_discrepancy ? D_delta - D : 0] real<lower=0> delta_relevance;  // covariates: inverse length scale
   array[estimate_rho] real<lower=0> rho_free;
   vector[H] beta;                                        // mean-term coefficients, standardised units
@@ -83,8 +81,9 @@ model {
   if (!prior_only) {
     vector[N] resid = y - rho * standardized_simulator(X, theta, y_center, y_scale) - h * beta;
     if (use_discrepancy) {
+      array[D_delta] real length_scale = hsgp_represented_length_scale(delta_length_scale, longest_length_scale);
       resid ~ hsgp_marginal(phi_t, phi_t_phi,
-                            hsgp_weight_sd(basis_index, boundary, kernel_id, delta_sd[1], delta_length_scale),
+                            hsgp_weight_sd(basis_index, boundary, kernel_id, delta_sd[1], length_scale),
                             square(noise_sd));
     } else {
       resid ~ normal(0, noise_sd);
@@ -108,7 +107,8 @@ generated quantities {
     vector[P] delta_new_std = rep_vector(0, P);
     if (use_discrepancy) {
       delta_sd_original[1] = delta_sd[1] * y_scale;
-      vector[B] weight_sd = hsgp_weight_sd(basis_index, boundary, kernel_id, delta_sd[1], delta_length_scale);
+      array[D_delta] real length_scale = hsgp_represented_length_scale(delta_length_scale, longest_length_scale);
+      vector[B] weight_sd = hsgp_weight_sd(basis_index, boundary, kernel_id, delta_sd[1], length_scale);
       vector[B] z = B_normals ? basis_normals : to_vector(normal_rng(rep_vector(0, B), 1));
       // a prior draw, or one from the weights' conditional given the data
       delta_basis_weights = prior_only ? weight_sd .* z

@@ -12,6 +12,7 @@ from itertools import product
 
 import numpy as np
 from scipy.special import gammaln
+from scipy.stats import invgamma
 
 HALF_RANGE = 0.5  # S: the discrepancy inputs live on the unit cube, centred at 0.5
 MIN_BOUNDARY_FACTOR = 1.2  # the paper's smallest useful c
@@ -25,16 +26,25 @@ SHORTEST_EXPECTED, TYPICAL_EXPECTED = 0.15, 0.37
 # more basis functions than this and a gradient costs as much as a dense GP
 # on a few hundred points: the product basis is refused
 MAX_BASIS_FUNCTIONS = 1500
-# a length scale whose posterior 90 % quantile passes this fraction of the
-# longest the basis represents is pressed against that bound: the truncation
-# of its prior is cutting into the posterior (at n = 150 a bound under the
-# exact posterior's tail shrank theta's sd by up to 40 %)
-PRESSED = 0.85
+# the discrepancy length scale's prior (functions/priors.stan), unit range
+LENGTH_SCALE_PRIOR = invgamma(3, scale=1)
+# the programs cap a length scale at the longest the basis represents
+# (hsgp_represented_length_scale): a length scale is pressed against that cap
+# when the data favour lengths beyond it over lengths below it by a Bayes
+# factor above 3 ("positive" evidence, Kass & Raftery 1995). A rule on the
+# posterior alone fires on the prior itself (half its mass lies beyond the
+# first basis's cap) and refits data that say nothing about the length scale
+# with a basis five times larger
+PRESSED_BAYES_FACTOR = 3.0
 
 
 def pressed(fitted: np.ndarray, longest: np.ndarray) -> np.ndarray:
     """Per input: do the draws (draws, inputs) press against the longest length scale?"""
-    return np.quantile(fitted, 0.9, axis=0) > PRESSED * longest
+    beyond_prior = LENGTH_SCALE_PRIOR.sf(np.asarray(longest, float))
+    beyond = (np.asarray(fitted) > longest).mean(axis=0)
+    with np.errstate(divide="ignore"):
+        bayes_factor = (beyond / (1 - beyond)) / (beyond_prior / (1 - beyond_prior))
+    return bayes_factor > PRESSED_BAYES_FACTOR
 
 
 class BasisTooLargeError(ValueError):
@@ -73,10 +83,9 @@ class HSGPBasis:
 
     def longest_length_scale(self, kernel: str) -> np.ndarray:
         """Per input, the longest length scale the boundary leaves unshrunk;
-        the programs truncate the length scale's prior there, because a
-        longer one shrinks the approximate GP towards 0 and opens a second
-        way (besides a small sd) to a null discrepancy, a ridge the sampler
-        crawls along."""
+        the programs cap the length scale there, because a longer one
+        shrinks the approximate GP towards 0 and opens a second way (besides
+        a small sd) to a null discrepancy, a ridge the sampler crawls along."""
         return self.boundary / BOUNDARY_RULE[kernel]
 
     def describe(self) -> str:
@@ -113,8 +122,8 @@ def basis_problems(basis: HSGPBasis, kernel: str, fitted: np.ndarray, inputs: li
     """The paper's diagnostic (section 4.3): each input's fitted length scale
     (posterior mean, unit range) against the shortest the basis represents
     (too few basis functions: the discrepancy comes out too smooth) and the
-    longest, where the programs truncate its prior (pressed against it: the
-    data want a smoother discrepancy than the boundary allows). Empty when
+    longest, where the programs cap it (pressed against it: the data want
+    a smoother discrepancy than the boundary allows). Empty when
     the basis is adequate. ``fitted``: draws (draws, inputs), unit range."""
     problems = []
     short, long = basis.shortest_length_scale(kernel), basis.longest_length_scale(kernel)
@@ -136,11 +145,11 @@ def refined_basis(kernel: str, basis: HSGPBasis, fitted: np.ndarray, inputs: lis
     rebuild from the fitted values and fit again). ``fitted``: draws
     (draws, inputs) in unit range. Each input gets the shortest of its
     draws' 5 % quantile and the typical length scale, and twice the longest
-    where the draws pressed against it."""
+    where the draws pressed against it (elsewhere the draws beyond the cap
+    are the prior's tail, no reason for a wider boundary)."""
     longest = basis.longest_length_scale(kernel)
     return basis_for(kernel, np.minimum(np.quantile(fitted, 0.05, axis=0), TYPICAL_EXPECTED),
-                     np.where(pressed(fitted, longest), 2 * longest,
-                              np.maximum(longest, np.quantile(fitted, 0.95, axis=0))), inputs)
+                     np.where(pressed(fitted, longest), 2 * longest, longest), inputs)
 
 
 def basis(x_unit: np.ndarray, index: np.ndarray, boundary: np.ndarray) -> np.ndarray:

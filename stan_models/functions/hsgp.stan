@@ -61,6 +61,23 @@ vector hsgp_weight_sd(array[,] int index, vector boundary, int kernel_id, real m
 }
 
 /**
+ * The length scales the basis works with: each capped at the longest its
+ * boundary represents. Beyond it the approximate GP would shrink towards 0
+ * (a second, false route to a null discrepancy); capped, a longer length
+ * scale gives the smoothest GP the basis holds, so the prior's long tail
+ * keeps its mass (a truncated prior cut it off, and with it theta's
+ * trade-off with a nearly constant discrepancy).
+ *
+ * @param length_scale one per input, fractions of the input's range
+ * @param longest one per input: boundary / (the paper's c rule), same units
+ */
+array[] real hsgp_represented_length_scale(array[] real length_scale, array[] real longest) {
+  array[size(length_scale)] real represented;
+  for (d in 1:size(length_scale)) represented[d] = fmin(length_scale[d], longest[d]);
+  return represented;
+}
+
+/**
  * log N(r | 0, noise_var I + Phi diag(weight_sd^2) Phi'): the Hilbert-space
  * GP with its basis weights integrated out (Woodbury identity and matrix
  * determinant lemma). With Phi' Phi as data a gradient costs O(N B) for
