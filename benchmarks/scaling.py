@@ -109,14 +109,6 @@ def time_fit(data: stancal.CalibrationData, approximation: str) -> dict:
             "theta": {k: {"mean": v["mean"], "sd": v["sd"]} for k, v in theta.items()}}
 
 
-def slope(rows: list[dict]) -> float | None:
-    if len(rows) < 2:
-        return None
-    n = np.log([r["size"] for r in rows])
-    t = np.log([r["seconds"] for r in rows])
-    return float(np.polyfit(n, t, 1)[0])
-
-
 def run_one(size: int, approximation: str) -> dict | None:
     """One fit in its own process, stopped at EXACT_LIMIT_S (a dense fit
     cannot be interrupted from inside): its row, or None when it ran out."""
@@ -134,6 +126,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--sizes", type=int, nargs="+", default=[100, 250, 500, 1000, 2000, 5000])
     parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "scaling")
+    parser.add_argument("--replot", action="store_true", help="redraw the figure from --out's JSON")
     parser.add_argument("--one", nargs=2, metavar=("SIZE", "APPROXIMATION"), help=argparse.SUPPRESS)
     args = parser.parse_args()
     logging.basicConfig(level=logging.WARNING)
@@ -141,47 +134,84 @@ def main() -> None:
         size, approximation = int(args.one[0]), args.one[1]
         print(json.dumps({"size": size, **time_fit(problem(size), approximation)}))
         return
+    if args.replot:  # the figure and the summary again, from the JSON of an earlier sweep
+        results = json.loads(args.out.with_suffix(".json").read_text())["fits"]
+    else:
+        results = sweep(args.sizes)
+    report(results, args.out)
+
+
+def sweep(sizes: list[int]) -> dict[str, list[dict]]:
+    """Each path over the sizes; a fit stopped at the limit is kept as a row
+    with "timed_out" and ends its path."""
     results: dict[str, list[dict]] = {"exact": [], "hsgp": []}
     for approximation in ("hsgp", "exact"):
-        for size in args.sizes:
-            row = run_one(size, approximation)
-            if row is None or row["seconds"] > EXACT_LIMIT_S:
-                print(f"{approximation}: n = N = {size} took more than {EXACT_LIMIT_S:.0f} s; larger sizes skipped")
-                if row is None:
-                    break
+        for size in sizes:
+            row = run_one(size, approximation) or {"size": size, "timed_out": True}
             results[approximation].append(row)
+            if row.get("timed_out"):
+                print(f"{approximation}: n = N = {size} took more than {EXACT_LIMIT_S:.0f} s; larger sizes skipped")
+                break
             print(f"{approximation:>6} n = N = {size:>5}: {row['seconds']:7.1f} s, peak memory "
                   f"{row['peak_memory_gb']:.2f} GB, R-hat {row['max_rhat']:.3f}, {row['divergences']} divergences",
                   flush=True)
             if row["seconds"] > EXACT_LIMIT_S:
                 break
-    for exact in results["exact"]:  # the same data on both paths: the approximation's error in theta
-        scalable = next((r for r in results["hsgp"] if r["size"] == exact["size"]), None)
+    return results
+
+
+def slope(rows: list[dict]) -> dict[str, float | None]:
+    """The log-log slope of wall time against n over the finished fits, and
+    (when the path ended at the limit) the smallest slope that reaches the
+    limit from its last finished fit."""
+    done = [r for r in rows if not r.get("timed_out")]
+    fitted = (float(np.polyfit(np.log([r["size"] for r in done]), np.log([r["seconds"] for r in done]), 1)[0])
+              if len(done) >= 2 else None)
+    cut = next((r for r in rows if r.get("timed_out")), None)
+    at_least = (float(np.log(EXACT_LIMIT_S / done[-1]["seconds"]) / np.log(cut["size"] / done[-1]["size"]))
+                if cut and done else None)
+    return {"fitted": fitted, "at_least": at_least}
+
+
+def report(results: dict[str, list[dict]], out: Path) -> None:
+    finished = {k: [r for r in v if not r.get("timed_out")] for k, v in results.items()}
+    for exact in finished["exact"]:  # the same data on both paths: the approximation's error in theta
+        scalable = next((r for r in finished["hsgp"] if r["size"] == exact["size"]), None)
         for name, reference in exact["theta"].items() if scalable else ():
             approx = scalable["theta"][name]
             print(f"n = N = {exact['size']}, {name}: hsgp mean {(approx['mean'] - reference['mean']) / reference['sd']:+.2f} "
                   f"exact sd from the exact one, sd {approx['sd'] / reference['sd'] - 1:+.0%}")
     slopes = {k: slope(v) for k, v in results.items()}
     for k, v in slopes.items():
-        print(f"log-log slope of wall time against n, {k}: {v:.2f}" if v is not None else f"{k}: one size only")
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.with_suffix(".json").write_text(json.dumps({"fits": results, "slopes": slopes}, indent=2))
-    plot(results, slopes, args.out.with_suffix(".png"))
+        fitted = f"{v['fitted']:.2f}" if v["fitted"] is not None else "one finished size only"
+        bound = f"; at least {v['at_least']:.2f} to reach the 10-minute limit" if v["at_least"] is not None else ""
+        print(f"log-log slope of wall time against n, {k}: {fitted}{bound}")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.with_suffix(".json").write_text(json.dumps({"fits": results, "slopes": slopes}, indent=2))
+    plot(results, slopes, out.with_suffix(".png"))
 
 
-def plot(results: dict[str, list[dict]], slopes: dict[str, float | None], path: Path) -> None:
+def plot(results: dict[str, list[dict]], slopes: dict[str, dict], path: Path) -> None:
     from stancal.plots import finish, pyplot
 
     plt = pyplot()
-    fig, ax = plt.subplots(figsize=(5.5, 4))
-    for name, rows in results.items():
-        if rows:
-            label = f"{name} (slope {slopes[name]:.2f})" if slopes[name] is not None else name
-            ax.loglog([r["size"] for r in rows], [r["seconds"] for r in rows], "o-", label=label)
+    fig, ax = plt.subplots(figsize=(6, 4.2))
+    for (name, rows), colour in zip(results.items(), ("C0", "C1")):
+        done = [r for r in rows if not r.get("timed_out")]
+        fitted, at_least = slopes[name]["fitted"], slopes[name]["at_least"]
+        label = name + (f" (slope {fitted:.2f})" if fitted is not None else "")
+        label += f" (slope at least {at_least:.1f})" if at_least is not None else ""
+        ax.loglog([r["size"] for r in done], [r["seconds"] for r in done], "o-", color=colour, label=label)
+        for cut in (r for r in rows if r.get("timed_out")):
+            ax.loglog([done[-1]["size"], cut["size"]], [done[-1]["seconds"], EXACT_LIMIT_S], ":", color=colour)
+            ax.loglog([cut["size"]], [EXACT_LIMIT_S], "^", color=colour, markersize=9)
+            ax.annotate("stopped at 10 min", (cut["size"], EXACT_LIMIT_S), textcoords="offset points",
+                        xytext=(6, -14), fontsize=8, color=colour)
     ax.axhline(EXACT_LIMIT_S, color="grey", linestyle=":", label="10 minutes")
     ax.set_xlabel("n = N (physical points = simulator runs)")
     ax.set_ylabel("wall time of modular, 4 x (500 + 500) [s]")
-    ax.legend()
+    ax.legend(loc="lower right")
+    fig.tight_layout()
     finish(fig, path)
 
 
