@@ -202,7 +202,7 @@ def sensor_small():
 def koh_hsgp_fit(sensor_small):
     # a basis given by hand (one fit, not the check's two), wide over T0, along which the discrepancy is linear
     return fit(sensor_small, simulator=SENSOR / "simulator.stan", method="koh", approximation="hsgp",
-               basis_functions=(11, 20), boundary_factor=(2.368, 4.736), chains=4, warmup=500, draws=500,
+               basis_functions=(11, 20), boundary_factor=(2.368, 4.736), chains=4, warmup=300, draws=300,
                adapt_delta=0.95)
 
 
