@@ -81,9 +81,9 @@ model {
   if (!prior_only) {
     vector[N] resid = y - rho * standardized_simulator(X, theta, y_center, y_scale) - h * beta;
     if (use_discrepancy) {
-      array[D_delta] real length_scale = hsgp_represented_length_scale(delta_length_scale, longest_length_scale);
       resid ~ hsgp_marginal(phi_t, phi_t_phi,
-                            hsgp_weight_sd(basis_index, boundary, kernel_id, delta_sd[1], length_scale),
+                            hsgp_weight_sd(basis_index, boundary, kernel_id, delta_sd[1],
+                                           delta_length_scale, longest_length_scale),
                             square(noise_sd));
     } else {
       resid ~ normal(0, noise_sd);
@@ -107,8 +107,8 @@ generated quantities {
     vector[P] delta_new_std = rep_vector(0, P);
     if (use_discrepancy) {
       delta_sd_original[1] = delta_sd[1] * y_scale;
-      array[D_delta] real length_scale = hsgp_represented_length_scale(delta_length_scale, longest_length_scale);
-      vector[B] weight_sd = hsgp_weight_sd(basis_index, boundary, kernel_id, delta_sd[1], length_scale);
+      vector[B] weight_sd = hsgp_weight_sd(basis_index, boundary, kernel_id, delta_sd[1],
+                                           delta_length_scale, longest_length_scale);
       vector[B] z = B_normals ? basis_normals : to_vector(normal_rng(rep_vector(0, B), 1));
       // a prior draw, or one from the weights' conditional given the data
       delta_basis_weights = prior_only ? weight_sd .* z

@@ -97,10 +97,10 @@ model {
     real rtr = y_t_y - 2 * dot_product(columns_t_y, coefficients) + quad_form(columns_t_columns, coefficients);
     real error_var = square(noise_sd) + square(rho) * emulator_variance;
     if (use_discrepancy) {
-      array[D_delta] real length_scale = hsgp_represented_length_scale(delta_length_scale, longest_length_scale);
       target += hsgp_marginal_from_sums(
         rtr, phi_t_y - phi_t_columns * coefficients, N, phi_t_phi,
-        hsgp_weight_sd(basis_index, boundary, kernel_id, delta_sd[1], length_scale), error_var);
+        hsgp_weight_sd(basis_index, boundary, kernel_id, delta_sd[1], delta_length_scale, longest_length_scale),
+        error_var);
     } else {
       target += -0.5 * rtr / error_var - 0.5 * N * log(2 * pi() * error_var);
     }
@@ -125,8 +125,8 @@ generated quantities {
     vector[P] delta_new_std = rep_vector(0, P);
     if (use_discrepancy) {
       delta_sd_original[1] = delta_sd[1] * y_scale;
-      array[D_delta] real length_scale = hsgp_represented_length_scale(delta_length_scale, longest_length_scale);
-      vector[B] weight_sd = hsgp_weight_sd(basis_index, boundary, kernel_id, delta_sd[1], length_scale);
+      vector[B] weight_sd = hsgp_weight_sd(basis_index, boundary, kernel_id, delta_sd[1],
+                                           delta_length_scale, longest_length_scale);
       vector[B] z = B_normals ? basis_normals : to_vector(normal_rng(rep_vector(0, B), 1));
       // a prior draw, or one from the weights' conditional given the data
       delta_basis_weights = prior_only ? weight_sd .* z

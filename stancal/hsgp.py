@@ -29,7 +29,7 @@ MAX_BASIS_FUNCTIONS = 1500
 # the discrepancy length scale's prior (functions/priors.stan), unit range
 LENGTH_SCALE_PRIOR = invgamma(3, scale=1)
 # the programs cap a length scale at the longest the basis represents
-# (hsgp_represented_length_scale): a length scale is pressed against that cap
+# (hsgp_weight_sd): a length scale is pressed against that cap
 # when the data favour lengths beyond it over lengths below it by a Bayes
 # factor above 3 ("positive" evidence, Kass & Raftery 1995). A rule on the
 # posterior alone fires on the prior itself (half its mass lies beyond the
@@ -160,9 +160,10 @@ def basis(x_unit: np.ndarray, index: np.ndarray, boundary: np.ndarray) -> np.nda
 
 
 def weight_sd(index: np.ndarray, boundary: np.ndarray, kernel: str, marginal_sd: float,
-              length_scale: np.ndarray) -> np.ndarray:
-    """hsgp_weight_sd of functions/hsgp.stan: the sd of each basis weight."""
-    length_scale = np.asarray(length_scale, float)
+              length_scale: np.ndarray, longest: np.ndarray | float = np.inf) -> np.ndarray:
+    """hsgp_weight_sd of functions/hsgp.stan: the sd of each basis weight,
+    each length scale capped at ``longest``."""
+    length_scale = np.minimum(np.asarray(length_scale, float), longest)
     n_dims = len(boundary)
     scaled_sq = ((length_scale * np.pi / (2 * boundary)) ** 2 * index**2).sum(axis=1)
     log_scale = 2 * np.log(marginal_sd) + np.log(length_scale).sum()

@@ -38,17 +38,27 @@ matrix hsgp_basis(array[] vector x, array[,] int index, vector boundary) {
  * @param boundary L per input
  * @param kernel_id 1 = squared exponential, 2 = Matern 5/2
  * @param marginal_sd marginal standard deviation of the GP
+ * Each length scale is capped at the longest the boundary represents:
+ * beyond it the approximate GP would shrink towards 0 (a second, false route
+ * to a null discrepancy); capped, a longer length scale gives the smoothest
+ * GP the basis holds, so the prior's long tail keeps its mass (a truncated
+ * prior cut it off, and with it theta's trade-off with a nearly constant
+ * discrepancy).
+ *
  * @param length_scale one per input, fractions of the input's range
+ * @param longest one per input: boundary / (the paper's c rule), same units
  * @return one sd per basis function
  */
 vector hsgp_weight_sd(array[,] int index, vector boundary, int kernel_id, real marginal_sd,
-                      array[] real length_scale) {
+                      array[] real length_scale, array[] real longest) {
   int n_dims = num_elements(boundary);
+  vector[n_dims] capped;
+  for (d in 1:n_dims) capped[d] = fmin(length_scale[d], longest[d]);
   vector[size(index)] scaled_sq = rep_vector(0, size(index));  // |l .* w|^2 per basis function
   for (d in 1:n_dims) {
-    scaled_sq += square(length_scale[d] * pi() / (2 * boundary[d]) * to_vector(index[:, d]));
+    scaled_sq += square(capped[d] * pi() / (2 * boundary[d]) * to_vector(index[:, d]));
   }
-  real log_scale = 2 * log(marginal_sd) + sum(log(length_scale));
+  real log_scale = 2 * log(marginal_sd) + sum(log(capped));
   vector[size(index)] log_density;
   if (kernel_id == 2) {
     real nu = 2.5;
@@ -58,23 +68,6 @@ vector hsgp_weight_sd(array[,] int index, vector boundary, int kernel_id, real m
     log_density = log_scale + 0.5 * n_dims * log(2 * pi()) - 0.5 * scaled_sq;
   }
   return exp(0.5 * log_density);
-}
-
-/**
- * The length scales the basis works with: each capped at the longest its
- * boundary represents. Beyond it the approximate GP would shrink towards 0
- * (a second, false route to a null discrepancy); capped, a longer length
- * scale gives the smoothest GP the basis holds, so the prior's long tail
- * keeps its mass (a truncated prior cut it off, and with it theta's
- * trade-off with a nearly constant discrepancy).
- *
- * @param length_scale one per input, fractions of the input's range
- * @param longest one per input: boundary / (the paper's c rule), same units
- */
-array[] real hsgp_represented_length_scale(array[] real length_scale, array[] real longest) {
-  array[size(length_scale)] real represented;
-  for (d in 1:size(length_scale)) represented[d] = fmin(length_scale[d], longest[d]);
-  return represented;
 }
 
 /**
