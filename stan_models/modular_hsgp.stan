@@ -4,14 +4,18 @@
 //   mean at (x_i, theta) is the GP mean given all runs, interpolated in
 //   theta by tensor Chebyshev polynomials through precomputed weights,
 //     m_i(theta) = emulator_mean + weights_i . T(theta),
-//   and its predictive variance v, the mean over the points of local-GP
-//   variances (data);
+//   and its error at the points, correlated across them, as R leading
+//   eigenvectors of its covariance (columns E, scaled by the square roots of
+//   their eigenvalues) plus an independent variance v for the rest (data);
 // - the discrepancy GP in its Hilbert-space approximation (Riutort-Mayol et
 //   al. 2023), weights integrated out as in koh_hsgp.stan:
-//   y_i = rho m_i(theta) + h_i' beta + phi(x_i)' w + e_i,  e_i ~ N(0, noise_sd^2 + rho^2 v).
-// The mean is linear in K = 1 + G + H precomputed columns, so the residual's
-// sums r' r and Phi' r come from K x K and B x K data: each gradient costs
-// O(B K + K^2 + B^3), whatever the number of points.
+//   y_i = rho (m_i(theta) + E_i u) + h_i' beta + phi(x_i)' w + e_i,
+//   u ~ N(0, I), e_i ~ N(0, noise_sd^2 + rho^2 v).
+// The emulator's error weights u are integrated out with the discrepancy's
+// w, as B + R basis functions. The mean is linear in K = 1 + G + H
+// precomputed columns, so the residual's sums r' r and [Phi E]' r come from
+// K x K and (B + R) x K data: each gradient costs O((B + R) K + K^2 + (B + R)^3),
+// whatever the number of points.
 functions {
 #include gp_kernels.stan
 #include chebyshev.stan
@@ -46,25 +50,31 @@ data {
   array[Q] int<lower=0> theta_degree;   // Chebyshev degree per parameter
   int<lower=1> G;                       // prod(theta_degree + 1)
   matrix[N, G] emulator_weights;        // m_i(theta) = emulator_mean + row i . T(theta)
-  real<lower=0> emulator_variance;      // predictive variance at the points (mean of local GPs')
+  int<lower=0> emulator_error_rank;     // R: eigenvectors of the emulator error's covariance at the points
+  matrix[N, emulator_error_rank] emulator_error_basis;  // E: E E' + v I approximates that covariance
+  real<lower=0> emulator_variance;      // v: what E leaves of each point's variance, averaged
   int<lower=0> P;                       // number of prediction points
   array[P] vector[D_delta] x_delta_new; // discrepancy inputs of the prediction points, scaled to [0, 1]
   matrix[P, H] h_new;                   // mean terms at the prediction points, scaled like h
   matrix[P, G] emulator_weights_new;    // the emulator mean's weights at the prediction points
-  int<lower=0> B_normals;               // B = the basis weights' draws use basis_normals, 0 = Stan's RNG
+  int<lower=0> B_normals;               // B + R = the basis weights' draws use basis_normals, 0 = Stan's RNG
   vector[B_normals] basis_normals;      // standard normals for those draws
 }
 transformed data {
+  int R = emulator_error_rank;
+  int B_delta = use_discrepancy ? B : 0;
+  int W = B_delta + R;                  // basis weights integrated out: discrepancy's, then emulator error's
   matrix[N, B] phi = hsgp_basis(x_delta, basis_index, boundary);
-  matrix[B, N] phi_t = phi';
-  matrix[B, B] phi_t_phi = crossprod(phi);
-  if (B_normals != 0 && B_normals != B) reject("B_normals must be 0 or B = ", B, "; got ", B_normals);
+  matrix[N, W] basis = append_col(phi[:, 1:B_delta], emulator_error_basis);
+  matrix[W, N] basis_t = basis';
+  matrix[W, W] basis_t_basis = crossprod(basis);
+  if (B_normals != 0 && B_normals != B + R) reject("B_normals must be 0 or B + R = ", B + R, "; got ", B_normals);
   // mean = columns * coefficients(theta, rho, beta): the residual's sums from these
   matrix[N, 1 + G + H] columns = append_col(append_col(rep_vector(1, N), emulator_weights), h);
   matrix[1 + G + H, 1 + G + H] columns_t_columns = crossprod(columns);
   vector[1 + G + H] columns_t_y = columns' * y;
-  matrix[B, 1 + G + H] phi_t_columns = phi_t * columns;
-  vector[B] phi_t_y = phi_t * y;
+  matrix[W, 1 + G + H] basis_t_columns = basis_t * columns;
+  vector[W] basis_t_y = basis_t * y;
   real y_t_y = dot_self(y);
 }
 parameters {
@@ -96,11 +106,14 @@ model {
       = append_row(rho * append_row(emulator_mean, chebyshev_tensor_basis(theta_unit, theta_degree)), beta);
     real rtr = y_t_y - 2 * dot_product(columns_t_y, coefficients) + quad_form(columns_t_columns, coefficients);
     real error_var = square(noise_sd) + square(rho) * emulator_variance;
-    if (use_discrepancy) {
-      target += hsgp_marginal_from_sums(
-        rtr, phi_t_y - phi_t_columns * coefficients, N, phi_t_phi,
-        hsgp_weight_sd(basis_index, boundary, kernel_id, delta_sd[1], delta_length_scale, longest_length_scale),
-        error_var);
+    if (W > 0) {
+      vector[W] weight_sd = rep_vector(rho, W);  // the emulator error's columns carry their eigenvalues
+      if (use_discrepancy) {
+        weight_sd[1:B] = hsgp_weight_sd(basis_index, boundary, kernel_id, delta_sd[1], delta_length_scale,
+                                        longest_length_scale);
+      }
+      target += hsgp_marginal_from_sums(rtr, basis_t_y - basis_t_columns * coefficients, N, basis_t_basis,
+                                        weight_sd, error_var);
     } else {
       target += -0.5 * rtr / error_var - 0.5 * N * log(2 * pi() * error_var);
     }
@@ -114,6 +127,7 @@ generated quantities {
   vector[N] y_rep;        // replicated data, original units
   vector[N] y_loo_mean;   // E(y_i | parameters, basis weights): PSIS-LOO weights make it held out
   vector[N] delta_gp;     // GP part of the discrepancy at the physical points, original units
+  vector[N] emulator_error;  // the emulator's error at the physical points (its basis part), original units
   vector[P] f_new;        // emulator mean at the prediction points
   vector[P] delta_new;    // discrepancy at the prediction points
   vector[P] zeta_new;     // true process rho * f + delta at the prediction points
@@ -123,23 +137,33 @@ generated quantities {
     vector[N] mu = rho * (emulator_mean + emulator_weights * chebyshev) + h * beta;
     vector[N] delta_obs = rep_vector(0, N);
     vector[P] delta_new_std = rep_vector(0, P);
+    vector[N] error_obs = rep_vector(0, N);
+    if (W > 0) {
+      vector[W] weight_sd = rep_vector(rho, W);
+      if (use_discrepancy) {
+        weight_sd[1:B] = hsgp_weight_sd(basis_index, boundary, kernel_id, delta_sd[1], delta_length_scale,
+                                        longest_length_scale);
+      }
+      vector[B + R] normals = B_normals ? basis_normals : to_vector(normal_rng(rep_vector(0, B + R), 1));
+      vector[W] z = append_row(normals[1:B_delta], normals[(B + 1):(B + R)]);
+      // a prior draw, or one from the weights' conditional given the data
+      vector[W] weights = prior_only ? weight_sd .* z
+                          : hsgp_weights(y - mu, basis_t, basis_t_basis, weight_sd, error_var, z);
+      delta_basis_weights = weights[1:B_delta];
+      error_obs = rho * (emulator_error_basis * weights[(B_delta + 1):W]);
+    }
     if (use_discrepancy) {
       delta_sd_original[1] = delta_sd[1] * y_scale;
-      vector[B] weight_sd = hsgp_weight_sd(basis_index, boundary, kernel_id, delta_sd[1],
-                                           delta_length_scale, longest_length_scale);
-      vector[B] z = B_normals ? basis_normals : to_vector(normal_rng(rep_vector(0, B), 1));
-      // a prior draw, or one from the weights' conditional given the data
-      delta_basis_weights = prior_only ? weight_sd .* z
-                            : hsgp_weights(y - mu, phi_t, phi_t_phi, weight_sd, error_var, z);
       delta_obs = phi * delta_basis_weights;
       if (P > 0) delta_new_std = hsgp_basis(x_delta_new, basis_index, boundary) * delta_basis_weights;
     }
-    mu += delta_obs;
+    mu += delta_obs + error_obs;
     real sd_obs = sqrt(error_var);
     for (i in 1:N) log_lik[i] = normal_lpdf(y[i] | mu[i], sd_obs) - log(y_scale);
     y_rep = y_center + y_scale * to_vector(normal_rng(mu, sd_obs));
     y_loo_mean = y_center + y_scale * mu;
     delta_gp = y_scale * delta_obs;
+    emulator_error = y_scale * error_obs;
     vector[P] f_new_std = emulator_mean + emulator_weights_new * chebyshev;
     f_new = y_center + y_scale * f_new_std;
     delta_new = y_scale * (h_new * beta + delta_new_std);

@@ -33,7 +33,7 @@ from .quadrature import input_box_quadrature
 from .result import CalibrationResult, build_datatree
 from .seeds import command_seed
 from .stan_source import FlatProgram, flatten
-from .scalable_emulator import NEIGHBOURS, ScalableEmulator, least_squares_theta
+from .scalable_emulator import ERROR_RANK_SHARE, MAX_ERROR_RANK, NEIGHBOURS, ScalableEmulator, chebyshev_basis, least_squares_theta
 from .standata import (
     EMULATOR_HYPERPARAMETERS,
     build_emulator_data,
@@ -190,12 +190,17 @@ def fit_scalable_emulator(data: CalibrationData, seed: int) -> dict[str, Any]:
                 "(error %.1g sd of the output)", emulator["hyperparameter_runs"], len(data.runs),
                 emulator["theta_interpolation_points"], emulator["theta_interpolation_error"])
     y = data.scaling.standardise(data.physical[data.output].to_numpy())
-    theta_unit = least_squares_theta(state.mean_weights(x_points), state.interpolant.degrees,
-                                     state.hyperparameters.mean, y)
+    weights = state.mean_weights(x_points)
+    theta_unit = least_squares_theta(weights, state.interpolant.degrees, state.hyperparameters.mean, y)
+    residual = y - state.hyperparameters.mean - weights @ chebyshev_basis(theta_unit[None, :],
+                                                                           state.interpolant.degrees)[0]
     emulator["hyperparameters"]["variance_theta"] = theta_unit.tolist()
+    # the error's eigenvalues worth a basis function: noise plus discrepancy bound the noise from above
+    emulator["hyperparameters"]["error_threshold"] = ERROR_RANK_SHARE * float(np.mean(residual**2))
     emulator["stage1"] = (f"hyperparameters at their posterior mode by scipy L-BFGS on "
                           f"{emulator['hyperparameter_runs']} of {len(data.runs)} runs; mean from all runs; "
-                          f"variance by local GPs of {NEIGHBOURS} runs at theta's least-squares fit")
+                          f"covariance at theta's least-squares fit: its leading eigenvectors by Nystroem, "
+                          f"the rest of each point's variance by local GPs of {NEIGHBOURS} runs")
     emulator["runs_sd"] = float(data.runs_on_link_scale().std(ddof=1))
     emulator["fit_s"] = time.perf_counter() - started
     logger.info("stage 1 in %.1f s in all", emulator["fit_s"])
@@ -204,28 +209,35 @@ def fit_scalable_emulator(data: CalibrationData, seed: int) -> dict[str, Any]:
 
 def _check_emulator_variance(tree, data: CalibrationData, emulator: dict[str, Any],
                              stan_json: dict[str, Any]) -> list[str]:
-    """The emulator's variance entered as one number, its mean over the
-    points at one theta: how far each observation's predictive sd is from
-    the one the fit used, at posterior draws of theta; told when it matters."""
+    """The emulator's covariance entered the fit at one theta (its basis
+    columns, plus the rest as one variance averaged over the points): how
+    far each observation's predictive sd is from the one the fit gave it, at
+    posterior draws of theta; told when it matters."""
     theta_unit = (np.asarray(tree["posterior"]["theta"]).reshape(-1, len(data.parameters))
                   - data.theta_lower) / (data.theta_upper - data.theta_lower)
     state = scalable_emulator_of(data, emulator["hyperparameters"])
     x = data.scaling.to_unit(data.physical, data.inputs)
     noise_var = (float(np.median(np.asarray(tree["posterior"]["noise_sd"]))) / data.scaling.y_scale) ** 2
-    plug_in = noise_var + float(stan_json["emulator_variance"])
+    columns = np.asarray(stan_json["emulator_error_basis"]).reshape(len(x), -1)
+    plug_in = noise_var + (columns**2).sum(1) + float(stan_json["emulator_variance"])
     rng = np.random.default_rng(0)
     variances = [state.variance(x, theta) for theta in theta_unit[rng.choice(len(theta_unit), 8, replace=False)]]
-    # the sd each observation should have had, against the one the fit gave all of them
+    # the sd each observation should have had, against the one the fit gave it
     moved = max(float(np.max(np.abs(np.sqrt((noise_var + v) / plug_in) - 1))) for v in variances)
     emulator["variance_check"] = {
         "max_relative_change_of_sd": moved,
-        "max_emulator_sd_over_noise_sd": float(np.sqrt(max(v.max() for v in variances) / noise_var))}
+        "max_emulator_sd_over_noise_sd": float(np.sqrt(max(v.max() for v in variances) / noise_var)),
+        "error_basis_rank": columns.shape[1]}
+    messages = [] if columns.shape[1] < MAX_ERROR_RANK else [
+        f"the emulator's error at the points entered the fit through its {MAX_ERROR_RANK} leading "
+        f"eigenvectors, the most stancal takes; the rest was treated as independent between points, "
+        f"which narrows theta's band if it is large: more runs would shrink it"]
     if moved <= VARIANCE_TOLERANCE:
-        return []
-    return [f"the emulator's variance entered the fit as its mean over the points at theta's posterior mode; "
-            f"at posterior draws of theta an observation's predictive sd differs from the one used by up to "
-            f"{moved:.0%}: theta's band may be off by about as much. More runs where the posterior lies, or "
-            f"approximation = 'exact' on a subsample, would settle it"]
+        return messages
+    return messages + [f"the emulator's covariance entered the fit at theta's least-squares fit; at posterior draws of "
+            f"theta an observation's predictive sd differs from the one used by up to {moved:.0%}: theta's "
+            f"band may be off by about as much. More runs where the posterior lies, or approximation = "
+            f"'exact' on a subsample, would settle it"]
 
 
 def _with_basis(options: ModelOptions, basis: HSGPBasis) -> ModelOptions:

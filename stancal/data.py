@@ -71,6 +71,23 @@ def _category_levels(frame: pd.DataFrame, column: str, what: str) -> list[str] |
     return sorted(raw.astype(str).unique())
 
 
+def parameters_from_bounds(theta: Mapping[str, tuple[float, float]], what: str = "theta",
+                           required: bool = True) -> list[Parameter]:
+    """Parameters from name -> (lower, upper), each checked (the error names it)."""
+    if required and not theta:
+        raise DataError(f"{what}: give at least one calibration parameter with bounds")
+    out = []
+    for name, bounds in theta.items():
+        try:
+            lower, upper = (float(b) for b in bounds)
+        except (TypeError, ValueError):
+            raise DataError(f"{what} '{name}': bounds must be two numbers [lower, upper]; got {bounds!r}") from None
+        if not (np.isfinite(lower) and np.isfinite(upper) and lower < upper):
+            raise DataError(f"{what} '{name}': bounds must be finite with lower < upper; got [{lower}, {upper}]")
+        out.append(Parameter(name, lower, upper))
+    return out
+
+
 def one_hot_name(column: str, level: str) -> str:
     return f"{column}[{level}]"
 
@@ -144,7 +161,7 @@ class CalibrationData:
         self.inputs = list(inputs)
         self.output = output
         self.covariates = list(covariates)
-        self.parameters = self._parameters(theta)
+        self.parameters = parameters_from_bounds(theta)
         self._check_names()
         self.source = physical.copy()  # every column, for formulas over the physical data
         self.levels = self._levels(physical, levels or {})
@@ -252,25 +269,6 @@ class CalibrationData:
     @property
     def has_runs(self) -> bool:
         return self.runs is not None
-
-    @staticmethod
-    def _parameters(theta: Mapping[str, tuple[float, float]]) -> list[Parameter]:
-        if not theta:
-            raise DataError("theta: give at least one calibration parameter with bounds")
-        out = []
-        for name, bounds in theta.items():
-            try:
-                lower, upper = (float(b) for b in bounds)
-            except (TypeError, ValueError):
-                raise DataError(
-                    f"theta '{name}': bounds must be two numbers [lower, upper]; got {bounds!r}"
-                ) from None
-            if not (np.isfinite(lower) and np.isfinite(upper) and lower < upper):
-                raise DataError(
-                    f"theta '{name}': bounds must be finite with lower < upper; got [{lower}, {upper}]"
-                )
-            out.append(Parameter(name, lower, upper))
-        return out
 
     def _check_names(self) -> None:
         if not self.inputs:

@@ -13,15 +13,20 @@
   mean_i(theta) = m + weights_i . T(theta), O(n G) per gradient for G nodes,
   with the weights (n x G) precomputed; the degrees grow until the mean is
   within MEAN_TOLERANCE of the exact GP mean at random theta.
-- Predictive variance: a local GP (Gramacy & Apley 2015) on the
-  NEIGHBOURS nearest runs of each point in the kernel's metric, at one
-  theta (the emulator mean's least-squares fit to the data), averaged over
-  the points: the
-  marginal likelihood of the Hilbert-space discrepancy needs one noise
-  variance. A subset of the runs can only raise the variance, so it errs on
-  the wide side; with thousands of runs it is small next to the measurement
-  noise, and calibrate reports how far each point's own value, at posterior
-  draws of theta, lies from the one used.
+- Predictive covariance at the physical points, at one theta (the emulator
+  mean's least-squares fit to the data): the emulator's error is smooth, so
+  it is correlated across the points, and treated as independent it would
+  average out over thousands of points that all share it. Its leading
+  eigenvectors (a Nystroem approximation on at most LANDMARKS points,
+  Williams & Seeger 2001) enter the likelihood as extra basis functions
+  beside the discrepancy's, with fixed weight variances; the rest of each
+  point's variance, from a local GP (Gramacy & Apley 2015) on the
+  NEIGHBOURS nearest runs in the kernel's metric, is averaged over the
+  points into one independent variance (the marginal likelihood of the
+  Hilbert-space discrepancy takes one). A subset of the runs can only raise
+  the variance, so that part errs on the wide side; calibrate reports how
+  far each point's variance, at posterior draws of theta, lies from the one
+  used.
 """
 
 from __future__ import annotations
@@ -44,6 +49,9 @@ JITTER = 1e-6  # times the emulator's variance, as functions/scaling.stan's add_
 MEAN_TOLERANCE = 1e-3  # Nystroem error of the emulator mean, standardised output units
 MAX_GRID = 3000  # interpolation nodes over the theta box at most
 NEIGHBOURS = 60  # runs in each point's local GP for the variance
+LANDMARKS = 600  # points of the Nystroem approximation of the error's covariance
+MAX_ERROR_RANK = 40  # the error's eigenvectors kept: each costs a basis function per gradient
+ERROR_RANK_SHARE = 0.03  # keep eigenvalues above this share of the data's residual variance
 
 
 @dataclass
@@ -115,12 +123,13 @@ def negative_log_posterior(u: np.ndarray, xt: np.ndarray, y: np.ndarray) -> tupl
     return -(log_lik + log_prior + log_jacobian), -grad
 
 
-def fit_hyperparameters(xt: np.ndarray, y: np.ndarray, seed: int) -> tuple[Hyperparameters, int]:
+def fit_hyperparameters(xt: np.ndarray, y: np.ndarray, seed: int,
+                        subset: int = SUBSET_SIZE) -> tuple[Hyperparameters, int]:
     """The posterior mode of emulator.stan on a random subset of at most
-    SUBSET_SIZE runs: the best of STARTS L-BFGS runs. Returns it and the
+    ``subset`` runs: the best of STARTS L-BFGS runs. Returns it and the
     number of runs used."""
     rng = np.random.default_rng(seed)
-    chosen = rng.choice(len(y), size=min(SUBSET_SIZE, len(y)), replace=False)
+    chosen = rng.choice(len(y), size=min(subset, len(y)), replace=False)
     xt_sub, y_sub = xt[chosen], y[chosen]
     n_ell = xt.shape[1]
     sensible = np.concatenate([[y_sub.mean(), math.log(max(y_sub.std(), 0.1))],
@@ -138,9 +147,9 @@ def fit_hyperparameters(xt: np.ndarray, y: np.ndarray, seed: int) -> tuple[Hyper
     return _unpack(best.x), len(chosen)
 
 
-def run_weights(xt: np.ndarray, y: np.ndarray, h: Hyperparameters) -> np.ndarray:
-    """alpha = K^-1 (y - m) over all runs: the one N x N factorisation."""
-    return linalg.cho_solve(linalg.cho_factor(run_covariance(xt, h), lower=True), y - h.mean)
+def run_factor(xt: np.ndarray, h: Hyperparameters) -> tuple[np.ndarray, bool]:
+    """The Cholesky factor of the runs' covariance: the one N x N factorisation."""
+    return linalg.cho_factor(run_covariance(xt, h), lower=True)
 
 
 def chebyshev_basis(theta_unit: np.ndarray, degrees: tuple[int, ...]) -> np.ndarray:
@@ -249,6 +258,46 @@ def local_variance(x_unit: np.ndarray, theta_unit: np.ndarray, xt_runs: np.ndarr
 
 
 @dataclass
+class ErrorBasis:
+    """The emulator's error at the points, e ~ N(0, C) with
+    C ~ columns columns' + diag(residual_variance)."""
+
+    columns: np.ndarray  # (points, rank): eigenvectors times sqrt(eigenvalue)
+    residual_variance: np.ndarray  # (points,): what the columns leave of each point's variance
+    rank_capped: bool  # eigenvalues above the threshold were left to the independent part
+
+
+def error_basis(x_unit: np.ndarray, theta_unit: np.ndarray, xt_runs: np.ndarray, h: Hyperparameters,
+                factor: tuple[np.ndarray, bool], threshold: float) -> ErrorBasis:
+    """The leading eigenvectors of the emulator's predictive covariance at
+    (x_i, theta), C = k(P, P) - k(P, runs) K^-1 k(runs, P), whose
+    eigenvalues exceed ``threshold``: C's Nystroem approximation through
+    at most LANDMARKS of the points, C ~ C(P, L) C(L, L)^+ C(L, P), reduced
+    by an SVD. Each point's residual is its local-GP variance minus what the
+    columns explain (the Nystroem part is at most the exact variance, the
+    local one at least it)."""
+    points = np.column_stack([x_unit, np.broadcast_to(theta_unit, (len(x_unit), len(theta_unit)))])
+    rng = np.random.default_rng(0)
+    landmarks = (np.arange(len(points)) if len(points) <= LANDMARKS
+                 else np.sort(rng.choice(len(points), LANDMARKS, replace=False)))
+    runs_solve = linalg.cho_solve(factor, h.sd**2 * _se(xt_runs, points[landmarks], h.length_scale))
+    to_landmarks = np.empty((len(points), len(landmarks)))
+    for start in range(0, len(points), 1000):  # k(P, runs) a block of points at a time
+        block = points[start : start + 1000]
+        to_landmarks[start : start + 1000] = h.sd**2 * (
+            _se(block, points[landmarks], h.length_scale) - _se(block, xt_runs, h.length_scale) @ runs_solve)
+    eigenvalues, eigenvectors = np.linalg.eigh(to_landmarks[landmarks])
+    kept = eigenvalues > 1e-10 * max(eigenvalues.max(), 1e-300)
+    half = to_landmarks @ (eigenvectors[:, kept] / np.sqrt(eigenvalues[kept]))  # C ~ half half'
+    left, singular, _ = np.linalg.svd(half, full_matrices=False)
+    above = int(np.sum(singular**2 > threshold))
+    rank = min(above, MAX_ERROR_RANK)
+    columns = left[:, :rank] * singular[:rank]
+    local = local_variance(x_unit, theta_unit, xt_runs, h)
+    return ErrorBasis(columns, np.maximum(local - (columns**2).sum(1), 0.0), above > rank)
+
+
+@dataclass
 class ScalableEmulator:
     """The fixed stage-1 emulator of modular_hsgp.stan: what it needs from
     all the runs, computed once per emulator (``of`` keeps the last one)."""
@@ -256,6 +305,7 @@ class ScalableEmulator:
     hyperparameters: Hyperparameters
     x_runs: np.ndarray  # (N, D), unit cube
     theta_runs: np.ndarray  # (N, Q), unit cube
+    factor: tuple[np.ndarray, bool]  # the runs' covariance, Cholesky
     alpha: np.ndarray  # K^-1 (y - m)
     interpolant: ThetaInterpolant
 
@@ -270,12 +320,13 @@ class ScalableEmulator:
         (checked at the physical points ``x_points``). Returns it and what to
         keep of it (``emulator`` of the result: enough to rebuild it with ``of``)."""
         h, used = fit_hyperparameters(np.column_stack([x_runs, theta_runs]), y_runs, seed)
-        alpha = run_weights(np.column_stack([x_runs, theta_runs]), y_runs, h)
+        factor = run_factor(np.column_stack([x_runs, theta_runs]), h)
+        alpha = linalg.cho_solve(factor, y_runs - h.mean)
         check = x_points[np.random.default_rng(seed).choice(len(x_points), min(500, len(x_points)), replace=False)]
         interpolant = theta_interpolant(x_runs, theta_runs, alpha, h, check, seed)
         stored = {**h.as_stan(), "theta_degrees": list(interpolant.degrees)}
         _BUILT.clear()  # one emulator's arrays at a time
-        _BUILT[_key(x_runs, theta_runs, y_runs, stored)] = cls(h, x_runs, theta_runs, alpha, interpolant)
+        _BUILT[_key(x_runs, theta_runs, y_runs, stored)] = cls(h, x_runs, theta_runs, factor, alpha, interpolant)
         return _BUILT[_key(x_runs, theta_runs, y_runs, stored)], {
             "hyperparameters": stored, "hyperparameter_runs": used,
             "theta_interpolation_points": int(np.prod([p + 1 for p in interpolant.degrees])),
@@ -288,9 +339,9 @@ class ScalableEmulator:
         key = _key(x_runs, theta_runs, y_runs, stored)
         if key not in _BUILT:
             h = Hyperparameters.from_stan(stored)
-            alpha = run_weights(np.column_stack([x_runs, theta_runs]), y_runs, h)
+            factor = run_factor(np.column_stack([x_runs, theta_runs]), h)
             _BUILT.clear()
-            _BUILT[key] = cls(h, x_runs, theta_runs, alpha,
+            _BUILT[key] = cls(h, x_runs, theta_runs, factor, linalg.cho_solve(factor, y_runs - h.mean),
                               ThetaInterpolant(tuple(stored["theta_degrees"]), float("nan")))
         return _BUILT[key]
 
@@ -302,13 +353,17 @@ class ScalableEmulator:
     def variance(self, x_unit: np.ndarray, theta_unit: np.ndarray) -> np.ndarray:
         return local_variance(x_unit, theta_unit, self.xt_runs, self.hyperparameters)
 
+    def error_basis(self, x_unit: np.ndarray, theta_unit: np.ndarray, threshold: float) -> ErrorBasis:
+        return error_basis(x_unit, theta_unit, self.xt_runs, self.hyperparameters, self.factor, threshold)
+
 
 _BUILT: dict[tuple, ScalableEmulator] = {}
 
 
 def _key(x_runs: np.ndarray, theta_runs: np.ndarray, y_runs: np.ndarray, stored: dict) -> tuple:
     """What defines an emulator: the runs, hyperparameters and degrees (not
-    calibrate's variance_theta, added later: the N x N factor is not redone)."""
-    defining = {k: v for k, v in stored.items() if k != "variance_theta"}
+    calibrate's variance_theta and error_threshold, added later: the N x N
+    factor is not redone)."""
+    defining = {k: v for k, v in stored.items() if k not in ("variance_theta", "error_threshold")}
     return (hash(np.asarray(x_runs).tobytes()), hash(np.asarray(theta_runs).tobytes()),
             hash(np.asarray(y_runs).tobytes()), json.dumps(defining, sort_keys=True))

@@ -174,21 +174,28 @@ def hsgp_data(data: CalibrationData, options: ModelOptions, x_delta_new: np.ndar
 def scalable_emulator_data(data: CalibrationData, emulator: dict[str, Any],
                            new_points: pd.DataFrame) -> dict[str, Any]:
     """modular_hsgp.stan's emulator: the mean's weights at the physical and
-    the prediction points, and the predictive variance at the physical
-    points at emulator["variance_theta"], averaged (zero before it is known)."""
+    the prediction points, and its error's covariance at the physical points
+    at emulator["variance_theta"]: leading eigenvectors as basis columns, the
+    rest as one variance (none before theta is known)."""
     assert data.runs is not None
     s = data.scaling
     state = scalable_emulator_of(data, emulator)
     x = s.to_unit(data.physical, data.inputs)
     theta = emulator.get("variance_theta")
+    # results saved before the error basis existed kept no threshold: their fits had none
+    error = None if theta is None else state.error_basis(x, np.asarray(theta),
+                                                          emulator.get("error_threshold", np.inf))
+    columns = np.zeros((len(x), 0)) if error is None else error.columns
     return dict(
         emulator_mean=state.hyperparameters.mean,
         theta_degree=list(state.interpolant.degrees),
         G=int(np.prod([p + 1 for p in state.interpolant.degrees])),
         emulator_weights=state.mean_weights(x),
         emulator_weights_new=state.mean_weights(s.to_unit(new_points, data.inputs)),
-        # one variance for all points (the marginal likelihood needs a scalar noise); its spread is checked
-        emulator_variance=0.0 if theta is None else float(state.variance(x, np.asarray(theta)).mean()),
+        emulator_error_rank=columns.shape[1],
+        emulator_error_basis=columns,
+        # the marginal likelihood takes one independent variance; its spread is checked
+        emulator_variance=0.0 if error is None else float(error.residual_variance.mean()),
     )
 
 

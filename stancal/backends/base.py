@@ -31,13 +31,15 @@ def fresh_prediction_normals(data: dict[str, Any], rng: np.random.Generator) -> 
     declaring ``P_normals`` and ``normals_new`` (P x (2 + F), F = 0 when the
     program has no functional theta); see prediction_normals_rng in
     functions/gp_conditional.stan. The Hilbert-space programs draw their
-    basis weights from ``B_normals`` and ``basis_normals`` (B) likewise."""
+    basis weights from ``B_normals`` and ``basis_normals`` (B, plus
+    modular_hsgp's emulator-error weights) likewise."""
     out: dict[str, Any] = {}
     if "P_normals" in data:
         rows, columns = int(data["P"]), 2 + int(data.get("F", 0))
         out.update(P_normals=rows, normals_new=rng.standard_normal((rows, columns)).tolist())
     if "B_normals" in data:  # the Hilbert-space programs' basis weights (functions/hsgp.stan)
-        out.update(B_normals=int(data["B"]), basis_normals=rng.standard_normal(int(data["B"])).tolist())
+        weights = int(data["B"]) + int(data.get("emulator_error_rank", 0))
+        out.update(B_normals=weights, basis_normals=rng.standard_normal(weights).tolist())
     return out
 
 

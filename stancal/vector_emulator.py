@@ -1,0 +1,74 @@
+"""Stage 1 of modular calibration for vector output (Higdon et al. 2008,
+section 2.2): one GP per component weight of the runs' reduced basis
+(stancal.output_basis), over the simulator inputs and theta.
+
+Each component's hyperparameters are emulator.stan's posterior mode (the
+priors of the scalar path, which suit the weights: unit variance by
+construction), found by scipy's L-BFGS on a random subset of at most
+HYPERPARAMETER_RUNS runs (stancal.scalable_emulator.fit_hyperparameters);
+the weights' predictive means and variances then condition on all runs, one
+N x N factorisation per component, once. The components are independent a
+priori and their weights uncorrelated over the runs, so the GPs are too;
+the output's predictive variance adds the basis truncation error."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import linalg
+
+from .output_basis import OutputBasis
+from .scalable_emulator import Hyperparameters, _se, fit_hyperparameters, run_covariance
+
+HYPERPARAMETER_RUNS = 400  # per component: the mode moves little beyond a few hundred runs
+
+
+@dataclass
+class ComponentGP:
+    hyperparameters: Hyperparameters
+    factor: tuple[np.ndarray, bool]  # Cholesky of the runs' covariance
+    alpha: np.ndarray  # K^-1 (w - m)
+
+    def predict(self, xt_runs: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Mean and variance of the weight at the points (no nugget: the
+        simulator is deterministic)."""
+        h = self.hyperparameters
+        cross = h.sd**2 * _se(points, xt_runs, h.length_scale)
+        variance = h.sd**2 - np.einsum("ij,ji->i", cross, linalg.cho_solve(self.factor, cross.T))
+        return h.mean + cross @ self.alpha, np.maximum(variance, 0.0)
+
+
+@dataclass
+class VectorEmulator:
+    basis: OutputBasis
+    xt_runs: np.ndarray  # (N, D + Q): inputs and theta of each run, unit cube
+    components: list[ComponentGP]
+    hyperparameter_runs: int
+
+    @classmethod
+    def fit(cls, basis: OutputBasis, xt_runs: np.ndarray, run_outputs: np.ndarray, seed: int,
+            hyperparameter_runs: int = HYPERPARAMETER_RUNS) -> "VectorEmulator":
+        """``xt_runs`` (N, D + Q) on the unit cube, ``run_outputs`` (N, K) on the basis's grid."""
+        scores = basis.weights(run_outputs)
+        components = []
+        for j in range(basis.count):
+            h, used = fit_hyperparameters(xt_runs, scores[:, j], seed + j, subset=hyperparameter_runs)
+            factor = linalg.cho_factor(run_covariance(xt_runs, h), lower=True)
+            components.append(ComponentGP(h, factor, linalg.cho_solve(factor, scores[:, j] - h.mean)))
+        return cls(basis, xt_runs, components, used)
+
+    def weights(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Predictive means and variances (points, p) of the component weights."""
+        predicted = [gp.predict(self.xt_runs, points) for gp in self.components]
+        return np.column_stack([m for m, _ in predicted]), np.column_stack([v for _, v in predicted])
+
+    def predict(self, points: np.ndarray, indices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The output's predictive mean and variance at each point's
+        indices: (points, M) for M output indices shared by the points."""
+        mean_vector, components = self.basis.at(indices)
+        weight_mean, weight_variance = self.weights(points)
+        scale = self.basis.scale
+        mean = mean_vector + scale * weight_mean @ components.T
+        variance = scale**2 * (weight_variance @ (components**2).T + self.basis.truncation_variance)
+        return mean, variance
