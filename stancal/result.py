@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import json
 from dataclasses import asdict, dataclass, field
-from itertools import product
 from pathlib import Path
 from typing import Any
 
@@ -21,7 +20,7 @@ from .models import Likelihood, ModelOptions
 from .modes import Mode
 from .stan_source import FlatProgram
 from .standata import EMULATOR_HYPERPARAMETERS, build_stan_data, mean_terms_of, to_stan_json
-from .summaries import band
+from .summaries import band, summary_by_mode, theta_summary
 
 # Stan program variables -> names in the posterior group (original units)
 _REPORTED = {
@@ -113,7 +112,7 @@ def build_datatree(sample: SampleOutput, data: CalibrationData,
         "functional_theta": list(options.functional), "functional_input": list(options.functional_inputs),
         "grid_point": np.arange(len(grid)),
     }
-    tree = ab.from_dict(sampled, dims=dims, coords=coords)
+    tree = ab.from_dict(sampled, dims=dims, coords=coords, pred_dims=dims, pred_coords=coords)
     if options.functional:  # the grid's input values, for plotting theta(x)
         tree["theta_functions"] = xr.DataTree(tree["theta_functions"].to_dataset().assign_coords(
             {c: ("grid_point", grid[c].to_numpy()) for c in grid.columns}))
@@ -137,14 +136,6 @@ def build_datatree(sample: SampleOutput, data: CalibrationData,
 def _interval_table(values: np.ndarray, prefix: str) -> dict[str, np.ndarray]:
     """values: (samples, points) -> mean and quantiles per point."""
     return {f"{prefix}_{k}": v for k, v in band(values).items()}
-
-
-def weighted_quantiles(values: np.ndarray, weights: np.ndarray, quantiles) -> list[float]:
-    """Quantiles of weighted draws (weights summing to 1), by interpolating
-    the weighted empirical CDF at the draws' midpoints."""
-    order = np.argsort(values)
-    cumulative = np.cumsum(weights[order]) - 0.5 * weights[order]
-    return [float(np.interp(q, cumulative, values[order])) for q in quantiles]
 
 
 @dataclass
@@ -171,74 +162,18 @@ class CalibrationResult:
         return "l2" if self.l2 else self.method
 
     # ---- summaries -------------------------------------------------------
-    def _summary_of(self, posterior: xr.Dataset) -> pd.DataFrame:
-        import arviz_stats as ast
-
-        diag = ast.summary(posterior, kind="diagnostics", round_to="none")
-        rows = []
-        for name, da in posterior.data_vars.items():
-            flat = np.asarray(da).reshape(da.sizes["chain"] * da.sizes["draw"], -1)
-            extra_dims = [dim for dim in da.dims if dim not in ("chain", "draw")]
-            # ArviZ's labels: name[a] or name[a, b], in C order like the reshape
-            labels = [", ".join(str(v) for v in combo)
-                      for combo in product(*(da[dim].values for dim in extra_dims))] if extra_dims else [None]
-            for k, label in enumerate(labels):
-                key = name if label is None else f"{name}[{label}]"
-                v = flat[:, k]
-                rows.append({
-                    "parameter": key, "mean": v.mean(), "sd": v.std(ddof=1),
-                    "q05": np.quantile(v, 0.05), "q50": np.quantile(v, 0.5),
-                    "q95": np.quantile(v, 0.95),
-                    "rhat": float(diag.loc[key, "r_hat"]),
-                    "ess_bulk": float(diag.loc[key, "ess_bulk"]),
-                })
-        return pd.DataFrame(rows).set_index("parameter")
-
     def summary(self) -> pd.DataFrame:
         """theta and hyperparameters on the original scale. With several theta
         modes, one block of rows per mode (column ``mode``, 1 = the heaviest,
         or the highest density when the masses are unknown; column ``weight``,
         its share of the posterior mass)."""
-        posterior = self.idata["posterior"].to_dataset()
-        if len(self.modes) <= 1:
-            return self._summary_of(posterior)
-        blocks = []
-        for k, mode in enumerate(self.modes, start=1):
-            block = self._summary_of(posterior.isel(chain=mode.chains))
-            block.insert(0, "weight", np.nan if mode.weight is None else mode.weight)
-            block.insert(0, "mode", k)
-            blocks.append(block)
-        return pd.concat(blocks)
+        return summary_by_mode(self.idata["posterior"].to_dataset(), self.modes)
 
     def theta_summary(self) -> dict[str, dict[str, float]]:
         """theta's posterior summary. With several modes whose masses are
         known, that of their mixture, each mode weighted by its mass (R-hat
         is the worst within a mode, ESS the smallest)."""
-        keys = ("mean", "sd", "q05", "q50", "q95", "rhat", "ess_bulk")
-        posterior = self.idata["posterior"].to_dataset()
-        if len(self.modes) > 1 and self.modes[0].weight is not None:
-            return {name: dict(zip(keys, values)) for name, values in self._mixture_theta(posterior).items()}
-        if len(self.modes) > 1:  # masses unknown (see modes.report)
-            posterior = posterior.isel(chain=self.modes[0].chains)
-        table = self._summary_of(posterior[["theta"]])
-        return {name: {k: float(table.loc[f"theta[{name}]", k]) for k in keys}
-                for name in self.data.theta_names}
-
-    def _mixture_theta(self, posterior: xr.Dataset) -> dict[str, list[float]]:
-        theta = np.asarray(posterior["theta"])  # (chain, draw, theta)
-        draws = np.concatenate([theta[m.chains].reshape(-1, theta.shape[-1]) for m in self.modes])
-        weights = np.concatenate([np.full(len(m.chains) * theta.shape[1], m.weight / (len(m.chains) * theta.shape[1]))
-                                  for m in self.modes])
-        per_mode = [self._summary_of(posterior[["theta"]].isel(chain=m.chains)) for m in self.modes]
-        out = {}
-        for j, name in enumerate(self.data.theta_names):
-            mean = float(weights @ draws[:, j])
-            sd = float(np.sqrt(weights @ (draws[:, j] - mean) ** 2))
-            label = f"theta[{name}]"
-            out[name] = [mean, sd, *weighted_quantiles(draws[:, j], weights, (0.05, 0.5, 0.95)),
-                         max(float(t.loc[label, "rhat"]) for t in per_mode),
-                         min(float(t.loc[label, "ess_bulk"]) for t in per_mode)]
-        return out
+        return theta_summary(self.idata["posterior"].to_dataset(), self.modes, self.data.theta_names)
 
     def theta_draws(self) -> pd.DataFrame:
         theta = self.idata["posterior"]["theta"]

@@ -135,19 +135,20 @@ class VectorCalibrationData:
         return table
 
     def _check_runs(self, runs: pd.DataFrame) -> tuple[pd.DataFrame, pd.DataFrame, np.ndarray, np.ndarray]:
-        """The runs' table, one row of settings per run (inputs, theta), their
+        """The runs' table, one row of settings per run (inputs, every theta), their
         outputs (runs, K) on the shared grid (K, index columns)."""
         what = "simulator runs"
         _require_columns(runs, [self.run], what)
-        table = _numeric_columns(runs, [*self.inputs, *self.theta_names, *self.output_index, self.output], what)
+        every_theta = [p.name for p in self.all_parameters]
+        table = _numeric_columns(runs, [*self.inputs, *every_theta, *self.output_index, self.output], what)
         table.insert(0, self.run, runs[self.run].astype(str))
-        for p in self.parameters:
+        for p in self.all_parameters:
             values = table[p.name].to_numpy()
             bad = (values < p.lower) | (values > p.upper)
             if bad.any():
                 raise DataError(f"{what}: column '{p.name}' lies outside its bounds [{p.lower}, {p.upper}] "
                                 f"in rows {_rows(bad, table.index)}")
-        settings = _constant_within(table, self.run, [*self.inputs, *self.theta_names], what, "run")
+        settings = _constant_within(table, self.run, [*self.inputs, *every_theta], what, "run")
         ordered = table.sort_values([self.run, *self.output_index], kind="stable")
         grids = {name: group[self.output_index].to_numpy() for name, group in ordered.groupby(self.run, sort=False)}
         first_name, grid = next(iter(grids.items()))

@@ -31,12 +31,13 @@ class ComponentGP:
     alpha: np.ndarray  # K^-1 (w - m)
 
     def predict(self, xt_runs: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Mean and variance of the weight at the points (no nugget: the
-        simulator is deterministic)."""
+        """Mean and covariance of the weight at the points (no nugget: the
+        simulator is deterministic), as component_weights in
+        functions/vector_output.stan."""
         h = self.hyperparameters
         cross = h.sd**2 * _se(points, xt_runs, h.length_scale)
-        variance = h.sd**2 - np.einsum("ij,ji->i", cross, linalg.cho_solve(self.factor, cross.T))
-        return h.mean + cross @ self.alpha, np.maximum(variance, 0.0)
+        covariance = h.sd**2 * _se(points, points, h.length_scale) - cross @ linalg.cho_solve(self.factor, cross.T)
+        return h.mean + cross @ self.alpha, covariance
 
 
 @dataclass
@@ -61,7 +62,8 @@ class VectorEmulator:
     def weights(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Predictive means and variances (points, p) of the component weights."""
         predicted = [gp.predict(self.xt_runs, points) for gp in self.components]
-        return np.column_stack([m for m, _ in predicted]), np.column_stack([v for _, v in predicted])
+        return (np.column_stack([m for m, _ in predicted]),
+                np.column_stack([np.maximum(np.diag(v), 0.0) for _, v in predicted]))
 
     def predict(self, points: np.ndarray, indices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The output's predictive mean and variance at each point's

@@ -123,3 +123,10 @@ def test_methods_agree_over_noise_seeds():
         print(f"{method} - koh, median of k over 6 seeds: mean {values.mean():+.5f}, sd {values.std(ddof=1):.5f}")
         assert np.abs(values).max() < AGREEMENT
         assert 3 * values.std(ddof=1) < AGREEMENT
+
+
+def test_predictions_are_indexed_by_the_prediction_points(koh_fit):
+    """ArviZ takes a predictions group's dimension names from pred_dims, not dims."""
+    zeta = koh_fit.idata["predictions"]["zeta_new"]
+    assert zeta.dims == ("chain", "draw", "new_point")
+    assert "t" in koh_fit.idata["predictions_constant_data"]
