@@ -17,7 +17,8 @@ from .config import ConfigError, load_config
 from .data import DataError
 from .models import APPROXIMATIONS, DISCREPANCIES, EXACT_SIZE_LIMIT, Method, ModelOptions, model_spec
 from .report import write_calibration
-from .stan_source import FlatProgram, StanProgramError
+from .stan_source import FlatProgram, StanProgramError, flatten, shipped_models_dir
+from .vector_data import VectorCalibrationData
 
 logger = logging.getLogger("stancal")
 
@@ -42,6 +43,8 @@ def _parser() -> argparse.ArgumentParser:
                                   f"{EXACT_SIZE_LIMIT} points plus runs)")
     for command in (cal, gap):
         command.add_argument("--method", choices=[*(m.value for m in Method), *([L2] if command is cal else [])])
+    cal.add_argument("--adapt-delta", type=float, default=0.9,
+                     help="the sampler's target acceptance; raise it (0.95, 0.99) when transitions diverge")
     cal.add_argument("--discrepancy", choices=list(DISCREPANCIES),
                      help="gp (KOH), orthogonal (Plumlee 2017), scaled (S-GaSP) or none")
     comp.add_argument("--methods", nargs="+", choices=METHODS, default=list(METHODS))
@@ -64,6 +67,7 @@ def run_gap(args: argparse.Namespace) -> dict:
     from .gap_report import write_gap_report
 
     problem = load_config(args.config)
+    _scalar_only(problem, "gap")
     if not problem.candidates:
         raise ConfigError("config: `stancal gap` needs a [candidates] section")
     model = dict(problem.model)
@@ -85,8 +89,36 @@ def run_gap(args: argparse.Namespace) -> dict:
     return summary
 
 
+def run_vector_calibrate(args: argparse.Namespace, problem) -> dict:
+    from .report import write_vector_calibration
+    from .vector_calibrate import calibrate_vector
+
+    if args.method or args.approximation:
+        raise ConfigError("--method and --approximation do not apply to a vector output (modular_vector)")
+    model = dict(problem.model)
+    if args.discrepancy:
+        model["discrepancy"] = args.discrepancy
+    args.out.mkdir(parents=True, exist_ok=True)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        result = calibrate_vector(problem.data, chains=args.chains, warmup=args.warmup, draws=args.draws,
+                                  seed=args.seed, backend=args.backend, adapt_delta=args.adapt_delta,
+                                  out_dir=args.out, **model)
+    summary = write_vector_calibration(result, args.out, _stancal_warnings(caught))
+    for message in summary["warnings"]:
+        print(f"warning: {message}", file=sys.stderr)
+    return summary
+
+
+def _scalar_only(problem, command: str) -> None:
+    if isinstance(problem.data, VectorCalibrationData):
+        raise ConfigError(f"`stancal {command}` is not built for vector outputs yet; `stancal calibrate` is")
+
+
 def run_calibrate(args: argparse.Namespace) -> dict:
     problem = load_config(args.config)
+    if isinstance(problem.data, VectorCalibrationData):
+        return run_vector_calibrate(args, problem)
     model = dict(problem.model)
     configured_method = model.pop("method", None)
     method = args.method or configured_method
@@ -99,7 +131,8 @@ def run_calibrate(args: argparse.Namespace) -> dict:
         warnings.simplefilter("always")
         result = calibrate(problem.data, simulator=problem.simulator, method=method,
                            chains=args.chains, warmup=args.warmup, draws=args.draws,
-                           seed=args.seed, backend=args.backend, out_dir=args.out, **model)
+                           seed=args.seed, backend=args.backend, adapt_delta=args.adapt_delta,
+                           out_dir=args.out, **model)
     summary = write_calibration(result, args.out, _stancal_warnings(caught))
     for message in summary["warnings"]:
         print(f"warning: {message}", file=sys.stderr)
@@ -110,6 +143,7 @@ def run_compare(args: argparse.Namespace) -> dict:
     from .compare import compare_methods, write_comparison
 
     problem = load_config(args.config)
+    _scalar_only(problem, "compare")
     model = {k: v for k, v in problem.model.items() if k not in ("method", "discrepancy")}
     if args.approximation:
         model["approximation"] = args.approximation
@@ -134,6 +168,11 @@ def config_programs(problem, all_methods: bool) -> list[FlatProgram]:
     """The programs that calibrate and gap run on a config: its method (or
     every method the problem admits) and its candidates' simulator variants."""
     from .gap import variant_program
+
+    if isinstance(problem.data, VectorCalibrationData):
+        from .vector_calibrate import PROGRAM
+
+        return [flatten(problem.model.get("program") or shipped_models_dir() / PROGRAM)]
 
     model = dict(problem.model)
     configured = model.pop("method", None)

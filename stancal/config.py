@@ -11,6 +11,7 @@ import pandas as pd
 
 from .data import CalibrationData
 from .gap import Candidate, CandidateError
+from .vector_data import VectorCalibrationData
 
 
 class ConfigError(ValueError):
@@ -19,7 +20,7 @@ class ConfigError(ValueError):
 
 @dataclass
 class Problem:
-    data: CalibrationData
+    data: CalibrationData | VectorCalibrationData
     simulator: Path | None
     model: dict[str, Any] = field(default_factory=dict)
     candidates: list[Candidate] = field(default_factory=list)  # for `stancal gap`
@@ -31,6 +32,7 @@ _MODEL_KEYS = {"method", "discrepancy", "kernel", "estimate_rho", "program", "me
                "functional_parametrization", "approximation", "basis_functions", "boundary_factor",
                *_OBSERVATION_KEYS}
 _VARIANT_KEYS = {"stan", "inputs", "theta"}
+_VECTOR_MODEL_KEYS = {"discrepancy", "noise", "program", "variance_share", "components"}
 
 
 def _candidates(table: dict[str, Any], base: Path) -> list[Candidate]:
@@ -101,6 +103,8 @@ def load_config(path: str | Path) -> Problem:
     if stan is None and runs is None:
         raise ConfigError("config: [simulator] needs 'stan' (a Stan simulator), 'runs' (a CSV of runs), or both")
     model = dict(raw.get("model", {}))
+    if "output_index" in physical:
+        return _vector_problem(physical, simulator, theta, runs, stan, model, raw, base)
     unknown = set(model) - _MODEL_KEYS
     if unknown:
         raise ConfigError(f"config: unknown key(s) {sorted(unknown)} in [model]; known: {sorted(_MODEL_KEYS)}")
@@ -123,3 +127,34 @@ def load_config(path: str | Path) -> Problem:
     )
     candidates = _candidates(raw.get("candidates", {}), base)
     return Problem(data=data, simulator=stan, model=model, candidates=candidates)
+
+
+def _vector_problem(physical: dict, simulator: dict, theta: dict, runs: pd.DataFrame | None, stan: Path | None,
+                    model: dict, raw: dict, base: Path) -> Problem:
+    """A vector output ([physical] output_index): long tables, one row per value."""
+    if stan is not None:
+        raise ConfigError("simulator.stan: a Stan simulator is not supported for vector outputs yet; "
+                          "give the runs (simulator.runs and simulator.run)")
+    if raw.get("candidates"):
+        raise ConfigError("[candidates]: the gap diagnosis is not built for vector outputs yet; "
+                          "remove the section to calibrate")
+    unknown = set(model) - _VECTOR_MODEL_KEYS
+    if unknown:
+        raise ConfigError(f"config: unknown key(s) {sorted(unknown)} in [model] for a vector output; "
+                          f"known: {sorted(_VECTOR_MODEL_KEYS)}")
+    if "program" in model:
+        model["program"] = base / model["program"]
+    basis = {k: model.pop(k) for k in ("variance_share", "components") if k in model}
+    bounds = {k: tuple(v) if isinstance(v, list) else v for k, v in theta.items()}
+    per_experiment = {k: tuple(v) if isinstance(v, list) else v
+                      for k, v in simulator.get("theta_per_experiment", {}).items()}
+    data = VectorCalibrationData(
+        _read_csv(base / _require(physical, "csv", "physical"), "physical.csv"),
+        experiment=_require(physical, "experiment", "physical"),
+        inputs=_require(physical, "inputs", "physical"),
+        output=_require(physical, "output", "physical"),
+        output_index=physical["output_index"],
+        theta=bounds, theta_per_experiment=per_experiment,
+        runs=runs, run=_require(simulator, "run", "simulator") if runs is not None else None,
+        noise_sd=physical.get("noise_sd"), covariates=physical.get("covariates", []), **basis)
+    return Problem(data=data, simulator=None, model=model)

@@ -169,3 +169,33 @@ def write_plots(result: CalibrationResult, folder: str | Path) -> list[Path]:
         paths.append(folder / "theta_functions.png")
         plot_theta_functions(result, paths[-1])
     return paths
+
+
+def plot_vector_curves(result, path: str | Path | None = None):
+    """One panel per experiment: zeta's 90 % band and the calibrated
+    simulator f along the output index, with the measured values."""
+    plt = pyplot()
+    data = result.data
+    predictions = result.idata["predictions"]
+    column = data.output_index[0]
+    along = np.asarray(predictions[column])
+    zeta = np.asarray(predictions["zeta"]).reshape(-1, *predictions["zeta"].shape[2:])
+    f = np.asarray(predictions["f"]).reshape(-1, *predictions["f"].shape[2:])
+    names = list(data.experiments.index)
+    columns = min(4, len(names))
+    rows = -(-len(names) // columns)
+    fig, axes = plt.subplots(rows, columns, figsize=(3.6 * columns, 2.9 * rows), squeeze=False, sharey=True)
+    for e, (ax, name) in enumerate(zip(axes.ravel(), names)):
+        low, high = np.quantile(zeta[:, e], [0.05, 0.95], axis=0)
+        ax.fill_between(along, low, high, color="C0", alpha=0.25, label="zeta, 90 %")
+        ax.plot(along, f[:, e].mean(0), color="C1", lw=1.2, label="simulator f")
+        measured = data.physical[data.physical[data.experiment] == name]
+        ax.plot(measured[column], measured[data.output], "k.", ms=4, label="measured")
+        ax.set_title(name, fontsize=9)
+        ax.set_xlabel(column)
+    for ax in axes.ravel()[len(names):]:
+        ax.set_visible(False)
+    axes[0][0].set_ylabel(data.output)
+    axes[0][0].legend(fontsize=7)
+    fig.tight_layout()
+    return finish(fig, path)

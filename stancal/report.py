@@ -61,3 +61,32 @@ def _report(summary: dict, table, plots: list[Path]) -> str:
                     for i, m in enumerate(summary["modes"]))]
     lines += ["", "## Figures", "", *(f"![{p.stem}]({p.name})" for p in plots), ""]
     return "\n".join(lines)
+
+
+def write_vector_calibration(result, folder: Path, warning_messages: list[str]) -> dict:
+    """summary.json, summary.csv, the curves per experiment and report.md
+    of one vector-output calibration."""
+    from .plots import plot_vector_curves
+
+    summary = result.to_summary_json()
+    summary["warnings"] = warning_messages
+    (folder / "summary.json").write_text(json.dumps(summary, indent=2))
+    table = result.summary()
+    table.to_csv(folder / "summary.csv")
+    plot_vector_curves(result, folder / "curves.png")
+    d = summary["diagnostics"]
+    lines = [
+        f"# Calibration report (modular_vector, {summary['backend']})", "",
+        f"Output basis: {summary['basis']['description']}; truncation error sd "
+        f"{summary['basis']['truncation_sd']:.3g}.", "",
+        "## Calibration parameters (original units; 90 % interval)", "",
+        "| parameter | mean | 5 % | 50 % | 95 % | R-hat | bulk ESS |", "|---|---|---|---|---|---|---|",
+        *(f"| {k} | {v['mean']:.4g} | {v['q05']:.4g} | {v['q50']:.4g} | {v['q95']:.4g} | "
+          f"{v['rhat']:.3f} | {v['ess_bulk']:.0f} |" for k, v in summary["theta"].items()),
+        "", "## All parameters", "", table.round(4).to_markdown(),
+        "", "## Sampler", "",
+        f"- divergences: {d['divergences']}; max R-hat {d['max_rhat']:.3f}; min bulk ESS {d['min_ess_bulk']:.0f}",
+        *(f"- **warning**: {w}" for w in warning_messages),
+        "", "## Curves", "", "![curves per experiment](curves.png)", ""]
+    (folder / "report.md").write_text("\n".join(lines))
+    return summary

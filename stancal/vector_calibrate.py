@@ -4,6 +4,7 @@ modular_vector.stan; the emulator of stancal.vector_emulator)."""
 
 from __future__ import annotations
 
+import json
 import logging
 import time
 from dataclasses import dataclass, field
@@ -21,7 +22,7 @@ from .backends import get_backend
 from .inits import spread_theta_inits
 from .seeds import command_seed
 from .stan_source import FlatProgram, flatten, shipped_models_dir
-from .summaries import summary_by_mode, theta_summary
+from .summaries import posterior_table, summary_by_mode, theta_summary
 from .vector_data import VectorCalibrationData
 from .vector_emulator import VectorEmulator
 
@@ -140,6 +141,29 @@ class VectorCalibrationResult:
         """Every parameter, one block per theta mode when there are several."""
         return summary_by_mode(self.idata["posterior"].to_dataset(), self.modes)
 
+    def to_summary_json(self) -> dict[str, Any]:
+        d = self.diagnostics
+        posterior = self.idata["posterior"]
+        per_experiment = {}
+        if self.data.per_experiment:
+            table = posterior_table(posterior.to_dataset()[["theta_experiment"]])
+            per_experiment = {f"{p.name}[{e}]": {k: float(table.loc[f"theta_experiment[{e}, {p.name}]", k])
+                                                  for k in ("mean", "sd", "q05", "q95", "rhat")}
+                              for e in self.data.experiments.index for p in self.data.per_experiment}
+        return {
+            "method": "modular_vector", "backend": self.backend,
+            "theta": self.theta_summary(), "theta_per_experiment": per_experiment,
+            "modes": [m.to_dict() for m in self.modes],
+            "parameters": json.loads(self.summary().reset_index().to_json(orient="records")),
+            "basis": {"components": self.data.basis.count, "explained": self.data.basis.explained.tolist(),
+                      "truncation_sd": float(self.data.basis.scale * np.sqrt(self.data.basis.truncation_variance)),
+                      "description": self.data.basis.describe()},
+            "diagnostics": {"divergences": d.divergences, "max_rhat": d.max_rhat, "min_ess_bulk": d.min_ess_bulk,
+                            "min_ess_tail": d.min_ess_tail, "treedepth_hits": d.treedepth_hits,
+                            "warnings": d.messages},
+            "timing": self.timing,
+        }
+
     def save(self, path: str | Path) -> Path:
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -210,6 +234,9 @@ def calibrate_vector(
     soon as sampling ends."""
     if data.basis is None:
         raise ValueError("a vector-output calibration needs simulator runs (runs = ...)")
+    if data.covariates:
+        raise ValueError(f"covariates {data.covariates}: the vector-output discrepancy takes the simulator "
+                         f"inputs and the output index only, so far")
     noise = noise or ("known" if data.noise_sd else "one")
     seed = command_seed(seed)
     flat = flatten(Path(program) if program else shipped_models_dir() / PROGRAM)

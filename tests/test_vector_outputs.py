@@ -7,6 +7,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from conftest import ROOT
 from stancal.output_basis import OutputBasis
 from stancal.validation import DataError
 from stancal.vector_data import VectorCalibrationData
@@ -254,6 +255,7 @@ def test_modular_vector_posterior_matches_quadrature(vector_problem):
         assert abs(summary[p.name]["sd"] / reference_sd - 1) <= 0.10, (p.name, summary, mean, sd)
 
 
+@pytest.mark.slow
 def test_modular_vector_recovers_shared_and_per_experiment_theta_beside_a_discrepancy():
     """Five cool-downs, each read at its own times by a probe with its own
     offset (a per-experiment theta), the room warming the probe by a
@@ -297,3 +299,38 @@ def test_modular_vector_recovers_shared_and_per_experiment_theta_beside_a_discre
         upper = np.interp(readings.t, zeta["t"], band[1, e]) + 3 * 0.2
         held += int(((readings["T"] >= lower) & (readings["T"] <= upper)).sum())
     assert held >= 0.95 * len(physical)
+
+
+def test_the_cli_calibrates_a_vector_output_config(tmp_path):
+    """The issue's config contract, through `stancal calibrate`: the shipped
+    cooling-curves case study writes its report (a short run: the files
+    and fields, not the statistics, which the tests above check)."""
+    import json
+
+    from stancal.cli import main
+    from stancal.config import load_config
+
+    config = ROOT / "case_studies" / "cooling_curves" / "config.toml"
+    problem = load_config(config)
+    assert isinstance(problem.data, VectorCalibrationData) and problem.data.per_experiment[0].name == "offset"
+    assert main(["calibrate", str(config), "--out", str(tmp_path), "--chains", "2", "--warmup", "150",
+                 "--draws", "150", "--seed", "1"]) == 0
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["method"] == "modular_vector" and set(summary["theta"]) == {"k", "Ta"}
+    assert len(summary["theta_per_experiment"]) == 6 and summary["basis"]["components"] >= 2
+    for name in ("posterior.nc", "summary.csv", "curves.png", "report.md"):
+        assert (tmp_path / name).is_file(), name
+    assert main(["gap", str(config), "--out", str(tmp_path / "gap")]) == 2  # not built for vectors: a clear error
+
+
+def test_a_vector_config_with_a_stan_simulator_is_refused_by_name(tmp_path):
+    from stancal.config import ConfigError, load_config
+
+    source = ROOT / "case_studies" / "cooling_curves"
+    text = (source / "config.toml").read_text().replace('runs = "runs.csv"', 'stan = "sim.stan"\nruns = "runs.csv"')
+    (tmp_path / "sim.stan").write_text("")
+    for name in ("physical.csv", "runs.csv"):
+        (tmp_path / name).write_text((source / name).read_text())
+    (tmp_path / "config.toml").write_text(text)
+    with pytest.raises(ConfigError, match="simulator.stan: a Stan simulator is not supported for vector outputs"):
+        load_config(tmp_path / "config.toml")
