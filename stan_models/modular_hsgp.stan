@@ -127,7 +127,8 @@ generated quantities {
   vector[N] y_rep;        // replicated data, original units
   vector[N] y_loo_mean;   // E(y_i | parameters, basis weights): PSIS-LOO weights make it held out
   vector[N] delta_gp;     // GP part of the discrepancy at the physical points, original units
-  vector[N] emulator_error;  // the emulator's error at the physical points (its basis part), original units
+  // the emulator error's basis weights u: its error at the points is rho * E u (standardised units)
+  vector[emulator_error_rank] emulator_error_weights;
   vector[P] f_new;        // emulator mean at the prediction points
   vector[P] delta_new;    // discrepancy at the prediction points
   vector[P] zeta_new;     // true process rho * f + delta at the prediction points
@@ -150,7 +151,8 @@ generated quantities {
       vector[W] weights = prior_only ? weight_sd .* z
                           : hsgp_weights(y - mu, basis_t, basis_t_basis, weight_sd, error_var, z);
       delta_basis_weights = weights[1:B_delta];
-      error_obs = rho * (emulator_error_basis * weights[(B_delta + 1):W]);
+      emulator_error_weights = weights[(B_delta + 1):W];
+      error_obs = rho * (emulator_error_basis * emulator_error_weights);
     }
     if (use_discrepancy) {
       delta_sd_original[1] = delta_sd[1] * y_scale;
@@ -163,7 +165,6 @@ generated quantities {
     y_rep = y_center + y_scale * to_vector(normal_rng(mu, sd_obs));
     y_loo_mean = y_center + y_scale * mu;
     delta_gp = y_scale * delta_obs;
-    emulator_error = y_scale * error_obs;
     vector[P] f_new_std = emulator_mean + emulator_weights_new * chebyshev;
     f_new = y_center + y_scale * f_new_std;
     delta_new = y_scale * (h_new * beta + delta_new_std);

@@ -88,23 +88,15 @@ model {
   delta_sd ~ normal(0, 0.5);
   delta_length_scale ~ discrepancy_length_scale();
   if (!prior_only) {
-    array[E] vector[D + Q + Q_exp] points;
-    for (e in 1:E) points[e] = append_row(x[e], append_row(theta_unit, theta_exp_unit[e]));
-    vector[N] mu = rep_vector(0, N);
-    array[C] matrix[E, E] weight_cov;
-    for (c in 1:C) {
-      tuple(vector[E], matrix[E, E]) w = component_weights(points, xt_runs, L_runs[c], alpha[:, c],
-                                                           emulator_mean[c], emulator_sd[c],
-                                                           emulator_length_scale[c]);
-      mu += components[:, c] .* w.1[experiment];
-      weight_cov[c] = w.2;
-    }
-    vector[N] independent_var = noise_mode == 0 ? square(known_noise_sd)
-                                : to_vector(square(noise_sd))[noise_mode == 1 ? rep_array(1, N) : experiment];
+    tuple(matrix[E, C], array[C] matrix[E, E]) w
+      = experiment_weights(x, theta_unit, theta_exp_unit, xt_runs, L_runs, alpha, emulator_mean, emulator_sd,
+                           emulator_length_scale);
     matrix[N, N] K = add_diag(signal_cov(experiment, components, x_delta, experiment, components, x_delta,
-                                         weight_cov, delta_sd, delta_length_scale),
-                              independent_var + truncation_variance);
-    y ~ multi_normal_cholesky(mu, cholesky_decompose(add_jitter(K, max(emulator_sd) ^ 2)));
+                                         w.2, delta_sd, delta_length_scale),
+                              independent_variance(noise_mode, known_noise_sd, noise_sd, experiment)
+                              + truncation_variance);
+    y ~ multi_normal_cholesky(rows_dot_product(components, w.1[experiment]),
+                              cholesky_decompose(add_jitter(K, max(emulator_sd) ^ 2)));
   }
 }
 generated quantities {
@@ -117,46 +109,33 @@ generated quantities {
   for (k in 1:n_noise) noise_sd_original[k] = noise_sd[k] * output_scale;
   if (use_discrepancy) delta_sd_original[1] = delta_sd[1] * output_scale;
   {
-    array[E] vector[D + Q + Q_exp] points;
-    for (e in 1:E) points[e] = append_row(x[e], append_row(theta_unit, theta_exp_unit[e]));
-    vector[N] mu = rep_vector(0, N);
-    vector[P] mu_new = rep_vector(0, P);
-    array[C] matrix[E, E] weight_cov;
-    for (c in 1:C) {
-      tuple(vector[E], matrix[E, E]) w = component_weights(points, xt_runs, L_runs[c], alpha[:, c],
-                                                           emulator_mean[c], emulator_sd[c],
-                                                           emulator_length_scale[c]);
-      mu += components[:, c] .* w.1[experiment];
-      mu_new += components_new[:, c] .* w.1[experiment_new];
-      weight_cov[c] = w.2;
-    }
-    vector[N] independent_var = noise_mode == 0 ? square(known_noise_sd)
-                                : to_vector(square(noise_sd))[noise_mode == 1 ? rep_array(1, N) : experiment];
+    tuple(matrix[E, C], array[C] matrix[E, E]) w
+      = experiment_weights(x, theta_unit, theta_exp_unit, xt_runs, L_runs, alpha, emulator_mean, emulator_sd,
+                           emulator_length_scale);
+    vector[N] mu = rows_dot_product(components, w.1[experiment]);
+    vector[P] mu_new = rows_dot_product(components_new, w.1[experiment_new]);
     matrix[N, N] L = cholesky_decompose(add_jitter(
-      add_diag(signal_cov(experiment, components, x_delta, experiment, components, x_delta, weight_cov,
-                          delta_sd, delta_length_scale), independent_var + truncation_variance),
+      add_diag(signal_cov(experiment, components, x_delta, experiment, components, x_delta, w.2,
+                          delta_sd, delta_length_scale),
+               independent_variance(noise_mode, known_noise_sd, noise_sd, experiment) + truncation_variance),
       max(emulator_sd) ^ 2));
     y_rep = output_mean + output_scale * (mu + L * std_normals_rng(N));
     // the emulator's error and delta at the prediction rows, jointly given the data (or the prior)
     array[0] real none;
+    matrix[P, P] zero = rep_matrix(0, P, P);
     matrix[P, P] emulator_new = signal_cov(experiment_new, components_new, x_delta_new, experiment_new,
-                                           components_new, x_delta_new, weight_cov, none, none);
+                                           components_new, x_delta_new, w.2, none, none);
     matrix[P, N] emulator_cross = signal_cov(experiment_new, components_new, x_delta_new, experiment,
-                                             components, x_delta, weight_cov, none, none);
+                                             components, x_delta, w.2, none, none);
     matrix[P, P] delta_cov_new = use_discrepancy
-      ? gp_exp_quad_cov(x_delta_new, delta_sd[1], delta_length_scale) : rep_matrix(0, P, P);
+      ? gp_exp_quad_cov(x_delta_new, delta_sd[1], delta_length_scale) : zero;
     matrix[P, N] delta_cross = use_discrepancy
       ? gp_exp_quad_cov(x_delta_new, x_delta, delta_sd[1], delta_length_scale) : rep_matrix(0, P, N);
-    vector[2 * P] joint;  // (emulator error, delta) at the prediction rows
-    if (prior_only) {
-      joint = gp_prior_draw(append_row(append_col(emulator_new, rep_matrix(0, P, P)),
-                                       append_col(rep_matrix(0, P, P), delta_cov_new)), std_normals_rng(2 * P));
-    } else {
-      joint = gp_conditional_draw(y - mu, L, append_row(emulator_cross, delta_cross),
-                                  append_row(append_col(emulator_new, rep_matrix(0, P, P)),
-                                             append_col(rep_matrix(0, P, P), delta_cov_new)),
-                                  std_normals_rng(2 * P));
-    }
+    matrix[2 * P, 2 * P] joint_cov = append_row(append_col(emulator_new, zero), append_col(zero, delta_cov_new));
+    vector[2 * P] joint  // (emulator error, delta) at the prediction rows
+      = prior_only ? gp_prior_draw(joint_cov, std_normals_rng(2 * P))
+                   : gp_conditional_draw(y - mu, L, append_row(emulator_cross, delta_cross), joint_cov,
+                                         std_normals_rng(2 * P));
     f_new = output_mean_new + output_scale * (mu_new + joint[1:P]);
     delta_new = output_scale * joint[(P + 1):(2 * P)];
     zeta_new = f_new + delta_new;

@@ -36,7 +36,7 @@ _PREDICTED = ("f_new", "delta_new", "zeta_new")
 _NEW_OBSERVATION = "y_new"  # latent programs: a new observation from the likelihood
 # per physical point: the GP part of delta (a draw, and its mean given the
 # parameters), and E(y_i | y_-i) for held-out error
-_AT_OBSERVATIONS = ("delta_gp", "delta_gp_mean", "y_loo_mean", "emulator_error")
+_AT_OBSERVATIONS = ("delta_gp", "delta_gp_mean", "y_loo_mean")
 # parameters of stancal's programs that the posterior group holds in another
 # form (original units, or not at all: latent standard normals); any other
 # parameter of a program goes into the posterior group as it is

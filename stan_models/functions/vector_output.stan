@@ -20,6 +20,37 @@ tuple(vector, matrix) component_weights(array[] vector points, array[] vector xt
 }
 
 /**
+ * component_weights for every component, at each experiment's emulator
+ * inputs (x_e, theta, theta_e).
+ *
+ * @param x each experiment's inputs; theta_unit, theta_exp_unit shared and
+ *        per-experiment parameters, all on the unit cube
+ * @param xt_runs, L_runs, alpha the runs, per component where it matters
+ * @param emulator_mean, emulator_sd, emulator_length_scale stage 1, per component
+ * @return (weight means, experiments x components; per component, the
+ *         weights' covariance between experiments)
+ */
+tuple(matrix, array[] matrix) experiment_weights(array[] vector x, vector theta_unit, array[] vector theta_exp_unit,
+                                                array[] vector xt_runs, array[] matrix L_runs, matrix alpha,
+                                                vector emulator_mean, vector emulator_sd,
+                                                array[,] real emulator_length_scale) {
+  int n_exp = size(x);
+  int n_comp = cols(alpha);
+  array[n_exp] vector[rows(x[1]) + rows(theta_unit) + rows(theta_exp_unit[1])] points;
+  for (e in 1:n_exp) points[e] = append_row(x[e], append_row(theta_unit, theta_exp_unit[e]));
+  matrix[n_exp, n_comp] means;
+  array[n_comp] matrix[n_exp, n_exp] covariances;
+  for (c in 1:n_comp) {
+    tuple(vector[n_exp], matrix[n_exp, n_exp]) w
+      = component_weights(points, xt_runs, L_runs[c], alpha[:, c], emulator_mean[c], emulator_sd[c],
+                          emulator_length_scale[c]);
+    means[:, c] = w.1;
+    covariances[c] = w.2;
+  }
+  return (means, covariances);
+}
+
+/**
  * Covariance between two sets of measured values (rows a and b) of what
  * the basis mean does not give: the emulator's weight uncertainty through
  * the components, plus the discrepancy GP over (inputs, output index).
@@ -43,4 +74,15 @@ matrix signal_cov(array[] int experiment_a, matrix components_a, array[] vector 
     K += gp_exp_quad_cov(x_delta_a, x_delta_b, delta_sd[1], delta_length_scale);
   }
   return K;
+}
+
+/**
+ * Each measured value's independent variance: its known noise, one noise
+ * sd for all, or one per experiment (noise_mode 0, 1, 2).
+ */
+vector independent_variance(int noise_mode, vector known_noise_sd, array[] real noise_sd,
+                            array[] int experiment) {
+  if (noise_mode == 0) return square(known_noise_sd);
+  if (noise_mode == 1) return rep_vector(square(noise_sd[1]), size(experiment));
+  return square(to_vector(noise_sd)[experiment]);
 }
