@@ -148,8 +148,10 @@ def fit_hyperparameters(xt: np.ndarray, y: np.ndarray, seed: int,
 
 
 def run_factor(xt: np.ndarray, h: Hyperparameters) -> tuple[np.ndarray, bool]:
-    """The Cholesky factor of the runs' covariance: the one N x N factorisation."""
-    return linalg.cho_factor(run_covariance(xt, h), lower=True)
+    """The Cholesky factor of the runs' covariance, the N x N factorisation
+    (in place: at N = 5,000 a copy is 200 MB); made for the mean's weights
+    and again for the error basis, never per gradient."""
+    return linalg.cho_factor(run_covariance(xt, h), lower=True, overwrite_a=True)
 
 
 def chebyshev_basis(theta_unit: np.ndarray, degrees: tuple[int, ...]) -> np.ndarray:
@@ -268,7 +270,7 @@ class ErrorBasis:
 
 
 def error_basis(x_unit: np.ndarray, theta_unit: np.ndarray, xt_runs: np.ndarray, h: Hyperparameters,
-                factor: tuple[np.ndarray, bool], threshold: float) -> ErrorBasis:
+                threshold: float) -> ErrorBasis:
     """The leading eigenvectors of the emulator's predictive covariance at
     (x_i, theta), C = k(P, P) - k(P, runs) K^-1 k(runs, P), whose
     eigenvalues exceed ``threshold``: C's Nystroem approximation through
@@ -280,7 +282,9 @@ def error_basis(x_unit: np.ndarray, theta_unit: np.ndarray, xt_runs: np.ndarray,
     rng = np.random.default_rng(0)
     landmarks = (np.arange(len(points)) if len(points) <= LANDMARKS
                  else np.sort(rng.choice(len(points), LANDMARKS, replace=False)))
-    runs_solve = linalg.cho_solve(factor, h.sd**2 * _se(xt_runs, points[landmarks], h.length_scale))
+    # made again rather than kept: PyStan forks its sampling workers from this process, and
+    # a factor held here (200 MB at N = 5,000) would sit in each of them
+    runs_solve = linalg.cho_solve(run_factor(xt_runs, h), h.sd**2 * _se(xt_runs, points[landmarks], h.length_scale))
     to_landmarks = np.empty((len(points), len(landmarks)))
     for start in range(0, len(points), 1000):  # k(P, runs) a block of points at a time
         block = points[start : start + 1000]
@@ -305,7 +309,6 @@ class ScalableEmulator:
     hyperparameters: Hyperparameters
     x_runs: np.ndarray  # (N, D), unit cube
     theta_runs: np.ndarray  # (N, Q), unit cube
-    factor: tuple[np.ndarray, bool]  # the runs' covariance, Cholesky
     alpha: np.ndarray  # K^-1 (y - m)
     interpolant: ThetaInterpolant
 
@@ -320,13 +323,12 @@ class ScalableEmulator:
         (checked at the physical points ``x_points``). Returns it and what to
         keep of it (``emulator`` of the result: enough to rebuild it with ``of``)."""
         h, used = fit_hyperparameters(np.column_stack([x_runs, theta_runs]), y_runs, seed)
-        factor = run_factor(np.column_stack([x_runs, theta_runs]), h)
-        alpha = linalg.cho_solve(factor, y_runs - h.mean)
+        alpha = linalg.cho_solve(run_factor(np.column_stack([x_runs, theta_runs]), h), y_runs - h.mean)
         check = x_points[np.random.default_rng(seed).choice(len(x_points), min(500, len(x_points)), replace=False)]
         interpolant = theta_interpolant(x_runs, theta_runs, alpha, h, check, seed)
         stored = {**h.as_stan(), "theta_degrees": list(interpolant.degrees)}
         _BUILT.clear()  # one emulator's arrays at a time
-        _BUILT[_key(x_runs, theta_runs, y_runs, stored)] = cls(h, x_runs, theta_runs, factor, alpha, interpolant)
+        _BUILT[_key(x_runs, theta_runs, y_runs, stored)] = cls(h, x_runs, theta_runs, alpha, interpolant)
         return _BUILT[_key(x_runs, theta_runs, y_runs, stored)], {
             "hyperparameters": stored, "hyperparameter_runs": used,
             "theta_interpolation_points": int(np.prod([p + 1 for p in interpolant.degrees])),
@@ -339,9 +341,9 @@ class ScalableEmulator:
         key = _key(x_runs, theta_runs, y_runs, stored)
         if key not in _BUILT:
             h = Hyperparameters.from_stan(stored)
-            factor = run_factor(np.column_stack([x_runs, theta_runs]), h)
+            alpha = linalg.cho_solve(run_factor(np.column_stack([x_runs, theta_runs]), h), y_runs - h.mean)
             _BUILT.clear()
-            _BUILT[key] = cls(h, x_runs, theta_runs, factor, linalg.cho_solve(factor, y_runs - h.mean),
+            _BUILT[key] = cls(h, x_runs, theta_runs, alpha,
                               ThetaInterpolant(tuple(stored["theta_degrees"]), float("nan")))
         return _BUILT[key]
 
@@ -354,7 +356,7 @@ class ScalableEmulator:
         return local_variance(x_unit, theta_unit, self.xt_runs, self.hyperparameters)
 
     def error_basis(self, x_unit: np.ndarray, theta_unit: np.ndarray, threshold: float) -> ErrorBasis:
-        return error_basis(x_unit, theta_unit, self.xt_runs, self.hyperparameters, self.factor, threshold)
+        return error_basis(x_unit, theta_unit, self.xt_runs, self.hyperparameters, threshold)
 
 
 _BUILT: dict[tuple, ScalableEmulator] = {}
