@@ -139,6 +139,8 @@ generated quantities {
     vector[N] delta_obs = rep_vector(0, N);
     vector[P] delta_new_std = rep_vector(0, P);
     vector[N] error_obs = rep_vector(0, N);
+    emulator_error_weights = rep_vector(0, R);
+    delta_basis_weights = rep_vector(0, B_delta);
     if (W > 0) {
       vector[W] weight_sd = rep_vector(rho, W);
       if (use_discrepancy) {

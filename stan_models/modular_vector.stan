@@ -39,21 +39,21 @@ data {
   vector<lower=0>[N] known_noise_sd;    // standardised; used when noise_mode = 0
   int<lower=0, upper=1> use_discrepancy;     // 1 = GP over (inputs, output index), 0 = none
   vector[Q] theta_lower;                // bounds of theta, original units (uniform prior)
-  vector<lower=theta_lower>[Q] theta_upper;
+  vector<lower=theta_lower>[Q] theta_upper;  // see theta_lower
   vector[Q_exp] theta_exp_lower;        // bounds of each per-experiment parameter
-  vector<lower=theta_exp_lower>[Q_exp] theta_exp_upper;
+  vector<lower=theta_exp_lower>[Q_exp] theta_exp_upper;  // see theta_exp_lower
   int<lower=1> M;                       // number of runs
   array[M] vector[D + Q + Q_exp] xt_runs;  // (inputs, theta, per-experiment theta) of each run, [0, 1]
   matrix[M, C] run_weights;             // each run's component weights
-  vector[C] emulator_mean;              // stage 1, per component
-  vector<lower=0>[C] emulator_sd;
-  array[C, D + Q + Q_exp] real<lower=0> emulator_length_scale;
-  vector<lower=0>[C] emulator_nugget;
+  vector[C] emulator_mean;              // stage 1, per component: the weight GP's mean
+  vector<lower=0>[C] emulator_sd;       // its marginal sd
+  array[C, D + Q + Q_exp] real<lower=0> emulator_length_scale;  // its length scales, unit-cube units
+  vector<lower=0>[C] emulator_nugget;   // its nugget sd
   int<lower=0> P;                       // number of prediction values (experiment, index)
-  array[P] int<lower=1, upper=E> experiment_new;
-  array[P] vector[K_index] index_new;
-  vector[P] output_mean_new;
-  matrix[P, C] components_new;
+  array[P] int<lower=1, upper=E> experiment_new;  // each prediction row's experiment
+  array[P] vector[K_index] index_new;   // its output index, scaled to [0, 1]
+  vector[P] output_mean_new;            // mu there
+  matrix[P, C] components_new;          // k_c there
   int<lower=0, upper=1> prior_only;     // 1 = ignore y
 }
 transformed data {
@@ -121,7 +121,7 @@ generated quantities {
       max(emulator_sd) ^ 2));
     y_rep = output_mean + output_scale * (mu + L * std_normals_rng(N));
     // the emulator's error and delta at the prediction rows, jointly given the data (or the prior)
-    array[0] real none;
+    array[0] real none = rep_array(0.0, 0);  // no discrepancy: the emulator part alone
     matrix[P, P] zero = rep_matrix(0, P, P);
     matrix[P, P] emulator_new = signal_cov(experiment_new, components_new, x_delta_new, experiment_new,
                                            components_new, x_delta_new, w.2, none, none);

@@ -17,7 +17,7 @@ from .config import ConfigError, load_config
 from .data import DataError
 from .models import APPROXIMATIONS, DISCREPANCIES, EXACT_SIZE_LIMIT, Method, ModelOptions, model_spec
 from .report import write_calibration
-from .stan_source import FlatProgram, StanProgramError, flatten, shipped_models_dir
+from .stan_source import FlatProgram, StanProgramError, flatten
 from .vector_data import VectorCalibrationData
 
 logger = logging.getLogger("stancal")
@@ -170,9 +170,7 @@ def config_programs(problem, all_methods: bool) -> list[FlatProgram]:
     from .gap import variant_program
 
     if isinstance(problem.data, VectorCalibrationData):
-        from .vector_calibrate import PROGRAM
-
-        return [flatten(problem.model.get("program") or shipped_models_dir() / PROGRAM)]
+        return [flatten(problem.model.get("program") or model_spec("modular_vector").path)]
 
     model = dict(problem.model)
     configured = model.pop("method", None)

@@ -21,14 +21,14 @@ from . import modes as mode_checks
 from .backends import get_backend
 from .inits import spread_theta_inits
 from .seeds import command_seed
-from .stan_source import FlatProgram, flatten, shipped_models_dir
+from .models import model_spec
+from .stan_source import FlatProgram, flatten
 from .summaries import posterior_table, summary_by_mode, theta_summary
 from .vector_data import VectorCalibrationData
 from .vector_emulator import VectorEmulator
 
 logger = logging.getLogger("stancal")
 
-PROGRAM = "modular_vector.stan"
 NOISE_MODES = {"known": 0, "one": 1, "per_experiment": 2}
 PREDICTION_INDICES = 25  # per experiment, evenly over the runs' grid (one index column)
 
@@ -239,7 +239,7 @@ def calibrate_vector(
                          f"inputs and the output index only, so far")
     noise = noise or ("known" if data.noise_sd else "one")
     seed = command_seed(seed)
-    flat = flatten(Path(program) if program else shipped_models_dir() / PROGRAM)
+    flat = flatten(Path(program) if program else model_spec("modular_vector").path)
     stan_backend = get_backend(backend)
     stan_backend.compile([flat])
     scaling = UnitScaling.of(data)
