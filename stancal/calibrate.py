@@ -33,7 +33,8 @@ from .quadrature import input_box_quadrature
 from .result import CalibrationResult, build_datatree
 from .seeds import command_seed
 from .stan_source import FlatProgram, flatten
-from .scalable_emulator import ERROR_RANK_SHARE, MAX_ERROR_RANK, NEIGHBOURS, ScalableEmulator, chebyshev_basis, least_squares_theta
+from .scalable_emulator import (ERROR_RANK_SHARE, MAX_ERROR_RANK, NEIGHBOURS, ScalableEmulator, chebyshev_basis,
+                                least_squares_theta)
 from .standata import (
     EMULATOR_HYPERPARAMETERS,
     build_emulator_data,
@@ -234,10 +235,11 @@ def _check_emulator_variance(tree, data: CalibrationData, emulator: dict[str, An
         f"which narrows theta's band if it is large: more runs would shrink it"]
     if moved <= VARIANCE_TOLERANCE:
         return messages
-    return messages + [f"the emulator's covariance entered the fit at theta's least-squares fit; at posterior draws of "
-            f"theta an observation's predictive sd differs from the one used by up to {moved:.0%}: theta's "
-            f"band may be off by about as much. More runs where the posterior lies, or approximation = "
-            f"'exact' on a subsample, would settle it"]
+    return messages + [
+        f"the emulator's covariance entered the fit at theta's least-squares fit; at posterior draws of theta "
+        f"an observation's predictive sd differs from the one used by up to {moved:.0%}: theta's band may be "
+        f"off by about as much. More runs where the posterior lies, or approximation = 'exact' on a "
+        f"subsample, would settle it"]
 
 
 def _with_basis(options: ModelOptions, basis: HSGPBasis) -> ModelOptions:
@@ -417,19 +419,10 @@ def calibrate(
                     tree["posterior"].sizes["chain"] * tree["posterior"].sizes["draw"])
         result = l2_result(result, quadrature, len(new_points))
         tree, posterior = result.idata, result.idata["posterior"].to_dataset()
-    widths = data.theta_upper - data.theta_lower
-    lp = np.asarray(tree["sample_stats"]["lp"])
-    result.modes = mode_checks.find_modes(np.asarray(posterior["theta"]), lp, data.theta_names, widths)
-    weights_unavailable = None
-    if len(result.modes) > 1 and quadrature is None:  # L2's theta is a projection, not a density's
-        try:
-            unconstrain, log_density = stan_backend.log_density_functions(flat, stan_json)
-        except NotImplementedError as err:
-            weights_unavailable = str(err)
-        else:
-            parameters = {k: np.asarray(v) for k, v in tree["stan_parameters"].data_vars.items()}
-            result.modes = mode_checks.weigh(result.modes, unconstrain(parameters), log_density, lp,
-                                             np.random.default_rng(seed))
+    result.modes, weights_unavailable = mode_checks.modes_of(
+        tree, data.theta_names, data.theta_upper - data.theta_lower,
+        # L2's theta is a projection, not a density's
+        None if quadrature is not None else lambda: stan_backend.log_density_functions(flat, stan_json), seed)
     result.diagnostics = sampler_checks.check_sampler(
         posterior, tree["sample_stats"].to_dataset(), max_treedepth,
         [v for v in posterior if v in _DIAGNOSED or v in parameter_names], [m.chains for m in result.modes])

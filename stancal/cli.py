@@ -16,7 +16,7 @@ from .compare import METHODS
 from .config import ConfigError, load_config
 from .data import DataError
 from .models import APPROXIMATIONS, DISCREPANCIES, EXACT_SIZE_LIMIT, Method, ModelOptions, model_spec
-from .report import write_calibration
+from .report import write_calibration, write_vector_calibration
 from .stan_source import FlatProgram, StanProgramError, flatten
 from .vector_data import VectorCalibrationData
 
@@ -89,27 +89,6 @@ def run_gap(args: argparse.Namespace) -> dict:
     return summary
 
 
-def run_vector_calibrate(args: argparse.Namespace, problem) -> dict:
-    from .report import write_vector_calibration
-    from .vector_calibrate import calibrate_vector
-
-    if args.method or args.approximation:
-        raise ConfigError("--method and --approximation do not apply to a vector output (modular_vector)")
-    model = dict(problem.model)
-    if args.discrepancy:
-        model["discrepancy"] = args.discrepancy
-    args.out.mkdir(parents=True, exist_ok=True)
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        result = calibrate_vector(problem.data, chains=args.chains, warmup=args.warmup, draws=args.draws,
-                                  seed=args.seed, backend=args.backend, adapt_delta=args.adapt_delta,
-                                  out_dir=args.out, **model)
-    summary = write_vector_calibration(result, args.out, _stancal_warnings(caught))
-    for message in summary["warnings"]:
-        print(f"warning: {message}", file=sys.stderr)
-    return summary
-
-
 def _scalar_only(problem, command: str) -> None:
     if isinstance(problem.data, VectorCalibrationData):
         raise ConfigError(f"`stancal {command}` is not built for vector outputs yet; `stancal calibrate` is")
@@ -117,23 +96,29 @@ def _scalar_only(problem, command: str) -> None:
 
 def run_calibrate(args: argparse.Namespace) -> dict:
     problem = load_config(args.config)
-    if isinstance(problem.data, VectorCalibrationData):
-        return run_vector_calibrate(args, problem)
+    vector = isinstance(problem.data, VectorCalibrationData)
+    if vector and (args.method or args.approximation):
+        raise ConfigError("--method and --approximation do not apply to a vector output (modular_vector)")
     model = dict(problem.model)
     configured_method = model.pop("method", None)
-    method = args.method or configured_method
     if args.discrepancy:
         model["discrepancy"] = args.discrepancy
     if args.approximation:
         model["approximation"] = args.approximation
+    sampler = dict(chains=args.chains, warmup=args.warmup, draws=args.draws, seed=args.seed,
+                   backend=args.backend, adapt_delta=args.adapt_delta, out_dir=args.out)
     args.out.mkdir(parents=True, exist_ok=True)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        result = calibrate(problem.data, simulator=problem.simulator, method=method,
-                           chains=args.chains, warmup=args.warmup, draws=args.draws,
-                           seed=args.seed, backend=args.backend, adapt_delta=args.adapt_delta,
-                           out_dir=args.out, **model)
-    summary = write_calibration(result, args.out, _stancal_warnings(caught))
+        if vector:
+            from .vector_calibrate import calibrate_vector
+
+            result = calibrate_vector(problem.data, **sampler, **model)
+        else:
+            result = calibrate(problem.data, simulator=problem.simulator, method=args.method or configured_method,
+                               **sampler, **model)
+    write = write_vector_calibration if vector else write_calibration
+    summary = write(result, args.out, _stancal_warnings(caught))
     for message in summary["warnings"]:
         print(f"warning: {message}", file=sys.stderr)
     return summary

@@ -145,16 +145,13 @@ def _vector_problem(physical: dict, simulator: dict, theta: dict, runs: pd.DataF
     if "program" in model:
         model["program"] = base / model["program"]
     basis = {k: model.pop(k) for k in ("variance_share", "components") if k in model}
-    bounds = {k: tuple(v) if isinstance(v, list) else v for k, v in theta.items()}
-    per_experiment = {k: tuple(v) if isinstance(v, list) else v
-                      for k, v in simulator.get("theta_per_experiment", {}).items()}
     data = VectorCalibrationData(
         _read_csv(base / _require(physical, "csv", "physical"), "physical.csv"),
         experiment=_require(physical, "experiment", "physical"),
         inputs=_require(physical, "inputs", "physical"),
         output=_require(physical, "output", "physical"),
         output_index=physical["output_index"],
-        theta=bounds, theta_per_experiment=per_experiment,
+        theta=theta, theta_per_experiment=simulator.get("theta_per_experiment", {}),
         runs=runs, run=_require(simulator, "run", "simulator") if runs is not None else None,
         noise_sd=physical.get("noise_sd"), covariates=physical.get("covariates", []), **basis)
     return Problem(data=data, simulator=None, model=model)

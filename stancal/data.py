@@ -88,6 +88,28 @@ def parameters_from_bounds(theta: Mapping[str, tuple[float, float]], what: str =
     return out
 
 
+def require_runs_within_bounds(runs: pd.DataFrame, parameters: Sequence[Parameter]) -> None:
+    """Each run's theta inside its prior box (the error names column and rows)."""
+    for p in parameters:
+        values = runs[p.name].to_numpy()
+        bad = (values < p.lower) | (values > p.upper)
+        if bad.any():
+            raise DataError(f"simulator runs: column '{p.name}' lies outside its bounds [{p.lower}, {p.upper}] "
+                            f"in rows {_rows(bad, runs.index)}")
+
+
+def warn_outside_runs(physical: pd.DataFrame, runs: pd.DataFrame, inputs: Sequence[str]) -> None:
+    """InputRangeWarning for physical inputs beyond the runs' range, where the emulator extrapolates."""
+    for column in inputs:
+        lo, hi = runs[column].min(), runs[column].max()
+        values = physical[column].to_numpy()
+        outside = (values < lo) | (values > hi)
+        if outside.any():
+            warnings.warn(f"physical input '{column}' lies outside the simulator runs' range [{lo:g}, {hi:g}] "
+                          f"in rows {_rows(outside, physical.index)}; the emulator extrapolates there",
+                          InputRangeWarning, stacklevel=4)
+
+
 def one_hot_name(column: str, level: str) -> str:
     return f"{column}[{level}]"
 
@@ -288,26 +310,8 @@ class CalibrationData:
         if np.ptp(table[self.output].to_numpy()) == 0:
             raise DataError(f"simulator runs: output column '{self.output}' is constant")
         self._check_runs_on_link_scale(table)
-        for p in self.parameters:
-            values = table[p.name].to_numpy()
-            bad = (values < p.lower) | (values > p.upper)
-            if bad.any():
-                raise DataError(
-                    f"simulator runs: column '{p.name}' lies outside its bounds "
-                    f"[{p.lower}, {p.upper}] in rows {_rows(bad, table.index)}"
-                )
-        for column in self.inputs:
-            lo, hi = table[column].min(), table[column].max()
-            values = self.physical[column].to_numpy()
-            outside = (values < lo) | (values > hi)
-            if outside.any():
-                warnings.warn(
-                    f"physical input '{column}' lies outside the simulator runs' range "
-                    f"[{lo:g}, {hi:g}] in rows {_rows(outside, self.physical.index)}; "
-                    "the emulator extrapolates there",
-                    InputRangeWarning,
-                    stacklevel=3,
-                )
+        require_runs_within_bounds(table, self.parameters)
+        warn_outside_runs(self.physical, table, self.inputs)
         return table
 
     def _check_runs_on_link_scale(self, table: pd.DataFrame) -> None:

@@ -109,6 +109,24 @@ def weigh(modes: list[Mode], unconstrained: np.ndarray, log_density, lp: np.ndar
     return sorted(weighed, key=lambda m: -m.weight)
 
 
+def modes_of(tree, names: list[str], widths: np.ndarray, log_density_functions,
+             seed: int) -> tuple[list[Mode], str | None]:
+    """The chains' theta modes of a fit's DataTree, weighed by posterior mass
+    when there are several; ``log_density_functions()`` gives the program's
+    (unconstrain, log_density), or raises NotImplementedError (the reason is
+    returned); None when the draws are not a density's (L2's projections)."""
+    lp = np.asarray(tree["sample_stats"]["lp"])
+    modes = find_modes(np.asarray(tree["posterior"]["theta"]), lp, names, widths)
+    if len(modes) <= 1 or log_density_functions is None:
+        return modes, None
+    try:
+        unconstrain, log_density = log_density_functions()
+    except NotImplementedError as err:
+        return modes, str(err)
+    parameters = {k: np.asarray(v) for k, v in tree["stan_parameters"].data_vars.items()}
+    return weigh(modes, unconstrain(parameters), log_density, lp, np.random.default_rng(seed)), None
+
+
 def describe(modes: list[Mode]) -> str:
     parts = []
     for k, m in enumerate(modes, start=1):

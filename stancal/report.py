@@ -20,11 +20,11 @@ def write_calibration(result, folder: Path, warning_messages: list[str]) -> dict
     return summary
 
 
-def _report(summary: dict, table, plots: list[Path]) -> str:
+def _parameters_and_sampler(summary: dict, table) -> list[str]:
+    """The report's theta table, every parameter, and the sampler's figures
+    and warnings: the same for every kind of calibration."""
     d = summary["diagnostics"]
-    lines = [
-        f"# Calibration report ({summary['method']}, {summary['backend']}, "
-        f"{summary['likelihood']} likelihood)", "",
+    return [
         "## Calibration parameters (original units; 90 % interval)", "",
         "| parameter | mean | 5 % | 50 % | 95 % | R-hat | bulk ESS |", "|---|---|---|---|---|---|---|",
         *(f"| {k} | {v['mean']:.4g} | {v['q05']:.4g} | {v['q50']:.4g} | {v['q95']:.4g} | "
@@ -35,6 +35,14 @@ def _report(summary: dict, table, plots: list[Path]) -> str:
         f"min bulk ESS {d['min_ess_bulk']:.0f}; min tail ESS {d['min_ess_tail']:.0f}",
         f"- compile {summary['timing']['compile_s']:.1f} s, sampling {summary['timing']['sample_s']:.1f} s",
         *(f"- **warning**: {w}" for w in summary.get("warnings", [])),
+    ]
+
+
+def _report(summary: dict, table, plots: list[Path]) -> str:
+    lines = [
+        f"# Calibration report ({summary['method']}, {summary['backend']}, "
+        f"{summary['likelihood']} likelihood)", "",
+        *_parameters_and_sampler(summary, table),
     ]
     if "censoring" in summary:
         counts = summary["censoring"]
@@ -74,19 +82,11 @@ def write_vector_calibration(result, folder: Path, warning_messages: list[str]) 
     table = result.summary()
     table.to_csv(folder / "summary.csv")
     plot_vector_curves(result, folder / "curves.png")
-    d = summary["diagnostics"]
     lines = [
         f"# Calibration report (modular_vector, {summary['backend']})", "",
         f"Output basis: {summary['basis']['description']}; truncation error sd "
         f"{summary['basis']['truncation_sd']:.3g}.", "",
-        "## Calibration parameters (original units; 90 % interval)", "",
-        "| parameter | mean | 5 % | 50 % | 95 % | R-hat | bulk ESS |", "|---|---|---|---|---|---|---|",
-        *(f"| {k} | {v['mean']:.4g} | {v['q05']:.4g} | {v['q50']:.4g} | {v['q95']:.4g} | "
-          f"{v['rhat']:.3f} | {v['ess_bulk']:.0f} |" for k, v in summary["theta"].items()),
-        "", "## All parameters", "", table.round(4).to_markdown(),
-        "", "## Sampler", "",
-        f"- divergences: {d['divergences']}; max R-hat {d['max_rhat']:.3f}; min bulk ESS {d['min_ess_bulk']:.0f}",
-        *(f"- **warning**: {w}" for w in warning_messages),
+        *_parameters_and_sampler(summary, table),
         "", "## Curves", "", "![curves per experiment](curves.png)", ""]
     (folder / "report.md").write_text("\n".join(lines))
     return summary

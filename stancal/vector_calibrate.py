@@ -33,32 +33,6 @@ NOISE_MODES = {"known": 0, "one": 1, "per_experiment": 2}
 PREDICTION_INDICES = 25  # per experiment, evenly over the runs' grid (one index column)
 
 
-@dataclass
-class UnitScaling:
-    """Inputs to [0, 1] over the runs' and experiments' range, theta over
-    its bounds, the output index over the runs' grid."""
-
-    low: dict[str, float]
-    width: dict[str, float]
-
-    @classmethod
-    def of(cls, data: VectorCalibrationData) -> "UnitScaling":
-        low, width = {}, {}
-        for column in data.inputs:
-            values = np.concatenate([data.experiments[column].to_numpy(), data.run_settings[column].to_numpy()])
-            low[column], width[column] = float(values.min()), float(np.ptp(values) or 1.0)
-        for p in data.all_parameters:
-            low[p.name], width[p.name] = p.lower, p.upper - p.lower
-        for d, column in enumerate(data.output_index):
-            grid = data.basis.grid[:, d]
-            low[column], width[column] = float(grid.min()), float(np.ptp(grid) or 1.0)
-        return cls(low, width)
-
-    def to_unit(self, frame: pd.DataFrame, columns: list[str]) -> np.ndarray:
-        return np.column_stack([(frame[c].to_numpy(float) - self.low[c]) / self.width[c] for c in columns]
-                               ) if columns else np.zeros((len(frame), 0))
-
-
 def prediction_rows(data: VectorCalibrationData, per_experiment: int = PREDICTION_INDICES) -> pd.DataFrame:
     """(experiment, index...) rows where f, delta and zeta are drawn: an even
     grid over the runs' range of one index, the runs' own grid for a field."""
@@ -72,9 +46,9 @@ def prediction_rows(data: VectorCalibrationData, per_experiment: int = PREDICTIO
     return pd.concat(rows, ignore_index=True)[[data.experiment, *data.output_index]]
 
 
-def fit_vector_emulator(data: VectorCalibrationData, scaling: UnitScaling, seed: int) -> VectorEmulator:
+def fit_vector_emulator(data: VectorCalibrationData, seed: int) -> VectorEmulator:
     columns = [*data.inputs, *(p.name for p in data.all_parameters)]
-    xt = scaling.to_unit(data.run_settings, columns)
+    xt = data.scaling.to_unit(data.run_settings, columns)
     started = time.perf_counter()
     emulator = VectorEmulator.fit(data.basis, xt, data.run_outputs, seed)
     logger.info("stage 1: %s; one GP per component, hyperparameters at their posterior mode (scipy L-BFGS "
@@ -83,8 +57,8 @@ def fit_vector_emulator(data: VectorCalibrationData, scaling: UnitScaling, seed:
     return emulator
 
 
-def vector_stan_data(data: VectorCalibrationData, emulator: VectorEmulator, scaling: UnitScaling,
-                     noise: str, discrepancy: str, new_rows: pd.DataFrame) -> dict[str, Any]:
+def vector_stan_data(data: VectorCalibrationData, emulator: VectorEmulator, noise: str, discrepancy: str,
+                     new_rows: pd.DataFrame) -> dict[str, Any]:
     """modular_vector.stan's data."""
     if noise not in NOISE_MODES:
         raise ValueError(f"noise must be one of {sorted(NOISE_MODES)}; got '{noise}'")
@@ -103,8 +77,8 @@ def vector_stan_data(data: VectorCalibrationData, emulator: VectorEmulator, scal
     return dict(
         E=len(names), D=len(data.inputs), Q=len(data.parameters), Q_exp=len(data.per_experiment),
         N=len(physical), experiment=physical[data.experiment].map(number).to_numpy(),
-        x=scaling.to_unit(data.experiments, data.inputs),
-        K_index=len(data.output_index), index=scaling.to_unit(physical, data.output_index),
+        x=data.scaling.to_unit(data.experiments, data.inputs),
+        K_index=len(data.output_index), index=data.scaling.to_unit(physical, data.output_index),
         y=(physical[data.output].to_numpy() - mean) / basis.scale, output_mean=mean, output_scale=basis.scale,
         C=basis.count, components=components, truncation_variance=basis.truncation_variance,
         noise_mode=NOISE_MODES[noise], known_noise_sd=known,
@@ -117,7 +91,7 @@ def vector_stan_data(data: VectorCalibrationData, emulator: VectorEmulator, scal
         emulator_length_scale=np.array([h.length_scale for h in hyper]),
         emulator_nugget=[h.nugget for h in hyper],
         P=len(new_rows), experiment_new=new_rows[data.experiment].map(number).to_numpy(),
-        index_new=scaling.to_unit(new_rows, data.output_index), output_mean_new=mean_new,
+        index_new=data.scaling.to_unit(new_rows, data.output_index), output_mean_new=mean_new,
         components_new=components_new, prior_only=0,
     )
 
@@ -129,6 +103,7 @@ class VectorCalibrationResult:
     program: FlatProgram
     backend: str
     timing: dict[str, float]
+    emulator: VectorEmulator  # stage 1
     diagnostics: sampler_checks.Diagnostics | None = None
     modes: list = field(default_factory=list)
 
@@ -172,7 +147,7 @@ class VectorCalibrationResult:
 
 
 def _datatree(draws: dict[str, np.ndarray], sample_stats: dict[str, np.ndarray], data: VectorCalibrationData,
-              scaling: UnitScaling, new_rows: pd.DataFrame, parameter_names: list[str]) -> xr.DataTree:
+              new_rows: pd.DataFrame, parameter_names: list[str]) -> xr.DataTree:
     """The posterior with named dimensions; the predictions as (experiment,
     output point) with the output index as coordinates."""
     names = list(data.experiments.index)
@@ -185,7 +160,7 @@ def _datatree(draws: dict[str, np.ndarray], sample_stats: dict[str, np.ndarray],
         if draws[name].shape[-1]:
             posterior[name.removesuffix("_original")] = draws[name] if draws[name].shape[-1] > 1 else draws[name][..., 0]
     if draws["delta_length_scale"].shape[-1]:  # in each input's and index's own units
-        widths = np.array([scaling.width[c] for c in [*data.inputs, *data.output_index]])
+        widths = np.array([data.scaling.width[c] for c in [*data.inputs, *data.output_index]])
         posterior["delta_length_scale"] = draws["delta_length_scale"] * widths
     predictions = {k: draws[f"{k}_new"].reshape(chains, draws_per_chain, len(names), per) for k in ("f", "delta", "zeta")}
     dims = {"theta": ["theta_name"], "theta_experiment": ["experiment", "experiment_theta_name"],
@@ -242,10 +217,9 @@ def calibrate_vector(
     flat = flatten(Path(program) if program else model_spec("modular_vector").path)
     stan_backend = get_backend(backend)
     stan_backend.compile([flat])
-    scaling = UnitScaling.of(data)
-    emulator = fit_vector_emulator(data, scaling, seed)
+    emulator = fit_vector_emulator(data, seed)
     new_rows = prediction_rows(data)
-    stan_data = vector_stan_data(data, emulator, scaling, noise, discrepancy, new_rows)
+    stan_data = vector_stan_data(data, emulator, noise, discrepancy, new_rows)
     inits = spread_theta_inits(chains, len(data.parameters), np.random.default_rng(seed))
     logger.info("sampling modular_vector: %d experiments, %d values, %d components; %d chains x (%d + %d)",
                 stan_data["E"], stan_data["N"], stan_data["C"], chains, warmup, draws)
@@ -253,25 +227,16 @@ def calibrate_vector(
     sample = stan_backend.sample(flat, stan_json, inits=inits, chains=chains, warmup=warmup, draws=draws,
                                  seed=seed, adapt_delta=adapt_delta, max_treedepth=max_treedepth)
     parameter_names = stan_backend.parameter_names(flat)
-    tree = _datatree(sample.draws, sample.sample_stats, data, scaling, new_rows, parameter_names)
+    tree = _datatree(sample.draws, sample.sample_stats, data, new_rows, parameter_names)
     result = VectorCalibrationResult(tree, data, flat, stan_backend.name,
-                                     {"compile_s": sample.compile_seconds, "sample_s": sample.sample_seconds})
+                                     {"compile_s": sample.compile_seconds, "sample_s": sample.sample_seconds},
+                                     emulator)
     if out_dir is not None:  # nothing below may lose the draws
         result.save(Path(out_dir) / "posterior.nc")
     posterior = tree["posterior"].to_dataset()
-    widths = np.array([p.upper - p.lower for p in data.parameters])
-    lp = np.asarray(tree["sample_stats"]["lp"])
-    result.modes = mode_checks.find_modes(np.asarray(posterior["theta"]), lp, data.theta_names, widths)
-    weights_unavailable = None
-    if len(result.modes) > 1:
-        try:
-            unconstrain, log_density = stan_backend.log_density_functions(flat, stan_json)
-        except NotImplementedError as err:
-            weights_unavailable = str(err)
-        else:
-            parameters = {k: np.asarray(v) for k, v in tree["stan_parameters"].data_vars.items()}
-            result.modes = mode_checks.weigh(result.modes, unconstrain(parameters), log_density, lp,
-                                             np.random.default_rng(seed))
+    result.modes, weights_unavailable = mode_checks.modes_of(
+        tree, data.theta_names, np.array([p.upper - p.lower for p in data.parameters]),
+        lambda: stan_backend.log_density_functions(flat, stan_json), seed)
     result.diagnostics = sampler_checks.check_sampler(
         posterior, tree["sample_stats"].to_dataset(), max_treedepth, list(posterior.data_vars),
         [m.chains for m in result.modes])

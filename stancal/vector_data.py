@@ -10,7 +10,8 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 import pandas as pd
 
-from .data import Parameter, _numeric_columns, _require_columns, parameters_from_bounds
+from .data import (Parameter, Scaling, _numeric_columns, _require_columns, parameters_from_bounds,
+                   require_runs_within_bounds, warn_outside_runs)
 from .output_basis import DEFAULT_VARIANCE_SHARE, OutputBasis
 from .validation import DataError
 from .validation import row_labels as _rows
@@ -92,6 +93,7 @@ class VectorCalibrationData:
             self.runs, self.run_settings, self.run_outputs, grid = self._check_runs(runs)
             self.basis = OutputBasis.from_runs(grid, self.run_outputs, variance_share, components)
             self._check_indices_on_grid()
+            self.scaling = self._scaling()
 
     @property
     def theta_names(self) -> list[str]:
@@ -102,6 +104,20 @@ class VectorCalibrationData:
         """The shared theta, then the per-experiment ones (each of those
         once per experiment in a fit)."""
         return [*self.parameters, *self.per_experiment]
+
+    def _scaling(self) -> Scaling:
+        """Inputs to [0, 1] over the experiments' and runs' range, theta over
+        its bounds, the output index over the runs' grid; the output itself is
+        standardised by the basis (its mean curve and scale), not here."""
+        low, width = {}, {}
+        ranges = {c: np.concatenate([self.experiments[c].to_numpy(), self.run_settings[c].to_numpy()])
+                  for c in self.inputs}
+        ranges.update({c: self.basis.grid[:, d] for d, c in enumerate(self.output_index)})
+        for column, values in ranges.items():
+            low[column], width[column] = float(values.min()), float(np.ptp(values)) or 1.0
+        for p in self.all_parameters:
+            low[p.name], width[p.name] = p.lower, p.upper - p.lower
+        return Scaling(low, width, 0.0, 1.0)
 
     def _check_names(self) -> None:
         named = [self.experiment, *self.inputs, *self.covariates, *self.output_index, self.output,
@@ -142,12 +158,8 @@ class VectorCalibrationData:
         every_theta = [p.name for p in self.all_parameters]
         table = _numeric_columns(runs, [*self.inputs, *every_theta, *self.output_index, self.output], what)
         table.insert(0, self.run, runs[self.run].astype(str))
-        for p in self.all_parameters:
-            values = table[p.name].to_numpy()
-            bad = (values < p.lower) | (values > p.upper)
-            if bad.any():
-                raise DataError(f"{what}: column '{p.name}' lies outside its bounds [{p.lower}, {p.upper}] "
-                                f"in rows {_rows(bad, table.index)}")
+        require_runs_within_bounds(table, self.all_parameters)
+        warn_outside_runs(self.physical, table, self.inputs)
         settings = _constant_within(table, self.run, [*self.inputs, *every_theta], what, "run")
         ordered = table.sort_values([self.run, *self.output_index], kind="stable")
         grids = {name: group[self.output_index].to_numpy() for name, group in ordered.groupby(self.run, sort=False)}

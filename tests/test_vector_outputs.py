@@ -176,17 +176,14 @@ def test_component_emulator_predicts_held_out_curves_within_its_bands():
     (measured 0.9 %), and the truth inside the 90 % band at 80 to 99.5 % of
     the held-out values (measured 90.4 %: the bands are neither too narrow
     nor useless)."""
-    from stancal.vector_emulator import VectorEmulator
+    from stancal.vector_calibrate import fit_vector_emulator
 
     data = vector_data()
-    settings = data.run_settings
-    lower = np.array([55.0, *[p.lower for p in data.parameters]])
-    upper = np.array([95.0, *[p.upper for p in data.parameters]])
-    xt = (settings[["T0", "k", "Ta"]].to_numpy() - lower) / (upper - lower)
-    emulator = VectorEmulator.fit(data.basis, xt, data.run_outputs, seed=1)
-    held_out = long_runs(40, 9).groupby("run").first()[["T0", "k", "Ta"]].to_numpy()
+    emulator = fit_vector_emulator(data, seed=1)
+    held_out = long_runs(40, 9).groupby("run").first()[["T0", "k", "Ta"]]
     t = np.linspace(0.5, 59.5, 17)
-    mean, variance = emulator.predict((held_out - lower) / (upper - lower), t)
+    mean, variance = emulator.predict(data.scaling.to_unit(held_out, ["T0", "k", "Ta"]), t)
+    held_out = held_out.to_numpy()
     truth = cooling(t[None, :], held_out[:, :1], held_out[:, 1:2], held_out[:, 2:3])
     z = (truth - mean) / np.sqrt(variance)
     assert np.sqrt(np.mean((truth - mean) ** 2)) < 0.02 * data.run_outputs.std()
@@ -233,15 +230,13 @@ def test_modular_vector_posterior_matches_quadrature(vector_problem):
     mean within 0.15 sd and its sd within 10 % of a grid quadrature of the
     same density, computed in numpy (coarse grid over the box, then finer
     ones about the mode); R-hat <= 1.01."""
-    from stancal.vector_calibrate import (UnitScaling, calibrate_vector, fit_vector_emulator, prediction_rows,
-                                          vector_stan_data)
+    from stancal.vector_calibrate import calibrate_vector, prediction_rows, vector_stan_data
 
     data = vector_problem
     result = calibrate_vector(data, discrepancy="none", chains=4, warmup=1000, draws=1000, seed=3)
     assert result.diagnostics.max_rhat <= 1.01 and result.diagnostics.divergences == 0
-    scaling = UnitScaling.of(data)
-    emulator = fit_vector_emulator(data, scaling, seed=3)  # stage 1 is deterministic given the seed
-    stan_data = vector_stan_data(data, emulator, scaling, "known", "none", prediction_rows(data))
+    emulator = result.emulator  # stage 1, fixed in the fit
+    stan_data = vector_stan_data(data, emulator, "known", "none", prediction_rows(data))
     best, _, _ = _grid_moments(stan_data, emulator, [0.5, 0.5], [0.5, 0.5], points=41)
     _, mean, sd = _grid_moments(stan_data, emulator, best, [0.05, 0.05], points=41)
     _, mean, sd = _grid_moments(stan_data, emulator, mean, 6 * sd)
