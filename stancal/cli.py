@@ -17,7 +17,7 @@ from .config import ConfigError, load_config
 from .data import DataError
 from .models import APPROXIMATIONS, DISCREPANCIES, EXACT_SIZE_LIMIT, Method, ModelOptions, model_spec
 from .report import write_calibration, write_vector_calibration
-from .stan_source import FlatProgram, StanProgramError, flatten
+from .stan_source import FlatProgram, StanProgramError
 from .vector_data import VectorCalibrationData
 
 logger = logging.getLogger("stancal")
@@ -67,7 +67,7 @@ def run_gap(args: argparse.Namespace) -> dict:
     from .gap_report import write_gap_report
 
     problem = load_config(args.config)
-    _scalar_only(problem, "gap")
+    vector = isinstance(problem.data, VectorCalibrationData)
     if not problem.candidates:
         raise ConfigError("config: `stancal gap` needs a [candidates] section")
     model = dict(problem.model)
@@ -77,13 +77,15 @@ def run_gap(args: argparse.Namespace) -> dict:
         warnings.simplefilter("always")
         analysis = diagnose_gap(problem.data, problem.candidates, simulator=problem.simulator,
                                 method=method, kernel=model.get("kernel", "se"),
-                                approximation=args.approximation or model.get("approximation", "auto"),
+                                **({} if vector else {"approximation": args.approximation
+                                                      or model.get("approximation", "auto")}),
                                 chains=args.chains, warmup=args.warmup, draws=args.draws,
                                 seed=args.seed, backend=args.backend, out_dir=args.out,
                                 kfold=args.kfold)
     summary = write_gap_report(analysis, args.out)
-    write_calibration(analysis.baseline, args.out / "baseline",
-                      analysis.baseline.diagnostics.messages if analysis.baseline.diagnostics else [])
+    write = write_vector_calibration if vector else write_calibration
+    write(analysis.baseline, args.out / "baseline",
+          analysis.baseline.diagnostics.messages if analysis.baseline.diagnostics else [])
     for message in _stancal_warnings(caught):
         print(f"warning: {message}", file=sys.stderr)
     return summary
@@ -91,14 +93,16 @@ def run_gap(args: argparse.Namespace) -> dict:
 
 def _scalar_only(problem, command: str) -> None:
     if isinstance(problem.data, VectorCalibrationData):
-        raise ConfigError(f"`stancal {command}` is not built for vector outputs yet; `stancal calibrate` is")
+        raise ConfigError(f"`stancal {command}` compares the identifiable-calibration methods (L2, orthogonal, "
+                          f"scaled), which are not built for vector outputs yet; `stancal calibrate` (koh or "
+                          f"modular) and `stancal gap` are")
 
 
 def run_calibrate(args: argparse.Namespace) -> dict:
     problem = load_config(args.config)
     vector = isinstance(problem.data, VectorCalibrationData)
-    if vector and (args.method or args.approximation):
-        raise ConfigError("--method and --approximation do not apply to a vector output (modular_vector)")
+    if vector and args.approximation:
+        raise ConfigError("--approximation does not apply to a vector output (koh_vector, modular_vector)")
     model = dict(problem.model)
     configured_method = model.pop("method", None)
     if args.discrepancy:
@@ -113,7 +117,8 @@ def run_calibrate(args: argparse.Namespace) -> dict:
         if vector:
             from .vector_calibrate import calibrate_vector
 
-            result = calibrate_vector(problem.data, **sampler, **model)
+            result = calibrate_vector(problem.data, simulator=problem.simulator,
+                                      method=args.method or configured_method, **sampler, **model)
         else:
             result = calibrate(problem.data, simulator=problem.simulator, method=args.method or configured_method,
                                **sampler, **model)
@@ -155,7 +160,19 @@ def config_programs(problem, all_methods: bool) -> list[FlatProgram]:
     from .gap import variant_program
 
     if isinstance(problem.data, VectorCalibrationData):
-        return [flatten(problem.model.get("program") or model_spec("modular_vector").path)]
+        from .vector_calibrate import choose_vector_method, vector_program
+
+        configured = problem.model.get("method")
+        methods = [configured] + (["koh", "modular"] if all_methods else [])
+        programs = []
+        for method in dict.fromkeys(methods):
+            try:
+                chosen = choose_vector_method(problem.data, problem.simulator, method)
+            except ValueError:  # a method this problem cannot run
+                continue
+            programs.append(vector_program(chosen, problem.simulator,
+                                           problem.model.get("program") if method == configured else None))
+        return programs + [variant_program(problem.data, c) for c in problem.candidates if c.kind == "variant"]
 
     model = dict(problem.model)
     configured = model.pop("method", None)

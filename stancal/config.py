@@ -32,7 +32,8 @@ _MODEL_KEYS = {"method", "discrepancy", "kernel", "estimate_rho", "program", "me
                "functional_parametrization", "approximation", "basis_functions", "boundary_factor",
                *_OBSERVATION_KEYS}
 _VARIANT_KEYS = {"stan", "inputs", "theta"}
-_VECTOR_MODEL_KEYS = {"discrepancy", "noise", "program", "variance_share", "components"}
+_VECTOR_MODEL_KEYS = {"method", "discrepancy", "noise", "kernel", "mean_formula", "mean_intercept", "program",
+                      "variance_share", "components"}
 
 
 def _candidates(table: dict[str, Any], base: Path) -> list[Candidate]:
@@ -132,12 +133,6 @@ def load_config(path: str | Path) -> Problem:
 def _vector_problem(physical: dict, simulator: dict, theta: dict, runs: pd.DataFrame | None, stan: Path | None,
                     model: dict, raw: dict, base: Path) -> Problem:
     """A vector output ([physical] output_index): long tables, one row per value."""
-    if stan is not None:
-        raise ConfigError("simulator.stan: a Stan simulator is not supported for vector outputs yet; "
-                          "give the runs (simulator.runs and simulator.run)")
-    if raw.get("candidates"):
-        raise ConfigError("[candidates]: the gap diagnosis is not built for vector outputs yet; "
-                          "remove the section to calibrate")
     unknown = set(model) - _VECTOR_MODEL_KEYS
     if unknown:
         raise ConfigError(f"config: unknown key(s) {sorted(unknown)} in [model] for a vector output; "
@@ -154,4 +149,4 @@ def _vector_problem(physical: dict, simulator: dict, theta: dict, runs: pd.DataF
         theta=theta, theta_per_experiment=simulator.get("theta_per_experiment", {}),
         runs=runs, run=_require(simulator, "run", "simulator") if runs is not None else None,
         noise_sd=physical.get("noise_sd"), covariates=physical.get("covariates", []), **basis)
-    return Problem(data=data, simulator=None, model=model)
+    return Problem(data=data, simulator=stan, model=model, candidates=_candidates(raw.get("candidates", {}), base))

@@ -272,6 +272,17 @@ class CalibrationData:
         return None
 
     @property
+    def discrepancy_scale(self) -> str:
+        """What the discrepancy is measured in (output units, or a link scale)."""
+        return LINKS[self.observations.likelihood].scale
+
+    def heldout_log_density(self, rows: np.ndarray, zeta: np.ndarray, posterior) -> np.ndarray:
+        """log p(y_row | zeta, the fit's noise or dispersion) per draw (draws, rows)."""
+        noise, phi = (np.asarray(posterior[v]).reshape(-1, 1) if v in posterior else None
+                      for v in ("noise_sd", "phi"))
+        return self.observations.log_density(rows, zeta, noise, phi)
+
+    @property
     def discrepancy_units(self) -> float:
         """Output units per model-scale unit of the discrepancy: the output's
         scale for Gaussian outputs (standardised), 1 on a link scale (the

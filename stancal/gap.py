@@ -11,6 +11,11 @@ comparable. Candidates are ranked by the ELPD difference to the baseline
 (PSIS-LOO on the exact conditional, with exact refits where Pareto k is
 high, or K-fold).
 
+A vector output (stancal.vector_data) is diagnosed the same way
+(koh_vector.stan, or modular_vector.stan from runs; variants run
+koh_vector): its values are the observations, and *where* covers the
+output index beside the inputs and covariates.
+
 Counts, binomial and censored outputs are diagnosed the same way on the
 link scale: their latent discrepancy is integrated out at each left-out
 point for PSIS-LOO (functions/latent_loo.stan).
@@ -40,12 +45,18 @@ from .data import CalibrationData, DataError
 from .gap_location import GapLocation, interval, locate_gap
 from .mean_terms import FormulaError, build_mean_terms
 from .models import HSGP_METHODS, ModelOptions
-from .observations import LINKS
 from .result import CalibrationResult
 from .scoring import PARETO_K_LIMIT, Score, kfold_score, psis_score, refit_unreliable
 from .seeds import command_seed
-from .stopwatch import Stopwatch
 from .stan_source import FlatProgram, StanProgramError
+from .stopwatch import Stopwatch
+from .vector_calibrate import (
+    VectorCalibrationResult,
+    calibrate_vector,
+    choose_vector_method,
+    vector_program,
+)
+from .vector_data import VectorCalibrationData
 
 logger = logging.getLogger("stancal")
 
@@ -89,13 +100,13 @@ class Candidate:
 @dataclass
 class CandidateFit:
     candidate: Candidate
-    result: CalibrationResult
+    result: CalibrationResult | VectorCalibrationResult
     score: Score
 
 
 @dataclass
 class GapAnalysis:
-    baseline: CalibrationResult
+    baseline: CalibrationResult | VectorCalibrationResult
     baseline_score: Score
     location: GapLocation
     candidates: list[CandidateFit]  # best first
@@ -110,7 +121,7 @@ class GapAnalysis:
         out = {
             "baseline": {
                 "method": self.baseline.method,
-                "discrepancy_scale": LINKS[self.baseline.data.observations.likelihood].scale,
+                "discrepancy_scale": self.baseline.data.discrepancy_scale,
                 "theta": base_theta,
                 "discrepancy_rms": interval(base.discrepancy_rms),
                 "discrepancy_variation": interval(base.discrepancy_variation),
@@ -152,7 +163,7 @@ class GapAnalysis:
         return out
 
 
-def _sampler(result: CalibrationResult) -> dict[str, Any]:
+def _sampler(result: CalibrationResult | VectorCalibrationResult) -> dict[str, Any]:
     d = result.diagnostics
     return {"divergences": d.divergences, "max_rhat": d.max_rhat, "min_ess_bulk": d.min_ess_bulk,
             "warnings": d.messages} if d else {}
@@ -171,28 +182,40 @@ def _slug(name: str) -> str:
 
 
 # ---- checking candidates before any fit -------------------------------------
-def variant_data(data: CalibrationData, candidate: Candidate) -> CalibrationData:
-    """The physical data as the variant sees it: its own inputs and theta;
-    the discrepancy keeps every baseline variable."""
+def variant_data(data: CalibrationData | VectorCalibrationData,
+                 candidate: Candidate) -> CalibrationData | VectorCalibrationData:
+    """The physical data as the variant sees it: its own inputs and theta
+    (a vector output's simulator gets the shared theta, the variant's extra
+    theta, then the per-experiment theta); the discrepancy keeps every
+    baseline variable."""
     missing = [c for c in candidate.inputs if c not in data.source.columns]
     if missing:
         raise CandidateError(f"candidate '{candidate.name}': unknown input column(s) {missing}; "
                              f"physical columns: {list(data.source.columns)}")
     theta = {p.name: (p.lower, p.upper) for p in data.parameters} | dict(candidate.theta)
-    covariates = [v for v in data.discrepancy_variables if v not in candidate.inputs]
     try:
+        if isinstance(data, VectorCalibrationData):
+            covariates = [v for v in [*data.inputs, *data.covariates] if v not in candidate.inputs]
+            return VectorCalibrationData(data.source, data.experiment, candidate.inputs, data.output,
+                                         data.output_index, theta,
+                                         {p.name: (p.lower, p.upper) for p in data.per_experiment},
+                                         noise_sd=data.noise_sd, covariates=covariates)
+        covariates = [v for v in data.discrepancy_variables if v not in candidate.inputs]
         return CalibrationData(data.source, candidate.inputs, data.output, theta, covariates,
                                levels=data.levels, **data.observation_columns)
     except DataError as err:
         raise CandidateError(f"candidate '{candidate.name}': {err}") from None
 
 
-def variant_program(data: CalibrationData, candidate: Candidate) -> FlatProgram:
-    """The program a simulator variant runs: koh, or koh_latent for what needs it."""
+def variant_program(data: CalibrationData | VectorCalibrationData, candidate: Candidate) -> FlatProgram:
+    """The program a simulator variant runs: koh (koh_vector for a vector
+    output), or koh_latent for what needs it."""
+    if isinstance(data, VectorCalibrationData):
+        return vector_program("koh", candidate.stan)
     return stan_programs(choose_method(data, candidate.stan, "koh"), candidate.stan)[-1]
 
 
-def check_candidates(data: CalibrationData, candidates: list[Candidate], backend) -> None:
+def check_candidates(data: CalibrationData | VectorCalibrationData, candidates: list[Candidate], backend) -> None:
     """Fail before sampling: formulas must evaluate, variants must pass stanc."""
     names = [c.name for c in candidates]
     repeated = sorted({n for n in names if names.count(n) > 1})
@@ -218,7 +241,7 @@ def check_candidates(data: CalibrationData, candidates: list[Candidate], backend
 
 # ---- the analysis --------------------------------------------------------------
 def diagnose_gap(
-    data: CalibrationData,
+    data: CalibrationData | VectorCalibrationData,
     candidates: list[Candidate],
     *,
     simulator: str | Path | None = None,
@@ -237,15 +260,22 @@ def diagnose_gap(
     ``calibrate_options`` (kernel, chains, warmup, draws, backend,
     adapt_delta, ...) go to every ``calibrate`` call.
     """
-    chosen = choose_method(data, simulator, method,
-                           ModelOptions(approximation=calibrate_options.get("approximation", "auto")))
-    # K-fold's training sets are smaller: every fit keeps the baseline's approximation
-    calibrate_options["approximation"] = "hsgp" if chosen in HSGP_METHODS else "exact"
+    vector = isinstance(data, VectorCalibrationData)
+    if vector:
+        chosen = choose_vector_method(data, simulator, method)
+        calibrate_options.pop("approximation", None)
+        baseline_programs = [vector_program(chosen, simulator)]
+    else:
+        chosen = choose_method(data, simulator, method,
+                               ModelOptions(approximation=calibrate_options.get("approximation", "auto")))
+        # K-fold's training sets are smaller: every fit keeps the baseline's approximation
+        calibrate_options["approximation"] = "hsgp" if chosen in HSGP_METHODS else "exact"
+        baseline_programs = stan_programs(chosen, simulator)
     stan_backend = get_backend(calibrate_options.get("backend"))
     check_candidates(data, candidates, stan_backend)
     clock = Stopwatch()
     # every program up front, side by side on the machine's cores
-    stan_backend.compile([*stan_programs(chosen, simulator),
+    stan_backend.compile([*baseline_programs,
                           *(variant_program(data, c) for c in candidates if c.kind == "variant")])
     clock.lap("compile")
     seed = command_seed(seed)
@@ -256,7 +286,14 @@ def diagnose_gap(
 
     def fitter(candidate: Candidate | None, folder: Path | None):
         """fit(train_data, new_points) for the baseline or one candidate."""
-        def fit(train: CalibrationData, new_points: pd.DataFrame) -> CalibrationResult:
+        def fit(train, new_points: pd.DataFrame | None):
+            formula = candidate.formula if candidate else None
+            if vector:
+                variant = candidate is not None and candidate.kind == "variant"
+                return calibrate_vector(train, simulator=candidate.stan if variant else simulator,
+                                        method="koh" if variant else chosen,
+                                        seed=seed, mean_formula=None if variant else formula,
+                                        new_rows=new_points, out_dir=folder, **sampling)
             if candidate is None or candidate.kind == "formula":
                 return calibrate(train, simulator=simulator, method=str(chosen), seed=seed,
                                  mean_formula=candidate.formula if candidate else None,
@@ -275,7 +312,7 @@ def diagnose_gap(
         folder = None if out is None else (out / "baseline" if candidate is None
                                            else out / "candidates" / _slug(candidate.name))
         d = data_for(candidate)
-        fits.append(fitter(candidate, folder)(d, d.source.reset_index(drop=True)))
+        fits.append(fitter(candidate, folder)(d, None if vector else d.source.reset_index(drop=True)))
 
     clock.lap("fits")
     scores = [psis_score(r) for r in fits]
@@ -294,7 +331,7 @@ def diagnose_gap(
         scores = [refit_unreliable(data_for(c), fitter(c, None), s) for c, s in zip(labels, scores)]
 
     clock.lap("refits")
-    location = locate_gap(fits[0], seed=seed)
+    location = locate_gap(fits[0], seed=seed, along=tuple(data.output_index) if vector else ())
     clock.lap("locate")
     ranked = sorted(
         (CandidateFit(c, r, s) for c, r, s in zip(candidates, fits[1:], scores[1:])),

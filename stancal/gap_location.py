@@ -16,7 +16,7 @@ categorical ones at their observed frequencies, independently
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
@@ -79,11 +79,28 @@ def _sign_word(sign: int) -> str:
 
 
 @dataclass
+class ConditionalEffect:
+    """The discrepancy along an output index with one other variable held
+    low or high (at 1/6 or 5/6 of its range), averaged over the rest: where
+    along a curve the gap sits, for which experiments."""
+
+    given: str
+    level: str  # "low" or "high"
+    value: float  # the given variable's value, original units
+    effect: MainEffect  # along the index
+
+    def to_json(self) -> dict:
+        return {"index": self.effect.variable, "given": self.given, "level": self.level, "value": self.value,
+                "regions": self.effect.regions()}
+
+
+@dataclass
 class GapLocation:
     importance: dict[str, dict[str, float]]  # total Sobol index per variable
     first_order: dict[str, dict[str, float]]  # first-order Sobol index per variable
     main_effects: dict[str, MainEffect]
     at_observations: pd.DataFrame  # delta (GP part) at each physical point
+    along_index: list[ConditionalEffect] = field(default_factory=list)  # vector outputs
 
     @property
     def regions(self) -> list[dict]:
@@ -92,6 +109,7 @@ class GapLocation:
     def to_json(self) -> dict:
         return {"importance": self.importance, "first_order": self.first_order,
                 "regions": self.regions,
+                "along_index": [c.to_json() for c in self.along_index],
                 "observations_with_credible_gap": int(self.at_observations["credible"].sum())}
 
 
@@ -99,7 +117,10 @@ class _Design:
     """Points on the unit scale of the discrepancy columns: two independent
     base samples and, per variable, a grid of its values."""
 
-    def __init__(self, result: CalibrationResult, base_points: int, grid_size: int, seed: int):
+    CONDITION_LEVELS = {"low": 1 / 6, "high": 5 / 6}  # where along its range a variable is held
+
+    def __init__(self, result: CalibrationResult, base_points: int, grid_size: int, seed: int,
+                 along: tuple[str, ...] = ()):
         data = result.data
         self.columns = data.discrepancy_inputs
         self.variables = data.discrepancy_variables
@@ -128,6 +149,13 @@ class _Design:
                 level = rng.choice(len(cols), size=base_points, p=freq)
                 target[:, cols] = np.eye(len(cols))[level]
             self.grid[v] = (np.eye(len(cols)), freq, list(data.levels[v]))
+        # index variable a along its grid, another numeric variable held low or high
+        self.conditions = []
+        for a in along:
+            for v in (v for v in numeric if v not in along):
+                column = x_obs[:, self.slots[v][0]]
+                self.conditions += [(a, v, level, column.min() + share * np.ptp(column))
+                                    for level, share in self.CONDITION_LEVELS.items()]
 
     def with_variable(self, base: np.ndarray, variable: str, values: np.ndarray) -> np.ndarray:
         out = base.copy()
@@ -151,6 +179,12 @@ class _Design:
             unit_rows = self.grid[v][0]
             for g, row in enumerate(unit_rows):
                 add(f"grid:{v}:{g}", self.with_variable(self.A, v, np.broadcast_to(row, (len(self.A), len(row)))))
+        for a, v, level, unit in self.conditions:
+            # a quarter of the base points average out the other variables well enough for a curve
+            base = self.A[:max(len(self.A) // 4, 16)]
+            held = self.with_variable(base, v, np.full((len(base), 1), unit))
+            for g, row in enumerate(self.grid[a][0]):
+                add(f"cond:{a}:{v}:{level}:{g}", self.with_variable(held, a, np.broadcast_to(row, (len(held), 1))))
         return np.vstack(blocks), where
 
 
@@ -178,9 +212,11 @@ def _hsgp_discrepancy(result: CalibrationResult, points: np.ndarray):
 
 
 def locate_gap(result: CalibrationResult, *, max_draws: int = 200, base_points: int = 128,
-               grid_size: int = 25, seed: int = 0) -> GapLocation:
+               grid_size: int = 25, seed: int = 0, along: tuple[str, ...] = ()) -> GapLocation:
     """Importance and main effects of the discrepancy of a fitted result
-    (its GP part plus any constant mean term)."""
+    (its GP part plus any constant mean term). ``along``: a vector output's
+    index column(s), along which the discrepancy is also drawn with each
+    other numeric variable held low and high."""
     if not result.options.has_discrepancy:
         raise ValueError("locating the gap needs a GP discrepancy (discrepancy = 'gp')")
     data = result.data
@@ -191,7 +227,7 @@ def locate_gap(result: CalibrationResult, *, max_draws: int = 200, base_points: 
     length_scale = np.asarray(result.idata["posterior"]["delta_length_scale"]).reshape(-1, len(widths)) / widths
     rng = np.random.default_rng(seed)
     chosen = np.sort(rng.choice(len(delta), size=min(max_draws, len(delta)), replace=False))
-    design = _Design(result, base_points, grid_size, seed)
+    design = _Design(result, base_points, grid_size, seed, tuple(along))
     points, where = design.points()
     x_obs = data.scaling.to_unit(data.physical, design.columns)
     kernel_id = result.options.kernel_id
@@ -199,6 +235,7 @@ def locate_gap(result: CalibrationResult, *, max_draws: int = 200, base_points: 
     total = {v: [] for v in design.variables}
     first = {v: [] for v in design.variables}
     effects = {v: [] for v in design.variables}
+    conditional = {c[:3]: [] for c in design.conditions}
     at_points = _hsgp_discrepancy(result, points) if result.options.basis_functions else None
     for s in chosen:
         if at_points is not None:  # the Hilbert-space discrepancy is defined everywhere: no n x n solve
@@ -217,6 +254,9 @@ def locate_gap(result: CalibrationResult, *, max_draws: int = 200, base_points: 
             first[v].append(np.mean(mB * (mAB - mA)) / variance if ok else np.nan)
             effects[v].append([m_draw[where[f"grid:{v}:{g}"]].mean() + constant[s]
                                for g in range(len(design.grid[v][0]))])
+        for a, v, level in conditional:
+            conditional[a, v, level].append([m_draw[where[f"cond:{a}:{v}:{level}:{g}"]].mean() + constant[s]
+                                             for g in range(len(design.grid[a][0]))])
 
     main = {v: MainEffect(v, design.grid[v][2], np.array(effects[v]), v in design.categorical)
             for v in design.variables}
@@ -231,4 +271,7 @@ def locate_gap(result: CalibrationResult, *, max_draws: int = 200, base_points: 
         # moves them closer to the truth
         importance={v: interval(np.clip(total[v], 0, 1)) for v in design.variables},
         first_order={v: interval(np.clip(first[v], 0, 1)) for v in design.variables},
-        main_effects=main, at_observations=observed)
+        main_effects=main, at_observations=observed,
+        along_index=[ConditionalEffect(v, level, float(data.scaling.low[v] + data.scaling.width[v] * unit),
+                                       MainEffect(a, design.grid[a][2], np.array(conditional[a, v, level]), False))
+                     for a, v, level, unit in design.conditions])

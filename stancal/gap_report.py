@@ -91,6 +91,21 @@ def _fmt(est: dict) -> str:
     return f"{est['mean']:.3g} [{est['q05']:.3g}, {est['q95']:.3g}]"
 
 
+def _along_index(where: dict, ranked: list) -> list[str]:
+    """A vector output: where along its index the gap sits, with the most
+    important other variable held low and high."""
+    conditions = where.get("along_index", [])
+    given = next((name for name, _ in ranked if any(c["given"] == name for c in conditions)), None)
+    if given is None:
+        return []
+    lines = ["", f"Along the output index, with **{given}** held low and high (the others averaged):", ""]
+    for c in (c for c in conditions if c["given"] == given):
+        spans = "; ".join(f"{r['from']:.4g} to {r['to']:.4g} ({r['sign']})" for r in c["regions"])
+        lines.append(f"- {given} = {c['value']:.4g} ({c['level']}): "
+                     + (f"{c['index']} from {spans}" if spans else f"nowhere along {c['index']} credibly non-zero"))
+    return lines
+
+
 def report_markdown(summary: dict, figures: list[Path]) -> str:
     base, where, cands = summary["baseline"], summary["where"], summary["candidates"]
     ranked = sorted(where["importance"].items(), key=lambda kv: -kv[1]["mean"])
@@ -118,6 +133,7 @@ def report_markdown(summary: dict, figures: list[Path]) -> str:
     if everywhere:
         lines += ["", f"Along {', '.join(everywhere)} the averaged discrepancy is credibly non-zero "
                   "over the whole range: the gap is there whatever their value."]
+    lines += _along_index(where, ranked)
     lines += ["", "## Which effect explains it, and how far does the gap shrink?", ""]
     if cands:
         best = cands[0]

@@ -98,6 +98,8 @@ MODELS: dict[str, ModelSpec] = {
         ModelSpec("modular_hsgp", "modular_hsgp.stan", False, True,
                   "modular for thousands of runs and points: precomputed-weight emulator, "
                   "Hilbert-space GP discrepancy"),
+        ModelSpec("koh_vector", "koh_vector.stan", True, False,
+                  "KOH for a vector output with a cheap Stan simulator, ragged experiments"),
         ModelSpec("modular_vector", "modular_vector.stan", False, True,
                   "modular KOH for a vector output: one emulator GP per basis component, ragged experiments"),
     )

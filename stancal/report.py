@@ -78,14 +78,16 @@ def write_vector_calibration(result, folder: Path, warning_messages: list[str]) 
 
     summary = result.to_summary_json()
     summary["warnings"] = warning_messages
+    folder.mkdir(parents=True, exist_ok=True)
     (folder / "summary.json").write_text(json.dumps(summary, indent=2))
     table = result.summary()
     table.to_csv(folder / "summary.csv")
     plot_vector_curves(result, folder / "curves.png")
+    basis = summary["basis"]
     lines = [
-        f"# Calibration report (modular_vector, {summary['backend']})", "",
-        f"Output basis: {summary['basis']['description']}; truncation error sd "
-        f"{summary['basis']['truncation_sd']:.3g}.", "",
+        f"# Calibration report ({summary['method']}, {summary['backend']})", "",
+        *([f"Output basis: {basis['description']}; truncation error sd {basis['truncation_sd']:.3g}.", ""]
+          if basis else ["The Stan simulator is evaluated at every measured value (no output basis).", ""]),
         *_parameters_and_sampler(summary, table),
         "", "## Curves", "", "![curves per experiment](curves.png)", ""]
     (folder / "report.md").write_text("\n".join(lines))

@@ -87,11 +87,9 @@ def _held_out(data: CalibrationData, fit, test: np.ndarray) -> tuple[np.ndarray,
     from ``fit(train_data, heldout_points)`` refitted to the other rows."""
     train = np.setdiff1d(np.arange(len(data.physical)), test)
     result = fit(data.subset(train), data.source.iloc[test].reset_index(drop=True))
-    zeta = np.asarray(result.idata["predictions"]["zeta_new"]).reshape(-1, len(test))
-    posterior = result.idata["posterior"]
-    noise, phi = (np.asarray(posterior[v]).reshape(-1, 1) if v in posterior else None
-                  for v in ("noise_sd", "phi"))
-    log_density = data.observations.log_density(test, zeta, noise, phi)
+    predictions = result.idata["predictions"]
+    zeta = np.asarray(predictions["zeta_new" if "zeta_new" in predictions else "zeta"]).reshape(-1, len(test))
+    log_density = data.heldout_log_density(test, zeta, result.idata["posterior"])
     return logsumexp(log_density, axis=0) - np.log(len(zeta)), zeta.mean(0)
 
 

@@ -10,8 +10,15 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 import pandas as pd
 
-from .data import (Parameter, Scaling, _numeric_columns, _require_columns, parameters_from_bounds,
-                   require_runs_within_bounds, warn_outside_runs)
+from .data import (
+    Parameter,
+    Scaling,
+    _numeric_columns,
+    _require_columns,
+    parameters_from_bounds,
+    require_runs_within_bounds,
+    warn_outside_runs,
+)
 from .output_basis import DEFAULT_VARIANCE_SHARE, OutputBasis
 from .validation import DataError
 from .validation import row_labels as _rows
@@ -83,17 +90,21 @@ class VectorCalibrationData:
                                                      required=False)
         self._check_names()
         self.physical = self._check_physical(physical)
+        self.source = physical.loc[self.physical.index].copy()  # every column, for formulas
+        self.source[experiment] = self.physical[experiment]
         self.experiments = _constant_within(self.physical, experiment, [*self.inputs, *self.covariates],
                                             "physical data", "experiment")
+        self.levels: dict[str, list[str]] = {}  # covariates are numeric (checked above)
         self.runs = None
         self.basis = None
+        self._basis_options = {"variance_share": variance_share, "components": components}
         if runs is not None:
             if run is None:
                 raise DataError("simulator runs: name the column that identifies each run (run = ...)")
             self.runs, self.run_settings, self.run_outputs, grid = self._check_runs(runs)
             self.basis = OutputBasis.from_runs(grid, self.run_outputs, variance_share, components)
             self._check_indices_on_grid()
-            self.scaling = self._scaling()
+        self.scaling = self._scaling()
 
     @property
     def theta_names(self) -> list[str]:
@@ -105,19 +116,63 @@ class VectorCalibrationData:
         once per experiment in a fit)."""
         return [*self.parameters, *self.per_experiment]
 
+    @property
+    def discrepancy_variables(self) -> dict[str, list[str]]:
+        """The discrepancy GP's variables, each one column: simulator inputs,
+        output index, covariates (the Stan programs' x_delta order)."""
+        return {c: [c] for c in [*self.inputs, *self.output_index, *self.covariates]}
+
+    @property
+    def discrepancy_inputs(self) -> list[str]:
+        return [*self.inputs, *self.output_index, *self.covariates]
+
+    @property
+    def discrepancy_scale(self) -> str:
+        return "output units"
+
+    def heldout_log_density(self, rows: np.ndarray, zeta: np.ndarray, posterior) -> np.ndarray:
+        """log p(y_row | zeta, noise) per draw (draws, rows) for held-out
+        values: their known sd, or the fit's noise sd (one, or their
+        experiment's)."""
+        y = self.physical[self.output].to_numpy()[rows]
+        if self.noise_sd:
+            sd = np.broadcast_to(self.physical[self.noise_sd].to_numpy()[rows], zeta.shape)
+        elif posterior["noise_sd"].ndim > 2:
+            experiments = self.physical[self.experiment].to_numpy()[rows]
+            sd = np.column_stack([np.asarray(posterior["noise_sd"].sel(experiment=e)).ravel() for e in experiments])
+        else:
+            sd = np.broadcast_to(np.asarray(posterior["noise_sd"]).reshape(-1, 1), zeta.shape)
+        return -0.5 * np.log(2 * np.pi) - np.log(sd) - 0.5 * ((y - zeta) / sd) ** 2
+
+    def subset(self, rows: Sequence[int]) -> "VectorCalibrationData":
+        """The same problem on some measured values (positions); the runs,
+        and so the basis, are unchanged."""
+        return VectorCalibrationData(
+            self.source.iloc[list(rows)], self.experiment, self.inputs, self.output, self.output_index,
+            {p.name: (p.lower, p.upper) for p in self.parameters},
+            {p.name: (p.lower, p.upper) for p in self.per_experiment}, self.runs, self.run, self.noise_sd,
+            self.covariates, **self._basis_options)
+
     def _scaling(self) -> Scaling:
-        """Inputs to [0, 1] over the experiments' and runs' range, theta over
-        its bounds, the output index over the runs' grid; the output itself is
-        standardised by the basis (its mean curve and scale), not here."""
+        """Inputs and covariates to [0, 1] over the experiments' and runs'
+        range, theta over its bounds, the output index over the runs' grid and
+        the measured indices. The output is standardised by its mean and sd
+        over the measured values (the Stan simulator's program); the runs'
+        program standardises by the basis (its mean curve and scale)."""
         low, width = {}, {}
-        ranges = {c: np.concatenate([self.experiments[c].to_numpy(), self.run_settings[c].to_numpy()])
-                  for c in self.inputs}
-        ranges.update({c: self.basis.grid[:, d] for d, c in enumerate(self.output_index)})
+        ranges = {c: self.experiments[c].to_numpy() for c in [*self.inputs, *self.covariates]}
+        ranges.update({c: self.physical[c].to_numpy() for c in self.output_index})
+        if self.basis is not None:
+            for c in self.inputs:
+                ranges[c] = np.concatenate([ranges[c], self.run_settings[c].to_numpy()])
+            for d, c in enumerate(self.output_index):
+                ranges[c] = np.concatenate([ranges[c], self.basis.grid[:, d]])
         for column, values in ranges.items():
             low[column], width[column] = float(values.min()), float(np.ptp(values)) or 1.0
         for p in self.all_parameters:
             low[p.name], width[p.name] = p.lower, p.upper - p.lower
-        return Scaling(low, width, 0.0, 1.0)
+        y = self.physical[self.output].to_numpy()
+        return Scaling(low, width, float(y.mean()), float(y.std()) or 1.0)
 
     def _check_names(self) -> None:
         named = [self.experiment, *self.inputs, *self.covariates, *self.output_index, self.output,

@@ -7,7 +7,6 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from conftest import ROOT
 from stancal.output_basis import OutputBasis
 from stancal.validation import DataError
 from stancal.vector_data import VectorCalibrationData
@@ -201,7 +200,7 @@ def _log_density(stan_data: dict, emulator, theta_unit: np.ndarray) -> float:
     mu, K = np.zeros(stan_data["N"]), np.diag(np.asarray(stan_data["known_noise_sd"]) ** 2
                                               + stan_data["truncation_variance"])
     for c, gp in enumerate(emulator.components):
-        mean, cov = gp.predict(emulator.xt_runs, points)
+        mean, cov = gp.predict(emulator.xt_runs, emulator.variance_runs, points)
         mu += components[:, c] * mean[experiment]
         K += components[:, c, None] * cov[np.ix_(experiment, experiment)] * components[None, :, c]
     K[np.diag_indices_from(K)] += 1e-6 * max(gp.hyperparameters.sd for gp in emulator.components) ** 2
@@ -230,13 +229,13 @@ def test_modular_vector_posterior_matches_quadrature(vector_problem):
     mean within 0.15 sd and its sd within 10 % of a grid quadrature of the
     same density, computed in numpy (coarse grid over the box, then finer
     ones about the mode); R-hat <= 1.01."""
-    from stancal.vector_calibrate import calibrate_vector, prediction_rows, vector_stan_data
+    from stancal.vector_calibrate import VectorOptions, calibrate_vector, modular_vector_data, prediction_rows
 
     data = vector_problem
     result = calibrate_vector(data, discrepancy="none", chains=4, warmup=1000, draws=1000, seed=3)
     assert result.diagnostics.max_rhat <= 1.01 and result.diagnostics.divergences == 0
     emulator = result.emulator  # stage 1, fixed in the fit
-    stan_data = vector_stan_data(data, emulator, "known", "none", prediction_rows(data))
+    stan_data = modular_vector_data(data, VectorOptions("modular", "none", "known"), emulator, prediction_rows(data))
     best, _, _ = _grid_moments(stan_data, emulator, [0.5, 0.5], [0.5, 0.5], points=41)
     _, mean, sd = _grid_moments(stan_data, emulator, best, [0.05, 0.05], points=41)
     _, mean, sd = _grid_moments(stan_data, emulator, mean, 6 * sd)
@@ -296,36 +295,76 @@ def test_modular_vector_recovers_shared_and_per_experiment_theta_beside_a_discre
     assert held >= 0.95 * len(physical)
 
 
-def test_the_cli_calibrates_a_vector_output_config(tmp_path):
-    """The issue's config contract, through `stancal calibrate`: the shipped
-    cooling-curves case study writes its report (a short run: the files
-    and fields, not the statistics, which the tests above check)."""
-    import json
+def test_many_runs_condition_the_weights_covariance_on_a_subset_that_only_widens_it():
+    """Above VARIANCE_RUNS runs the weights' covariance conditions on a
+    random subset (subset of data): the means are unchanged (all runs), and
+    the variances are never smaller than given all runs, nor more than the
+    prior's."""
+    from scipy import linalg
 
-    from stancal.cli import main
-    from stancal.config import load_config
+    from stancal.scalable_emulator import _se, run_covariance
+    from stancal.vector_calibrate import fit_vector_emulator
+    from stancal.vector_emulator import VectorEmulator
 
-    config = ROOT / "case_studies" / "cooling_curves" / "config.toml"
-    problem = load_config(config)
-    assert isinstance(problem.data, VectorCalibrationData) and problem.data.per_experiment[0].name == "offset"
-    assert main(["calibrate", str(config), "--out", str(tmp_path), "--chains", "2", "--warmup", "150",
-                 "--draws", "150", "--seed", "1"]) == 0
-    summary = json.loads((tmp_path / "summary.json").read_text())
-    assert summary["method"] == "modular_vector" and set(summary["theta"]) == {"k", "Ta"}
-    assert len(summary["theta_per_experiment"]) == 6 and summary["basis"]["components"] >= 2
-    for name in ("posterior.nc", "summary.csv", "curves.png", "report.md"):
-        assert (tmp_path / name).is_file(), name
-    assert main(["gap", str(config), "--out", str(tmp_path / "gap")]) == 2  # not built for vectors: a clear error
+    data = vector_data(runs=long_runs(300, 5))
+    full = fit_vector_emulator(data, seed=1)
+    xt = full.xt_runs
+    subset = VectorEmulator.fit(data.basis, xt, data.run_outputs, seed=1, variance_runs=60)
+    assert len(subset.variance_runs) == 60 and len(full.variance_runs) == 300
+    points = np.random.default_rng(2).uniform(size=(25, xt.shape[1]))
+    for exact, approximate in zip(full.components, subset.components):
+        h = exact.hyperparameters
+        cross = h.sd**2 * _se(points, xt, h.length_scale)
+        factor = linalg.cho_factor(run_covariance(xt, h), lower=True)
+        exact_variance = h.sd**2 - np.einsum("ij,ji->i", cross, linalg.cho_solve(factor, cross.T))
+        mean, covariance = approximate.predict(xt, subset.variance_runs, points)
+        assert np.allclose(mean, exact.predict(xt, full.variance_runs, points)[0])
+        variance = np.diag(covariance)
+        assert (variance >= exact_variance - 1e-9 * h.sd**2).all() and (variance <= h.sd**2 + 1e-12).all()
+        assert variance.mean() > exact_variance.mean()  # the subset does cost certainty
 
 
-def test_a_vector_config_with_a_stan_simulator_is_refused_by_name(tmp_path):
-    from stancal.config import ConfigError, load_config
+def test_the_posterior_keeps_one_noise_sd_or_one_per_experiment():
+    """noise = 'one' is a scalar per draw; 'per_experiment' has the
+    experiment dimension, even with a single experiment."""
+    from stancal.vector_calibrate import VectorOptions, _datatree
 
-    source = ROOT / "case_studies" / "cooling_curves"
-    text = (source / "config.toml").read_text().replace('runs = "runs.csv"', 'stan = "sim.stan"\nruns = "runs.csv"')
-    (tmp_path / "sim.stan").write_text("")
-    for name in ("physical.csv", "runs.csv"):
-        (tmp_path / name).write_text((source / name).read_text())
-    (tmp_path / "config.toml").write_text(text)
-    with pytest.raises(ConfigError, match="simulator.stan: a Stan simulator is not supported for vector outputs"):
-        load_config(tmp_path / "config.toml")
+    data = vector_data(physical=long_experiments(1, experiments=1))
+    rows = pd.DataFrame({"exp": "shot0", "t": [1.0, 2.0]})
+    chains, draws = 2, 3
+    base = {"theta": np.zeros((chains, draws, 2)), "delta_length_scale": np.ones((chains, draws, 2)),
+            "delta_sd_original": np.ones((chains, draws, 1)), "y_rep": np.zeros((chains, draws, len(data.physical))),
+            **{f"{k}_new": np.zeros((chains, draws, 2)) for k in ("f", "delta", "zeta")}}
+    for noise, dims in (("one", ("chain", "draw")), ("per_experiment", ("chain", "draw", "experiment"))):
+        tree = _datatree({**base, "noise_sd_original": np.ones((chains, draws, 1))}, {}, data, rows, [],
+                         VectorOptions("modular", "gp", noise), None)
+        assert tree["posterior"]["noise_sd"].dims == dims
+
+
+def test_joint_vector_emulator_agrees_with_the_quadrature_when_the_runs_pin_it_down(vector_problem):
+    """koh_emulator for a vector output samples the weight GPs'
+    hyperparameters with theta. With 40 runs of a smooth simulator the
+    emulator is nearly exact, so theta's posterior must agree with the
+    quadrature of the modular density (stage 1 fixed): means within 0.25 sd,
+    sds within 20 %; R-hat <= 1.01, and the hyperparameters are in the
+    posterior."""
+    from stancal.vector_calibrate import (VectorOptions, calibrate_vector, fit_vector_emulator,
+                                          modular_vector_data, prediction_rows)
+
+    data = vector_problem
+    result = calibrate_vector(data, method="koh_emulator", discrepancy="none", chains=4, warmup=500, draws=500,
+                              seed=3)
+    assert result.method == "koh_emulator_vector" and result.diagnostics.max_rhat <= 1.01
+    assert result.idata["posterior"]["weight_gp_length_scale"].dims[2:] == ("component", "emulator_input")
+    emulator = fit_vector_emulator(data, seed=3)
+    stan_data = modular_vector_data(data, VectorOptions("modular", "none", "known"), emulator, prediction_rows(data))
+    best, _, _ = _grid_moments(stan_data, emulator, [0.5, 0.5], [0.5, 0.5], points=41)
+    _, mean, sd = _grid_moments(stan_data, emulator, best, [0.05, 0.05], points=41)
+    _, mean, sd = _grid_moments(stan_data, emulator, mean, 6 * sd)
+    summary = result.theta_summary()
+    for q, p in enumerate(data.parameters):
+        width = p.upper - p.lower
+        reference_mean, reference_sd = p.lower + width * mean[q], width * sd[q]
+        print(p.name, summary[p.name]["mean"], summary[p.name]["sd"], reference_mean, reference_sd)
+        assert abs(summary[p.name]["mean"] - reference_mean) <= 0.25 * reference_sd, (p.name, summary[p.name])
+        assert abs(summary[p.name]["sd"] / reference_sd - 1) <= 0.20, (p.name, summary[p.name])

@@ -5,18 +5,47 @@
  * weights at the experiments' (x_e, theta) are normal, independent between
  * components. Squared-exponential kernel, as stage 1's.
  *
+ * The mean conditions on every run; the covariance on a subset (the
+ * subset of data approximation, conservative: fewer runs never give a
+ * smaller variance), so each gradient costs O(subset^2), not O(runs^2).
+ *
  * @param points (x_e, theta, theta_e) of each experiment, unit cube
  * @param xt_runs (x, theta) of each run, unit cube
- * @param L_runs Cholesky factor of the runs' covariance
- * @param alpha K^-1 (run weights - mean)
+ * @param alpha K^-1 (run weights - mean), over every run
+ * @param xt_variance, L_variance the variance runs and the Cholesky factor of their covariance
  * @param mean, sd, length_scale the component's hyperparameters
  * @return (weight means at the experiments, their covariance)
  */
-tuple(vector, matrix) component_weights(array[] vector points, array[] vector xt_runs, matrix L_runs,
-                                        vector alpha, real mean, real sd, array[] real length_scale) {
-  matrix[size(points), size(xt_runs)] cross = gp_exp_quad_cov(points, xt_runs, sd, length_scale);
-  matrix[size(xt_runs), size(points)] A = mdivide_left_tri_low(L_runs, cross');
-  return (mean + cross * alpha, gp_exp_quad_cov(points, sd, length_scale) - crossprod(A));
+tuple(vector, matrix) component_weights(array[] vector points, array[] vector xt_runs, vector alpha,
+                                        array[] vector xt_variance, matrix L_variance, real mean, real sd,
+                                        array[] real length_scale) {
+  matrix[size(xt_variance), size(points)] A
+    = mdivide_left_tri_low(L_variance, gp_exp_quad_cov(xt_variance, points, sd, length_scale));
+  return (mean + gp_exp_quad_cov(points, xt_runs, sd, length_scale) * alpha,
+          gp_exp_quad_cov(points, sd, length_scale) - crossprod(A));
+}
+
+/**
+ * The runs' covariance factor and K^-1 (weights - mean) of every
+ * component, from the weight GPs' hyperparameters (the joint program
+ * samples them, so these change at every step).
+ *
+ * @param xt_runs (x, theta) of each run, unit cube
+ * @param run_weights each run's component weights
+ * @param mean, sd, length_scale, nugget per component, the weight GP's hyperparameters
+ * @return (per component, the runs' Cholesky factor; K^-1 (weights - mean), runs x components)
+ */
+tuple(array[] matrix, matrix) weight_gp_factors(array[] vector xt_runs, matrix run_weights, vector mean,
+                                                vector sd, array[,] real length_scale, vector nugget) {
+  int m = size(xt_runs);
+  int n_comp = cols(run_weights);
+  array[n_comp] matrix[m, m] L;
+  matrix[m, n_comp] alpha;
+  for (c in 1:n_comp) {
+    L[c] = cholesky_decompose(emulator_run_cov(xt_runs, 1, sd[c], length_scale[c], nugget[c]));
+    alpha[:, c] = mdivide_right_tri_low(mdivide_left_tri_low(L[c], run_weights[:, c] - mean[c])', L[c])';
+  }
+  return (L, alpha);
 }
 
 /**
@@ -25,13 +54,15 @@ tuple(vector, matrix) component_weights(array[] vector points, array[] vector xt
  *
  * @param x each experiment's inputs; theta_unit, theta_exp_unit shared and
  *        per-experiment parameters, all on the unit cube
- * @param xt_runs, L_runs, alpha the runs, per component where it matters
+ * @param xt_runs, alpha every run; per component, K^-1 (weights - mean)
+ * @param xt_variance, L_variance the variance runs; per component, their covariance's Cholesky factor
  * @param emulator_mean, emulator_sd, emulator_length_scale stage 1, per component
  * @return (weight means, experiments x components; per component, the
  *         weights' covariance between experiments)
  */
 tuple(matrix, array[] matrix) experiment_weights(array[] vector x, vector theta_unit, array[] vector theta_exp_unit,
-                                                array[] vector xt_runs, array[] matrix L_runs, matrix alpha,
+                                                array[] vector xt_runs, matrix alpha,
+                                                array[] vector xt_variance, array[] matrix L_variance,
                                                 vector emulator_mean, vector emulator_sd,
                                                 array[,] real emulator_length_scale) {
   int n_exp = size(x);
@@ -42,8 +73,8 @@ tuple(matrix, array[] matrix) experiment_weights(array[] vector x, vector theta_
   array[n_comp] matrix[n_exp, n_exp] covariances;
   for (c in 1:n_comp) {
     tuple(vector[n_exp], matrix[n_exp, n_exp]) w
-      = component_weights(points, xt_runs, L_runs[c], alpha[:, c], emulator_mean[c], emulator_sd[c],
-                          emulator_length_scale[c]);
+      = component_weights(points, xt_runs, alpha[:, c], xt_variance, L_variance[c], emulator_mean[c],
+                          emulator_sd[c], emulator_length_scale[c]);
     means[:, c] = w.1;
     covariances[c] = w.2;
   }
@@ -74,15 +105,4 @@ matrix signal_cov(array[] int experiment_a, matrix components_a, array[] vector 
     K += gp_exp_quad_cov(x_delta_a, x_delta_b, delta_sd[1], delta_length_scale);
   }
   return K;
-}
-
-/**
- * Each measured value's independent variance: its known noise, one noise
- * sd for all, or one per experiment (noise_mode 0, 1, 2).
- */
-vector independent_variance(int noise_mode, vector known_noise_sd, array[] real noise_sd,
-                            array[] int experiment) {
-  if (noise_mode == 0) return square(known_noise_sd);
-  if (noise_mode == 1) return rep_vector(square(noise_sd[1]), size(experiment));
-  return square(to_vector(noise_sd)[experiment]);
 }
