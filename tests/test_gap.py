@@ -127,6 +127,7 @@ def test_cooling_report_folder(cooling_gap):
 
 
 # ---- pipe flow: the withheld effect is a formula, fitted with the emulator ---------
+@pytest.mark.slow  # 200 s: the default run keeps the cooling and counts gap tests
 def test_pipe_withheld_effect_ranks_first_and_shrinks_the_gap(pipe_gap):
     _, summary = pipe_gap
     cands = by_name(summary)
@@ -152,6 +153,7 @@ def least_squares_under_the_true_model():
     return coef, np.sqrt(np.diag(cov))
 
 
+@pytest.mark.slow  # 200 s: the default run keeps the cooling and counts gap tests
 def test_pipe_theta_moves_to_the_truth_and_beta_is_recovered(pipe_gap):
     analysis, summary = pipe_gap
     (mu_ls, beta_ls), (mu_se, beta_se) = least_squares_under_the_true_model()
@@ -167,6 +169,7 @@ def test_pipe_theta_moves_to_the_truth_and_beta_is_recovered(pipe_gap):
     assert abs(np.mean(beta) - beta_ls) < beta_se
 
 
+@pytest.mark.slow  # 200 s: the default run keeps the cooling and counts gap tests
 def test_pipe_prediction_carries_the_added_effect(pipe_gap):
     """predict() evaluates the formula at new points: fast flow in a long pipe,
     where the minor loss is about 0.3 kPa of 2.5."""
@@ -184,6 +187,7 @@ def test_pipe_prediction_carries_the_added_effect(pipe_gap):
     assert (table.y_q05 < truth).all() and (truth < table.y_q95).all()
 
 
+@pytest.mark.slow  # 200 s: the default run keeps the cooling and counts gap tests
 def test_pipe_where(pipe_gap):
     _, summary = pipe_gap
     importance = {v: e["mean"] for v, e in summary["where"]["importance"].items()}
