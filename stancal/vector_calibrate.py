@@ -126,6 +126,10 @@ def _shared_stan_data(data: VectorCalibrationData, options: VectorOptions, new_r
         raise ValueError(f"discrepancy must be 'gp' or 'none' for a vector output; got '{options.discrepancy}'")
     physical = data.physical
     number = {name: e + 1 for e, name in enumerate(data.experiments.index)}
+    unknown = sorted(set(new_rows[data.experiment].astype(str)) - set(number))
+    if unknown:
+        raise ValueError(f"prediction rows: experiment(s) {unknown[:5]} are not in the physical data, whose "
+                         f"experiments carry the inputs and per-experiment theta the rows need")
     known = (physical[data.noise_sd].to_numpy() / output_scale) if data.noise_sd else np.zeros(len(physical))
     return dict(
         E=len(number), D=len(data.inputs), Q=len(data.parameters), Q_exp=len(data.per_experiment),
@@ -135,7 +139,8 @@ def _shared_stan_data(data: VectorCalibrationData, options: VectorOptions, new_r
         theta_lower=[p.lower for p in data.parameters], theta_upper=[p.upper for p in data.parameters],
         theta_exp_lower=[p.lower for p in data.per_experiment],
         theta_exp_upper=[p.upper for p in data.per_experiment],
-        P=len(new_rows), experiment_new=new_rows[data.experiment].map(number).to_numpy(), prior_only=0)
+        P=len(new_rows), experiment_new=new_rows[data.experiment].astype(str).map(number).to_numpy(),
+        prior_only=0)
 
 
 def _mean_term_data(terms: MeanTerms | None, rows: int, new_rows: pd.DataFrame) -> dict[str, Any]:

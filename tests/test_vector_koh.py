@@ -192,3 +192,12 @@ def test_vector_gap_from_runs_finds_the_draught_too(tmp_path):
     assert names[0] == "forced_convection", names
     assert gap["candidates"][0]["shrinkage"]["mean"] > 0.5
     assert all(c["shrinkage"]["mean"] < 0.2 for c in gap["candidates"][1:]), gap["candidates"]
+
+
+def test_prediction_rows_of_an_unknown_experiment_are_named():
+    from stancal.vector_calibrate import VectorOptions, koh_vector_data
+
+    data = VectorCalibrationData(long_experiments(1), "exp", ["T0"], "T", "t", THETA, noise_sd="sd")
+    rows = pd.DataFrame({"exp": ["shot0", "nope"], "T0": [70.0, 70.0], "t": [1.0, 2.0]})
+    with pytest.raises(ValueError, match=r"experiment\(s\) \['nope'\] are not in the physical data"):
+        koh_vector_data(data, VectorOptions("koh", "gp", "known"), None, rows)
