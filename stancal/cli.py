@@ -1,6 +1,6 @@
 """Command line: ``stancal calibrate CONFIG.toml --out DIR``,
-``stancal gap CONFIG.toml --out DIR``, ``stancal compare CONFIG.toml --out DIR``
-and ``stancal compile CONFIG.toml ...``."""
+``stancal gap CONFIG.toml --out DIR``, ``stancal compare CONFIG.toml --out DIR``,
+``stancal sbc CONFIG.toml --sims S --out DIR`` and ``stancal compile CONFIG.toml ...``."""
 
 from __future__ import annotations
 
@@ -29,6 +29,16 @@ def _parser() -> argparse.ArgumentParser:
     cal = commands.add_parser("calibrate", help="calibrate theta and write a report folder")
     gap = commands.add_parser("gap", help="diagnose the sim-to-real gap: where, which effect, how far")
     comp = commands.add_parser("compare", help="fit with koh, l2, orthogonal and scaled GP side by side")
+    sbc = commands.add_parser("sbc", help="simulation-based calibration of the config's program and sampler")
+    sbc.add_argument("config", type=Path, help="TOML config: its design, method and model")
+    sbc.add_argument("--out", type=Path, required=True, help="output folder (sbc.json, ecdf.png)")
+    sbc.add_argument("--sims", type=int, default=200, help="simulated data sets (S)")
+    sbc.add_argument("--draws-per-fit", type=int, default=100, help="thinned posterior draws per fit (L)")
+    sbc.add_argument("--level", type=float, default=0.95, help="a parameter is rejected below p = 1 - level")
+    sbc.add_argument("--chains", type=int, default=2)
+    sbc.add_argument("--warmup", type=int, default=300)
+    sbc.add_argument("--seed", type=int, default=None)
+    sbc.add_argument("--backend", choices=BACKENDS, default=None)
     for command in (cal, gap, comp):
         command.add_argument("config", type=Path, help="TOML config (paths inside are relative to it)")
         command.add_argument("--out", type=Path, required=True, help="output folder")
@@ -91,11 +101,17 @@ def run_gap(args: argparse.Namespace) -> dict:
     return summary
 
 
+_NOT_FOR_VECTORS = {
+    "compare": "it compares the identifiable-calibration methods (L2, orthogonal, scaled), which are not built "
+               "for vector outputs yet",
+    "sbc": "simulation-based calibration is built for scalar outputs so far",
+}
+
+
 def _scalar_only(problem, command: str) -> None:
     if isinstance(problem.data, VectorCalibrationData):
-        raise ConfigError(f"`stancal {command}` compares the identifiable-calibration methods (L2, orthogonal, "
-                          f"scaled), which are not built for vector outputs yet; `stancal calibrate` (koh or "
-                          f"modular) and `stancal gap` are")
+        raise ConfigError(f"`stancal {command}` does not take a vector output: {_NOT_FOR_VECTORS[command]}; "
+                          f"`stancal calibrate` (koh, modular or koh_emulator) and `stancal gap` do")
 
 
 def run_calibrate(args: argparse.Namespace) -> dict:
@@ -152,6 +168,19 @@ def run_compare(args: argparse.Namespace) -> dict:
     for message in _stancal_warnings(caught):
         print(f"warning: {message}", file=sys.stderr)
     return summary
+
+
+def run_sbc(args: argparse.Namespace) -> dict:
+    from .sbc import simulation_based_calibration
+
+    problem = load_config(args.config)
+    _scalar_only(problem, "sbc")
+    model = {k: v for k, v in problem.model.items() if k != "approximation"}
+    result = simulation_based_calibration(
+        problem.data, simulator=problem.simulator, simulations=args.sims, draws_per_fit=args.draws_per_fit,
+        level=args.level, seed=args.seed, out_dir=args.out, chains=args.chains, warmup=args.warmup,
+        backend=args.backend, **model)
+    return result.to_json()
 
 
 def config_programs(problem, all_methods: bool) -> list[FlatProgram]:
@@ -214,7 +243,7 @@ def main(argv: list[str] | None = None) -> int:
     logger.setLevel(logging.INFO)
     try:
         summary = {"gap": run_gap, "compare": run_compare, "calibrate": run_calibrate,
-                   "compile": run_compile}[args.command](args)
+                   "compile": run_compile, "sbc": run_sbc}[args.command](args)
     except (ConfigError, DataError, StanProgramError, StanRuntimeError, ValueError, RuntimeError) as err:
         print(f"stancal: error: {_one_line(err)}", file=sys.stderr)
         return 2
@@ -226,6 +255,12 @@ def main(argv: list[str] | None = None) -> int:
         print(f"gap: best candidate {best['name']} (ELPD {best['elpd_diff']:+.1f} ± "
               f"{best['elpd_diff_se']:.1f}, shrinkage {best['shrinkage']['mean']:.2f}); "
               f"report in {args.out / 'report.md'}")
+        return 0
+    if args.command == "sbc":
+        for name, row in summary["parameters"].items():
+            print(row["verdict"])
+        print(f"sbc: {summary['simulations']} simulations, {summary['draws_per_fit']} draws each; "
+              f"results in {args.out / 'sbc.json'}")
         return 0
     if args.command == "compare":
         for row in summary["methods"]:

@@ -261,6 +261,19 @@ class CalibrationData:
                                self.covariates, self.runs, levels=self.levels,
                                **self.observation_columns)
 
+    def with_output(self, y: np.ndarray) -> "CalibrationData":
+        """The same problem with other outputs (simulated ones) and this
+        problem's scaling kept: the programs' priors live on the
+        standardised scale, so a fit of simulated data must standardise as
+        the simulation did."""
+        source = self.source.copy()
+        source[self.output] = np.asarray(y)
+        other = CalibrationData(source, self.inputs, self.output,
+                                {p.name: (p.lower, p.upper) for p in self.parameters}, self.covariates, self.runs,
+                                levels=self.levels, **self.observation_columns)
+        other.scaling = self.scaling
+        return other
+
     @property
     def latent_reason(self) -> str | None:
         """Why the outputs need the latent-GP programs (the GP cannot be

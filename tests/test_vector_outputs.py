@@ -352,7 +352,7 @@ def test_joint_vector_emulator_agrees_with_the_quadrature_when_the_runs_pin_it_d
                                           modular_vector_data, prediction_rows)
 
     data = vector_problem
-    result = calibrate_vector(data, method="koh_emulator", discrepancy="none", chains=4, warmup=300, draws=400,
+    result = calibrate_vector(data, method="koh_emulator", discrepancy="none", chains=4, warmup=500, draws=500,
                               seed=3)
     assert result.method == "koh_emulator_vector" and result.diagnostics.max_rhat <= 1.01
     assert result.idata["posterior"]["weight_gp_length_scale"].dims[2:] == ("component", "emulator_input")

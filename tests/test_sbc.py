@@ -1,0 +1,66 @@
+"""Simulation-based calibration (issue 16, part 2): the rank statistics and
+their uniformity test in numpy, and (slow) the whole loop on a program."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from conftest import COOLING, cooling_data
+from stancal.sbc_ranks import fractional_ranks, rank_of, uniformity
+
+
+def test_rank_counts_the_draws_below_the_truth():
+    assert rank_of(0.5, np.array([0.1, 0.7, 0.4, 0.9])) == 2
+    assert rank_of(-1.0, np.arange(5.0)) == 0 and rank_of(9.0, np.arange(5.0)) == 5
+
+
+def test_uniform_ranks_pass_and_overconfident_ones_are_rejected():
+    """Ranks of a correct fit are uniform on 0..L; a posterior too narrow
+    puts the truth in its tails (U-shaped ranks), one biased upwards puts it
+    low: both are rejected, and the uniform ones are not."""
+    rng = np.random.default_rng(1)
+    sims, draws = 200, 99
+    uniform = rng.integers(0, draws + 1, sims)
+    assert not uniformity(fractional_ranks(uniform, draws, rng)).rejected
+    truth, narrow = rng.normal(size=sims), rng.normal(size=(sims, draws)) * 0.5
+    overconfident = [rank_of(t, draws_s) for t, draws_s in
+                     zip(truth, narrow + rng.normal(size=(sims, 1)))]
+    assert uniformity(fractional_ranks(np.array(overconfident), draws, rng)).p_value < 0.01
+    biased = [rank_of(t, d) for t, d in zip(truth, rng.normal(size=(sims, draws)) + truth[:, None] + 0.5)]
+    assert uniformity(fractional_ranks(np.array(biased), draws, rng)).p_value < 0.01
+
+
+def test_the_simultaneous_band_holds_uniform_ecdfs_at_its_level():
+    """About 95 % of uniform samples stay inside the 95 % band everywhere."""
+    rng = np.random.default_rng(2)
+    test = uniformity(rng.uniform(size=100), level=0.95, seed=3)
+    inside = []
+    for _ in range(400):
+        u = np.sort(rng.uniform(size=100))
+        difference = np.searchsorted(u, test.grid, side="right") / 100 - test.grid
+        inside.append(bool(((difference >= test.band[0] - 1e-12) & (difference <= test.band[1] + 1e-12)).all()))
+    assert 0.91 <= np.mean(inside) <= 0.99, np.mean(inside)
+
+
+@pytest.mark.slow
+def test_sbc_passes_koh_and_flags_a_likelihood_with_the_wrong_noise_scale(tmp_path):
+    """koh without a discrepancy on the cooling design, 60 simulations: no
+    parameter is rejected. The same simulations fitted by a copy of koh.stan
+    whose likelihood doubles the noise sd are flagged (noise_sd's ranks)."""
+    from stancal.sbc import simulation_based_calibration
+    from stancal.stan_source import shipped_models_dir
+
+    data = cooling_data(seed=7)
+    settings = dict(simulator=COOLING / "simulator.stan", method="koh", discrepancy="none", simulations=60,
+                    draws_per_fit=50, seed=5, warmup=200)
+    good = simulation_based_calibration(data, out_dir=tmp_path / "good", **settings)
+    print({n: round(t.p_value, 3) for n, t in good.tests.items()})
+    assert not any(t.rejected for t in good.tests.values()) and not good.failed
+    wrong = tmp_path / "koh_wrong_noise.stan"
+    source = (shipped_models_dir() / "koh.stan").read_text()
+    wrong.write_text(source.replace("resid ~ normal(0, noise_sd);", "resid ~ normal(0, 2 * noise_sd);"))
+    bad = simulation_based_calibration(data, program=wrong, **settings)
+    print({n: round(t.p_value, 4) for n, t in bad.tests.items()})
+    assert bad.tests["noise_sd"].rejected
+    assert (tmp_path / "good" / "sbc.json").is_file() and (tmp_path / "good" / "ecdf.png").is_file()
