@@ -88,6 +88,11 @@ def parameters_from_bounds(theta: Mapping[str, tuple[float, float]], what: str =
     return out
 
 
+def bounds_of(parameters: Sequence[Parameter]) -> dict[str, tuple[float, float]]:
+    """name -> (lower, upper): the form the data containers take theta in."""
+    return {p.name: (p.lower, p.upper) for p in parameters}
+
+
 def require_runs_within_bounds(runs: pd.DataFrame, parameters: Sequence[Parameter]) -> None:
     """Each run's theta inside its prior box (the error names column and rows)."""
     for p in parameters:
@@ -254,12 +259,25 @@ class CalibrationData:
                 columns[one_hot_name(column, level)] = (values == level).astype(float)
         return pd.DataFrame(columns, index=frame.index)
 
+    def _rebuilt(self, source: pd.DataFrame, inputs: Sequence[str] | None = None,
+                 theta: Mapping[str, tuple[float, float]] | None = None,
+                 covariates: Sequence[str] | None = None, keep_runs: bool = True) -> "CalibrationData":
+        """This problem rebuilt (and checked) with some parts changed; same categories."""
+        return CalibrationData(source, self.inputs if inputs is None else inputs, self.output,
+                               bounds_of(self.parameters) if theta is None else theta,
+                               self.covariates if covariates is None else covariates,
+                               self.runs if keep_runs else None, levels=self.levels, **self.observation_columns)
+
     def subset(self, rows: Sequence[int]) -> "CalibrationData":
         """The same problem on some physical rows (positions), same categories."""
-        return CalibrationData(self.source.iloc[list(rows)], self.inputs, self.output,
-                               {p.name: (p.lower, p.upper) for p in self.parameters},
-                               self.covariates, self.runs, levels=self.levels,
-                               **self.observation_columns)
+        return self._rebuilt(self.source.iloc[list(rows)])
+
+    def variant(self, inputs: Sequence[str], extra_theta: Mapping[str, tuple[float, float]]) -> "CalibrationData":
+        """The problem as a simulator variant sees it: its own inputs and
+        theta (this one's, then its extra ones), no runs; the discrepancy
+        keeps every variable of this one."""
+        return self._rebuilt(self.source, inputs, bounds_of(self.parameters) | dict(extra_theta),
+                             [v for v in self.discrepancy_variables if v not in inputs], keep_runs=False)
 
     def with_output(self, y: np.ndarray) -> "CalibrationData":
         """The same problem with other outputs (simulated ones) and this
@@ -268,9 +286,7 @@ class CalibrationData:
         the simulation did."""
         source = self.source.copy()
         source[self.output] = np.asarray(y)
-        other = CalibrationData(source, self.inputs, self.output,
-                                {p.name: (p.lower, p.upper) for p in self.parameters}, self.covariates, self.runs,
-                                levels=self.levels, **self.observation_columns)
+        other = self._rebuilt(source)
         other.scaling = self.scaling
         return other
 

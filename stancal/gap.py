@@ -184,25 +184,13 @@ def _slug(name: str) -> str:
 # ---- checking candidates before any fit -------------------------------------
 def variant_data(data: CalibrationData | VectorCalibrationData,
                  candidate: Candidate) -> CalibrationData | VectorCalibrationData:
-    """The physical data as the variant sees it: its own inputs and theta
-    (a vector output's simulator gets the shared theta, the variant's extra
-    theta, then the per-experiment theta); the discrepancy keeps every
-    baseline variable."""
+    """The physical data as the variant sees it (each container's variant())."""
     missing = [c for c in candidate.inputs if c not in data.source.columns]
     if missing:
         raise CandidateError(f"candidate '{candidate.name}': unknown input column(s) {missing}; "
                              f"physical columns: {list(data.source.columns)}")
-    theta = {p.name: (p.lower, p.upper) for p in data.parameters} | dict(candidate.theta)
     try:
-        if isinstance(data, VectorCalibrationData):
-            covariates = [v for v in [*data.inputs, *data.covariates] if v not in candidate.inputs]
-            return VectorCalibrationData(data.source, data.experiment, candidate.inputs, data.output,
-                                         data.output_index, theta,
-                                         {p.name: (p.lower, p.upper) for p in data.per_experiment},
-                                         noise_sd=data.noise_sd, covariates=covariates)
-        covariates = [v for v in data.discrepancy_variables if v not in candidate.inputs]
-        return CalibrationData(data.source, candidate.inputs, data.output, theta, covariates,
-                               levels=data.levels, **data.observation_columns)
+        return data.variant(candidate.inputs, candidate.theta)
     except DataError as err:
         raise CandidateError(f"candidate '{candidate.name}': {err}") from None
 

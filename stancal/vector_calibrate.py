@@ -24,6 +24,7 @@ from .backends import get_backend
 from .inits import spread_theta_inits
 from .mean_terms import MeanTerms, build_mean_terms
 from .models import Kernel, model_spec
+from .result import _AT_OBSERVATIONS  # the scalar programs' per-value quantities; both vector programs give them
 from .seeds import command_seed
 from .stan_source import FlatProgram, flatten
 from .summaries import posterior_table, summary_by_mode, theta_summary
@@ -256,9 +257,6 @@ class VectorCalibrationResult:
         path.parent.mkdir(parents=True, exist_ok=True)
         self.idata.to_netcdf(path)
         return path
-
-
-_AT_OBSERVATIONS = ("y_loo_mean", "delta_gp", "delta_gp_mean")  # koh_vector's, for the gap diagnosis
 
 
 def _datatree(draws: dict[str, np.ndarray], sample_stats: dict[str, np.ndarray], data: VectorCalibrationData,

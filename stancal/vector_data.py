@@ -15,6 +15,7 @@ from .data import (
     Scaling,
     _numeric_columns,
     _require_columns,
+    bounds_of,
     parameters_from_bounds,
     require_runs_within_bounds,
     warn_outside_runs,
@@ -149,9 +150,18 @@ class VectorCalibrationData:
         and so the basis, are unchanged."""
         return VectorCalibrationData(
             self.source.iloc[list(rows)], self.experiment, self.inputs, self.output, self.output_index,
-            {p.name: (p.lower, p.upper) for p in self.parameters},
-            {p.name: (p.lower, p.upper) for p in self.per_experiment}, self.runs, self.run, self.noise_sd,
+            bounds_of(self.parameters), bounds_of(self.per_experiment), self.runs, self.run, self.noise_sd,
             self.covariates, **self._basis_options)
+
+    def variant(self, inputs: Sequence[str],
+                extra_theta: Mapping[str, tuple[float, float]]) -> "VectorCalibrationData":
+        """The problem as a simulator variant sees it: its own inputs, the
+        shared theta then its extra ones (the per-experiment theta after
+        them), no runs; the discrepancy keeps every input and covariate."""
+        return VectorCalibrationData(
+            self.source, self.experiment, inputs, self.output, self.output_index,
+            bounds_of(self.parameters) | dict(extra_theta), bounds_of(self.per_experiment),
+            noise_sd=self.noise_sd, covariates=[v for v in [*self.inputs, *self.covariates] if v not in inputs])
 
     def _scaling(self) -> Scaling:
         """Inputs and covariates to [0, 1] over the experiments' and runs'

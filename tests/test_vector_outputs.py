@@ -348,15 +348,14 @@ def test_joint_vector_emulator_agrees_with_the_quadrature_when_the_runs_pin_it_d
     quadrature of the modular density (stage 1 fixed): means within 0.25 sd,
     sds within 20 %; R-hat <= 1.01, and the hyperparameters are in the
     posterior."""
-    from stancal.vector_calibrate import (VectorOptions, calibrate_vector, fit_vector_emulator,
-                                          modular_vector_data, prediction_rows)
+    from stancal.vector_calibrate import VectorOptions, calibrate_vector, modular_vector_data, prediction_rows
 
     data = vector_problem
     result = calibrate_vector(data, method="koh_emulator", discrepancy="none", chains=4, warmup=500, draws=500,
                               seed=3)
     assert result.method == "koh_emulator_vector" and result.diagnostics.max_rhat <= 1.01
     assert result.idata["posterior"]["weight_gp_length_scale"].dims[2:] == ("component", "emulator_input")
-    emulator = fit_vector_emulator(data, seed=3)
+    emulator = result.emulator  # stage 1, where the joint fit started
     stan_data = modular_vector_data(data, VectorOptions("modular", "none", "known"), emulator, prediction_rows(data))
     best, _, _ = _grid_moments(stan_data, emulator, [0.5, 0.5], [0.5, 0.5], points=41)
     _, mean, sd = _grid_moments(stan_data, emulator, best, [0.05, 0.05], points=41)
