@@ -12,10 +12,18 @@ from pathlib import Path
 
 from .backends import BACKENDS, StanRuntimeError, get_backend
 from .calibrate import L2, calibrate, choose_method, stan_programs
+from .cluster import IN_PROCESS
 from .compare import METHODS
 from .config import ConfigError, load_config
 from .data import DataError
-from .models import APPROXIMATIONS, DISCREPANCIES, EXACT_SIZE_LIMIT, Method, ModelOptions, model_spec
+from .models import (
+    APPROXIMATIONS,
+    DISCREPANCIES,
+    EXACT_SIZE_LIMIT,
+    Method,
+    ModelOptions,
+    model_spec,
+)
 from .report import write_calibration, write_vector_calibration
 from .stan_source import FlatProgram, StanProgramError
 from .vector_data import VectorCalibrationData
@@ -58,6 +66,10 @@ def _parser() -> argparse.ArgumentParser:
     cal.add_argument("--discrepancy", choices=list(DISCREPANCIES),
                      help="gp (KOH), orthogonal (Plumlee 2017), scaled (S-GaSP) or none")
     comp.add_argument("--methods", nargs="+", choices=METHODS, default=list(METHODS))
+    for command in (gap, comp, sbc):
+        command.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                             help="run the fits on this Dask cluster (e.g. tcp://10.0.0.5:8786); default: a "
+                                  f"local cluster, one worker per core; '{IN_PROCESS}': one after another here")
     build = commands.add_parser("compile", help="compile every Stan program the configs need, in parallel")
     build.add_argument("configs", type=Path, nargs="+", help="TOML configs")
     build.add_argument("--all-methods", action="store_true",
@@ -91,7 +103,7 @@ def run_gap(args: argparse.Namespace) -> dict:
                                                       or model.get("approximation", "auto")}),
                                 chains=args.chains, warmup=args.warmup, draws=args.draws,
                                 seed=args.seed, backend=args.backend, out_dir=args.out,
-                                kfold=args.kfold)
+                                kfold=args.kfold, scheduler=args.scheduler)
     summary = write_gap_report(analysis, args.out)
     write = write_vector_calibration if vector else write_calibration
     write(analysis.baseline, args.out / "baseline",
@@ -159,7 +171,8 @@ def run_compare(args: argparse.Namespace) -> dict:
         comparison = compare_methods(problem.data, simulator=problem.simulator,
                                      methods=tuple(args.methods), chains=args.chains,
                                      warmup=args.warmup, draws=args.draws, seed=args.seed,
-                                     backend=args.backend, out_dir=args.out, **model)
+                                     backend=args.backend, out_dir=args.out, scheduler=args.scheduler,
+                                     **model)
     for fit in comparison.fits:
         if fit.result is not None:
             write_calibration(fit.result, args.out / fit.name,
@@ -179,7 +192,7 @@ def run_sbc(args: argparse.Namespace) -> dict:
     result = simulation_based_calibration(
         problem.data, simulator=problem.simulator, simulations=args.sims, draws_per_fit=args.draws_per_fit,
         level=args.level, seed=args.seed, out_dir=args.out, chains=args.chains, warmup=args.warmup,
-        backend=args.backend, **model)
+        backend=args.backend, scheduler=args.scheduler, **model)
     return result.to_json()
 
 
@@ -251,6 +264,11 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{summary['programs']} Stan programs compiled or found in the cache")
         return 0
     if args.command == "gap":
+        for failure in summary["failed"]:
+            print(f"warning: {failure['name']} failed twice and is left out: {failure['error']}", file=sys.stderr)
+        if not summary["candidates"]:
+            print(f"gap: every candidate's fit failed; report in {args.out / 'report.md'}")
+            return 1
         best = summary["candidates"][0]
         print(f"gap: best candidate {best['name']} (ELPD {best['elpd_diff']:+.1f} ± "
               f"{best['elpd_diff_se']:.1f}, shrinkage {best['shrinkage']['mean']:.2f}); "

@@ -14,14 +14,15 @@ import numpy as np
 import pandas as pd
 
 from .calibrate import L2, calibrate, choose_method, require_gaussian
+from .cluster import FitFailure, FitRunner, FitTask, fit_runner
 from .data import CalibrationData
 from .l2 import l2_result
 from .models import HSGP_METHODS, RESTRICTED_DISCREPANCIES, ModelOptions
 from .quadrature import Quadrature, input_box_quadrature
 from .result import CalibrationResult
 from .scoring import psis_score
+from .seeds import command_seed, fit_seed
 from .summaries import band
-from .seeds import command_seed
 
 METHODS = ("koh", "l2", *RESTRICTED_DISCREPANCIES)
 
@@ -79,13 +80,22 @@ def discrepancy_rms(result: CalibrationResult, quadrature: Quadrature) -> np.nda
     return np.sqrt(quadrature.mean_square(gap.reshape(-1, r)))
 
 
+def _method_fit(name: str, **options: Any) -> MethodFit:
+    """One method's fit, timed where it runs."""
+    started = time.perf_counter()
+    return MethodFit(name, calibrate(**options), time.perf_counter() - started)
+
+
 def compare_methods(data: CalibrationData, *, simulator: str | Path | None = None,
                     methods: tuple[str, ...] = METHODS, seed: int | None = None,
-                    out_dir: str | Path | None = None, **calibrate_options) -> Comparison:
-    """Fit ``data`` with each method (same sampler settings and seed). L2
+                    out_dir: str | Path | None = None, scheduler: str | FitRunner | None = None,
+                    **calibrate_options) -> Comparison:
+    """Fit ``data`` with each method (same sampler settings; each fit its
+    own seed), side by side on Dask (``scheduler``, see stancal.cluster). L2
     projects the KOH fit's zeta draws, so it adds no sampling when koh is also
-    compared. Methods that cannot run on this problem are listed as skipped.
-    ``calibrate_options`` go to every calibrate() call (chains, draws, kernel, ...)."""
+    compared. Methods that cannot run on this problem, or whose fit failed
+    twice, are listed as skipped. ``calibrate_options`` go to every
+    calibrate() call (chains, draws, kernel, ...)."""
     unknown = set(methods) - set(METHODS)
     if unknown:
         raise ValueError(f"unknown methods {sorted(unknown)}; choose from {', '.join(METHODS)}")
@@ -94,37 +104,36 @@ def compare_methods(data: CalibrationData, *, simulator: str | Path | None = Non
     seed = command_seed(seed)
     chosen = choose_method(data, simulator, None,
                            ModelOptions(approximation=calibrate_options.get("approximation", "auto")))
-    base_method = str(chosen)
-    fits: list[MethodFit] = []
-    koh: MethodFit | None = None
-
-    def run(name: str, **options) -> MethodFit:
-        started = time.perf_counter()
-        folder = None if out_dir is None else Path(out_dir) / name
-        result = calibrate(data, simulator=simulator, seed=seed, new_points=quadrature.nodes,
-                           out_dir=folder, **calibrate_options, **options)
-        return MethodFit(name, result, time.perf_counter() - started)
-
+    fits: dict[str, MethodFit] = {}
+    tasks: list[FitTask] = []
     for name in methods:
         if name in RESTRICTED_DISCREPANCIES and simulator is None:
-            fits.append(MethodFit(name, None, skipped="needs a simulator written in Stan (method koh)"))
+            fits[name] = MethodFit(name, None, skipped="needs a simulator written in Stan (method koh)")
         elif name in RESTRICTED_DISCREPANCIES and chosen in HSGP_METHODS:
-            fits.append(MethodFit(name, None, skipped=f"needs the dense GP, and this problem is on the scalable "
-                                                      f"path ({chosen}); approximation = 'exact' forces it"))
-        elif name == "koh":
-            koh = run("koh", method=base_method)
-            fits.append(koh)
-        elif name == L2 and koh is not None:
-            started = time.perf_counter()
-            result = l2_result(koh.result, quadrature, len(quadrature.weights))
-            if out_dir is not None:
-                result.save(Path(out_dir) / name / "posterior.nc")
-            fits.append(MethodFit(name, result, koh.seconds + time.perf_counter() - started))
-        elif name == L2:
-            fits.append(run(name, method=L2))
-        else:
-            fits.append(run(name, method="koh", discrepancy=name))
-    return Comparison(fits, quadrature)
+            fits[name] = MethodFit(name, None, skipped=f"needs the dense GP, and this problem is on the scalable "
+                                                       f"path ({chosen}); approximation = 'exact' forces it")
+        elif not (name == L2 and "koh" in methods):  # else L2 projects koh's fit below
+            options = ({"method": str(chosen)} if name == "koh" else {"method": L2} if name == L2
+                       else {"method": "koh", "discrepancy": name})
+            tasks.append(FitTask(name, _method_fit, dict(
+                name=name, data=data, simulator=simulator, seed=fit_seed(seed, name),
+                new_points=quadrature.nodes, out_dir=None if out_dir is None else Path(out_dir) / name,
+                **calibrate_options, **options)))
+    with fit_runner(scheduler) as runner:
+        runner.prepare([], calibrate_options.get("backend"))  # each fit compiles its program once per machine
+        for task, fit in zip(tasks, runner.map(tasks)):
+            fits[task.name] = (MethodFit(task.name, None, skipped=f"the fit failed twice: {fit.error}")
+                               if isinstance(fit, FitFailure) else fit)
+    koh = fits.get("koh")
+    if L2 in methods and "koh" in methods and koh.result is not None:
+        started = time.perf_counter()
+        result = l2_result(koh.result, quadrature, len(quadrature.weights))
+        if out_dir is not None:
+            result.save(Path(out_dir) / L2 / "posterior.nc")
+        fits[L2] = MethodFit(L2, result, koh.seconds + time.perf_counter() - started)
+    elif L2 in methods and "koh" in methods:
+        fits[L2] = MethodFit(L2, None, skipped="projects koh's fit, which failed")
+    return Comparison([fits[name] for name in methods], quadrature)
 
 
 def plot_comparison(comparison: Comparison, path: str | Path | None = None):

@@ -29,6 +29,7 @@ discrepancy is not identified, while its variation is.
 
 from __future__ import annotations
 
+import functools
 import logging
 import re
 import warnings
@@ -41,13 +42,22 @@ import pandas as pd
 
 from .backends import get_backend
 from .calibrate import calibrate, choose_method, stan_programs
+from .cluster import FitFailure, FitRunner, FitTask, fit_runner
 from .data import CalibrationData, DataError
 from .gap_location import GapLocation, interval, locate_gap
 from .mean_terms import FormulaError, build_mean_terms
 from .models import HSGP_METHODS, ModelOptions
 from .result import CalibrationResult
-from .scoring import PARETO_K_LIMIT, Score, kfold_score, psis_score, refit_unreliable
-from .seeds import command_seed
+from .scoring import (
+    PARETO_K_LIMIT,
+    Score,
+    kfold_tests,
+    psis_score,
+    refit_rows,
+    rescored,
+    unreliable_tests,
+)
+from .seeds import command_seed, fit_seed
 from .stan_source import FlatProgram, StanProgramError
 from .stopwatch import Stopwatch
 from .vector_calibrate import (
@@ -112,6 +122,7 @@ class GapAnalysis:
     candidates: list[CandidateFit]  # best first
     # wall-clock seconds of each stage: compile, fits, refits (K-fold or exact LOO), locate
     timing: dict[str, float] = field(default_factory=dict)
+    failed: list[FitFailure] = field(default_factory=list)  # candidates left out: a fit failed twice
 
     def to_json(self) -> dict[str, Any]:
         y = self.baseline.data.physical[self.baseline.data.output].to_numpy()
@@ -134,6 +145,7 @@ class GapAnalysis:
             },
             "where": self.location.to_json(),
             "candidates": [],
+            "failed": [{"name": f.name, "error": f.error} for f in self.failed],
             "timing": {k: round(v, 1) for k, v in self.timing.items()},
         }
         for fit in self.candidates:
@@ -228,6 +240,21 @@ def check_candidates(data: CalibrationData | VectorCalibrationData, candidates: 
 
 
 # ---- the analysis --------------------------------------------------------------
+def _fit_task(name: str, candidate: Candidate | None, data, new_points: pd.DataFrame | None,
+              folder: Path | None, *, vector: bool, simulator, method: str, seed: int,
+              sampling: dict[str, Any]) -> FitTask:
+    """The baseline's or a candidate's fit to ``data`` (all of it, or a
+    training set), with its own seed, as a task for the runner."""
+    variant = candidate is not None and candidate.kind == "variant"
+    options = dict(data=data, simulator=candidate.stan if variant else simulator,
+                   method="koh" if variant else method, seed=fit_seed(seed, name),
+                   mean_formula=None if candidate is None or variant else candidate.formula,
+                   out_dir=folder, **sampling)
+    if vector:
+        return FitTask(name, calibrate_vector, {**options, "new_rows": new_points})
+    return FitTask(name, calibrate, {**options, "new_points": new_points})
+
+
 def diagnose_gap(
     data: CalibrationData | VectorCalibrationData,
     candidates: list[Candidate],
@@ -237,6 +264,7 @@ def diagnose_gap(
     seed: int | None = None,
     out_dir: str | Path | None = None,
     kfold: int | None = None,
+    scheduler: str | FitRunner | None = None,
     **calibrate_options: Any,
 ) -> GapAnalysis:
     """Fit the baseline (KOH with a GP discrepancy over the inputs and
@@ -244,9 +272,12 @@ def diagnose_gap(
 
     ``kfold``: use K-fold cross-validation with this many folds instead of
     PSIS-LOO; by default K-fold (5 folds) is used only when a Pareto k
-    exceeds 0.7. Posteriors are written under ``out_dir`` as they finish.
-    ``calibrate_options`` (kernel, chains, warmup, draws, backend,
-    adapt_delta, ...) go to every ``calibrate`` call.
+    exceeds 0.7. The fits run side by side on Dask (``scheduler``: None for
+    a local cluster, an address, "in-process", or a FitRunner; see
+    stancal.cluster); each is written under ``out_dir`` as it finishes. A
+    candidate whose fit fails twice is left out of the ranking and named in
+    ``failed``. ``calibrate_options`` (kernel, chains, warmup, draws,
+    backend, adapt_delta, ...) go to every fit.
     """
     vector = isinstance(data, VectorCalibrationData)
     if vector:
@@ -262,66 +293,78 @@ def diagnose_gap(
     stan_backend = get_backend(calibrate_options.get("backend"))
     check_candidates(data, candidates, stan_backend)
     clock = Stopwatch()
-    # every program up front, side by side on the machine's cores
-    stan_backend.compile([*baseline_programs,
-                          *(variant_program(data, c) for c in candidates if c.kind == "variant")])
-    clock.lap("compile")
     seed = command_seed(seed)
     out = Path(out_dir) if out_dir is not None else None
     # every fit has a constant in the discrepancy mean, so that no candidate
     # term wins by standing in for the discrepancy's overall level
     sampling = {**calibrate_options, "mean_intercept": True}
+    task = functools.partial(_fit_task, vector=vector, simulator=simulator, method=str(chosen), seed=seed,
+                             sampling=sampling)
 
-    def fitter(candidate: Candidate | None, folder: Path | None):
-        """fit(train_data, new_points) for the baseline or one candidate."""
-        def fit(train, new_points: pd.DataFrame | None):
-            formula = candidate.formula if candidate else None
-            if vector:
-                variant = candidate is not None and candidate.kind == "variant"
-                return calibrate_vector(train, simulator=candidate.stan if variant else simulator,
-                                        method="koh" if variant else chosen,
-                                        seed=seed, mean_formula=None if variant else formula,
-                                        new_rows=new_points, out_dir=folder, **sampling)
-            if candidate is None or candidate.kind == "formula":
-                return calibrate(train, simulator=simulator, method=str(chosen), seed=seed,
-                                 mean_formula=candidate.formula if candidate else None,
-                                 new_points=new_points, out_dir=folder, **sampling)
-            return calibrate(train, simulator=candidate.stan, method="koh", seed=seed,
-                             new_points=new_points, out_dir=folder, **sampling)
-        return fit
-
-    def data_for(candidate: Candidate | None) -> CalibrationData:
+    def data_for(candidate: Candidate | None):
         return variant_data(data, candidate) if candidate and candidate.kind == "variant" else data
 
     labels = [None, *candidates]
-    fits: list[CalibrationResult] = []
-    for candidate in labels:
-        logger.info("gap: fitting %s", label_name(candidate))
-        folder = None if out is None else (out / "baseline" if candidate is None
-                                           else out / "candidates" / _slug(candidate.name))
-        d = data_for(candidate)
-        fits.append(fitter(candidate, folder)(d, None if vector else d.source.reset_index(drop=True)))
-
-    clock.lap("fits")
-    scores = [psis_score(r) for r in fits]
-    unreliable = {label_name(c): s.unreliable.size for c, s in zip(labels, scores) if s.unreliable.size}
-    if kfold is None and max(unreliable.values(), default=0) > FALLBACK_FOLDS:
-        warnings.warn(f"Pareto k above {PARETO_K_LIMIT} at more than {FALLBACK_FOLDS} observations "
-                      f"({_counts(unreliable)}): PSIS-LOO is unreliable, so every fit is compared by "
-                      f"{FALLBACK_FOLDS}-fold cross-validation instead", GapWarning, stacklevel=2)
-        kfold = FALLBACK_FOLDS
-    if kfold is not None:
-        scores = [kfold_score(data_for(c), fitter(c, None), kfold, seed, s.remaining)
-                  for c, s in zip(labels, scores)]
-    elif unreliable:
-        warnings.warn(f"Pareto k above {PARETO_K_LIMIT} at {_counts(unreliable)}: each of those "
-                      "observations is scored by an exact refit without it", GapWarning, stacklevel=2)
-        scores = [refit_unreliable(data_for(c), fitter(c, None), s) for c, s in zip(labels, scores)]
-
+    failed: list[FitFailure] = []
+    with fit_runner(scheduler) as runner:
+        # every program up front, side by side on the machine's cores, then on every worker
+        runner.prepare([*baseline_programs, *(variant_program(data, c) for c in candidates if c.kind == "variant")],
+                       calibrate_options.get("backend"))
+        clock.lap("compile")
+        fits = runner.map([task(label_name(c), c, data_for(c),
+                                None if vector else data_for(c).source.reset_index(drop=True),
+                                None if out is None else (out / "baseline" if c is None
+                                                          else out / "candidates" / _slug(c.name)))
+                           for c in labels])
+        for c, fit in zip(labels, fits):
+            if isinstance(fit, FitFailure):
+                _record_failure(c, fit, failed)
+        labels, fits = zip(*((c, fit) for c, fit in zip(labels, fits) if not isinstance(fit, FitFailure)))
+        clock.lap("fits")
+        scores = [psis_score(r) for r in fits]
+        unreliable = {label_name(c): s.unreliable.size for c, s in zip(labels, scores) if s.unreliable.size}
+        if kfold is None and max(unreliable.values(), default=0) > FALLBACK_FOLDS:
+            warnings.warn(f"Pareto k above {PARETO_K_LIMIT} at more than {FALLBACK_FOLDS} observations "
+                          f"({_counts(unreliable)}): PSIS-LOO is unreliable, so every fit is compared by "
+                          f"{FALLBACK_FOLDS}-fold cross-validation instead", GapWarning, stacklevel=2)
+            kfold = FALLBACK_FOLDS
+        elif kfold is None and unreliable:
+            warnings.warn(f"Pareto k above {PARETO_K_LIMIT} at {_counts(unreliable)}: each of those "
+                          "observations is scored by an exact refit without it", GapWarning, stacklevel=2)
+        tests = [kfold_tests(len(data_for(c).physical), kfold, seed) if kfold is not None else unreliable_tests(s)
+                 for c, s in zip(labels, scores)]
+        # every refit of every fit in one batch
+        jobs = [(i, test) for i, label_tests in enumerate(tests) for test in label_tests]
+        refits = runner.map([task(f"{label_name(labels[i])} without {_rows(test)}", labels[i],
+                                  *refit_rows(data_for(labels[i]), test), None) for i, test in jobs])
+    grouped: list[list] = [[] for _ in labels]
+    for (i, _), refit in zip(jobs, refits):
+        grouped[i].append(refit)
+    kept = []
+    for c, fit, score, label_tests, results in zip(labels, fits, scores, tests, grouped):
+        failure = next((r for r in results if isinstance(r, FitFailure)), None)
+        if failure is not None:
+            _record_failure(c, failure, failed)
+        else:
+            kept.append((c, fit, rescored(score, data_for(c), label_tests, results, kfold=kfold is not None)
+                         if label_tests else score))
+    labels, fits, scores = (list(column) for column in zip(*kept))
     clock.lap("refits")
     location = locate_gap(fits[0], seed=seed, along=tuple(data.output_index) if vector else ())
     clock.lap("locate")
     ranked = sorted(
-        (CandidateFit(c, r, s) for c, r, s in zip(candidates, fits[1:], scores[1:])),
+        (CandidateFit(c, r, s) for c, r, s in zip(labels[1:], fits[1:], scores[1:])),
         key=lambda f: -(f.score.elpd_i - scores[0].elpd_i).sum())
-    return GapAnalysis(fits[0], scores[0], location, ranked, clock.laps)
+    return GapAnalysis(fits[0], scores[0], location, ranked, clock.laps, failed)
+
+
+def _rows(test: np.ndarray) -> str:
+    return f"row {test[0]}" if len(test) == 1 else f"{len(test)} rows ({', '.join(map(str, test[:4]))}{', ...' if len(test) > 4 else ''})"
+
+
+def _record_failure(label: Candidate | None, failure: FitFailure, failed: list[FitFailure]) -> None:
+    """A candidate's failure goes to ``failed``; without the baseline nothing can be compared."""
+    if label is None:
+        raise RuntimeError(f"the gap diagnosis needs the baseline, and {failure}"
+                           + (f"; also {'; '.join(map(str, failed))}" if failed else ""))
+    failed.append(failure)

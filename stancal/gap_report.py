@@ -159,6 +159,9 @@ def report_markdown(summary: dict, figures: list[Path]) -> str:
               f"{_fmt(c['shrinkage'])} | {_fmt(c['discrepancy_rms'])} | "
               + "; ".join(f"{k} {_fmt(v)}" for k, v in c["theta"].items())
               + f" | {c['holdout_rmse']:.4g} |" for c in cands)]
+    if summary.get("failed"):
+        lines += ["", "Left out, their fit having failed twice: "
+                  + "; ".join(f"{f['name']} ({f['error']})" for f in summary["failed"]) + "."]
     timing = summary.get("timing", {})
     if timing:
         lines += ["", "Time: " + ", ".join(f"{stage} {seconds:.0f} s" for stage, seconds in timing.items())

@@ -14,7 +14,6 @@ simulated data set would fit a different prior from the one simulated.
 from __future__ import annotations
 
 import json
-import logging
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -23,11 +22,10 @@ from typing import Any
 import numpy as np
 
 from .calibrate import calibrate
+from .cluster import FitFailure, FitRunner, FitTask, fit_runner
 from .data import CalibrationData
 from .sbc_ranks import Uniformity, fractional_ranks, rank_of, uniformity
-from .seeds import command_seed
-
-logger = logging.getLogger("stancal")
+from .seeds import command_seed, fit_seed
 
 PRIOR_THINNING = 5  # prior draws kept: every 5th of one long chain
 
@@ -74,6 +72,16 @@ def _thinned(values: np.ndarray, count: int) -> np.ndarray:
     return values[np.linspace(0, len(values) - 1, count).round().astype(int)]
 
 
+def simulated_ranks(data: CalibrationData, truth: dict[str, float], draws_per_fit: int,
+                    **calibrate_options: Any) -> dict[str, int]:
+    """Fit one simulated data set and rank each true value among L evenly
+    thinned posterior draws (run where the fit runs: only ranks travel back)."""
+    fit = calibrate(data, **calibrate_options)
+    posterior = _scalars(fit.idata["posterior"].to_dataset())
+    return {name: rank_of(value, _thinned(posterior[name], draws_per_fit))
+            for name, value in truth.items() if name in posterior}
+
+
 def simulation_based_calibration(
     data: CalibrationData,
     *,
@@ -85,6 +93,7 @@ def simulation_based_calibration(
     level: float = 0.95,
     seed: int | None = None,
     out_dir: str | Path | None = None,
+    scheduler: str | FitRunner | None = None,
     **calibrate_options: Any,
 ) -> SBCResult:
     """SBC of the program ``calibrate`` runs on ``data`` (the design: its
@@ -92,6 +101,7 @@ def simulation_based_calibration(
     ``program``: fit with this program instead (e.g. a deliberately wrong
     copy) while simulating from the method's own. Each fit keeps
     ``draws_per_fit`` draws, evenly thinned from 2 x draws_per_fit per chain.
+    The fits run side by side on Dask (``scheduler``, see stancal.cluster).
     ``calibrate_options`` (chains, warmup, discrepancy, ...) go to every fit."""
     if data.latent_reason == "censored outputs":
         raise ValueError("SBC simulates exact outputs; censored data have no simulated censoring here")
@@ -105,23 +115,21 @@ def simulation_based_calibration(
     prior = {k: _thinned(v, simulations) for k, v in _scalars(prior_fit.idata["prior"].to_dataset()).items()}
     replicated = np.asarray(prior_fit.idata["prior_predictive"]["y"]).reshape(-1, len(data.physical))
     replicated = _thinned(replicated, simulations)
+    tasks = [FitTask(f"simulation {s}", simulated_ranks, dict(
+        data=data.with_output(replicated[s]), truth={name: float(v[s]) for name, v in prior.items()},
+        draws_per_fit=draws_per_fit, simulator=simulator, method=method, program=program, chains=chains,
+        warmup=warmup, draws=per_chain, seed=fit_seed(seed, f"simulation {s}"),
+        out_dir=None if out_dir is None else Path(out_dir) / "fits" / f"{s:04d}", **calibrate_options))
+        for s in range(simulations)]
+    with fit_runner(scheduler) as runner:
+        runner.prepare([], calibrate_options.get("backend"))  # the prior's fit compiled the programs here
+        outcomes = runner.map(tasks)
     ranks: dict[str, list[int]] = {}
-    failed = []
-    for s in range(simulations):
-        try:
-            fit = calibrate(data.with_output(replicated[s]), simulator=simulator, method=method, program=program,
-                            chains=chains, warmup=warmup, draws=per_chain, seed=seed + 1 + s,
-                            out_dir=None if out_dir is None else Path(out_dir) / "fits" / f"{s:04d}",
-                            **calibrate_options)
-        except Exception as err:  # one failed fit must not lose the rest
-            logger.warning("SBC: simulation %d failed: %s", s, err)
-            failed.append(s)
-            continue
-        posterior = _scalars(fit.idata["posterior"].to_dataset())
-        for name, truth in prior.items():
-            if name in posterior:
-                ranks.setdefault(name, []).append(rank_of(truth[s], _thinned(posterior[name], draws_per_fit)))
-        logger.info("SBC: %d of %d simulations fitted", s + 1, simulations)
+    failed = [s for s, outcome in enumerate(outcomes) if isinstance(outcome, FitFailure)]
+    for outcome in outcomes:
+        if not isinstance(outcome, FitFailure):
+            for name, rank in outcome.items():
+                ranks.setdefault(name, []).append(rank)
     rng = np.random.default_rng(seed)
     tests = {name: uniformity(fractional_ranks(r, draws_per_fit, rng), level, seed) for name, r in ranks.items()}
     result = SBCResult(simulations, draws_per_fit, ranks, tests, time.perf_counter() - started, failed)

@@ -8,6 +8,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import pandas as pd
 from scipy.special import logsumexp
 
 from .data import CalibrationData
@@ -82,36 +83,43 @@ def psis_score(result: CalibrationResult) -> Score:
                  np.asarray(loo.pareto_k), "psis-loo", _remaining_discrepancy(result))
 
 
-def _held_out(data: CalibrationData, fit, test: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """log p(y_test | y_train) and the predictive mean at the ``test`` rows,
-    from ``fit(train_data, heldout_points)`` refitted to the other rows."""
+def kfold_tests(n: int, k: int, seed: int) -> list[np.ndarray]:
+    """The held-out rows of each of K folds, assigned at random."""
+    folds = np.random.default_rng(seed).permutation(n) % k
+    return [np.flatnonzero(folds == fold) for fold in range(k)]
+
+
+def unreliable_tests(score: Score) -> list[np.ndarray]:
+    """One refit per observation whose Pareto k exceeds 0.7, holding out that
+    observation alone (Vehtari, Gelman & Gabry 2017, section 2.1; the loo
+    package's reloo): a few refits instead of K-fold's K per fit."""
+    return [np.array([i]) for i in score.unreliable]
+
+
+def refit_rows(data: CalibrationData, test: np.ndarray) -> tuple[CalibrationData, pd.DataFrame]:
+    """The training data without the ``test`` rows, and those rows as the new points to predict."""
     train = np.setdiff1d(np.arange(len(data.physical)), test)
-    result = fit(data.subset(train), data.source.iloc[test].reset_index(drop=True))
+    return data.subset(train), data.source.iloc[test].reset_index(drop=True)
+
+
+def held_out(data: CalibrationData, test: np.ndarray, result) -> tuple[np.ndarray, np.ndarray]:
+    """log p(y_test | y_train) and the predictive mean at the ``test`` rows,
+    from a fit to the other rows whose predictions are at the test rows."""
     predictions = result.idata["predictions"]
     zeta = np.asarray(predictions["zeta_new" if "zeta_new" in predictions else "zeta"]).reshape(-1, len(test))
     log_density = data.heldout_log_density(test, zeta, result.idata["posterior"])
     return logsumexp(log_density, axis=0) - np.log(len(zeta)), zeta.mean(0)
 
 
-def kfold_score(data: CalibrationData, fit, k: int, seed: int, remaining: np.ndarray) -> Score:
-    """K-fold cross-validation: ``fit(train_data, heldout_points)`` returns a
-    result whose predictions are at the held-out points."""
-    n = len(data.physical)
-    folds = np.random.default_rng(seed).permutation(n) % k
-    elpd, mean = np.zeros(n), np.zeros(n)
-    for fold in range(k):
-        test = np.flatnonzero(folds == fold)
-        elpd[test], mean[test] = _held_out(data, fit, test)
-    return Score(elpd, mean, np.full(n, np.nan), "kfold", remaining, refits=k)
-
-
-def refit_unreliable(data: CalibrationData, fit, score: Score) -> Score:
-    """PSIS-LOO where it is reliable, and for each observation whose Pareto k
-    exceeds 0.7 the exact log p(y_i | y_-i) from a refit without it
-    (Vehtari, Gelman & Gabry 2017, section 2.1; the loo package's reloo):
-    a few refits instead of K-fold's K per fit."""
+def rescored(score: Score, data: CalibrationData, tests: list[np.ndarray], refits: list, *,
+             kfold: bool) -> Score:
+    """``score`` with the held-out values of the refits (one per test set)
+    in place of PSIS's: at every observation under K-fold, else at the
+    observations with high Pareto k."""
     elpd, mean = score.elpd_i.copy(), score.heldout_mean.copy()
-    for i in score.unreliable:
-        (elpd[i],), (mean[i],) = _held_out(data, fit, np.array([i]))
-    return Score(elpd, mean, score.pareto_k, "psis-loo+refits" if score.unreliable.size else score.scheme,
-                 score.remaining, refits=int(score.unreliable.size))
+    for test, result in zip(tests, refits, strict=True):
+        elpd[test], mean[test] = held_out(data, test, result)
+    if kfold:
+        return Score(elpd, mean, np.full(len(elpd), np.nan), "kfold", score.remaining, refits=len(tests))
+    return Score(elpd, mean, score.pareto_k, "psis-loo+refits" if tests else score.scheme,
+                 score.remaining, refits=len(tests))

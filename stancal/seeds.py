@@ -3,6 +3,8 @@ fit of the command can be rerun exactly."""
 
 from __future__ import annotations
 
+import hashlib
+
 import numpy as np
 
 MAX_SEED = 2**31 - 1  # Stan's seeds are unsigned 32-bit; PyStan's random_seed is a C int
@@ -11,3 +13,11 @@ MAX_SEED = 2**31 - 1  # Stan's seeds are unsigned 32-bit; PyStan's random_seed i
 def command_seed(seed: int | None) -> int:
     """The user's seed, or a fresh one."""
     return int(np.random.default_rng().integers(MAX_SEED)) if seed is None else int(seed)
+
+
+def fit_seed(command: int, name: str) -> int:
+    """One fit's seed, from its command's seed and the fit's name: the same
+    whatever runs the fits (this process, a local cluster, a remote one)
+    and in whatever order they finish."""
+    digest = hashlib.sha256(f"{command}\0{name}".encode()).digest()
+    return int.from_bytes(digest[:4], "little") % MAX_SEED

@@ -3,6 +3,8 @@ it), and each fit that several tests read is made once per session."""
 
 from __future__ import annotations
 
+import json
+import subprocess
 import sys
 import warnings
 from pathlib import Path
@@ -69,3 +71,20 @@ def koh_emulator_fit(exact_cooling_data):
 @pytest.fixture(scope="session")
 def modular_fit(exact_cooling_data):
     return fit(exact_cooling_data, method="modular")
+
+
+# more draws for the cheap simulator keep Pareto k estimates steady
+COOLING_SAMPLING = dict(chains=2, warmup=400, draws=700, seed=3)
+
+
+@pytest.fixture(scope="session")
+def cooling_gap(tmp_path_factory):
+    """`stancal gap` on the cooling case study, on the default local cluster
+    (test_gap reads its ranking; test_cluster reruns it on another cluster)."""
+    out = tmp_path_factory.mktemp("gap") / "cooling"
+    done = subprocess.run(
+        [sys.executable, "-m", "stancal.cli", "gap", str(COOLING / "config.toml"), "--out", str(out),
+         *(str(a) for k, v in COOLING_SAMPLING.items() for a in (f"--{k}", v))],
+        capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr[-3000:]
+    return json.loads((out / "gap.json").read_text()), out

@@ -34,25 +34,12 @@ shield_physics = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(shield_physics)
 
 COOLING_K_TRUE = 0.05
-# more draws for the cheap simulator keep Pareto k estimates steady; the joint
-# emulator is slower per draw
-COOLING_SAMPLING = dict(chains=2, warmup=400, draws=700, seed=3)
+# the joint emulator is slower per draw than the cheap simulator (COOLING_SAMPLING)
 PIPE_SAMPLING = dict(chains=2, warmup=400, draws=600, seed=3)
 # the shield case compares by 5-fold cross-validation (the misfitting fits have
 # more than 5 observations with Pareto k > 0.7): 24 latent fits, about 40
 # minutes on 2 cores, so it is a slow study
 SHIELD_SAMPLING = dict(chains=2, warmup=500, draws=700, seed=3)
-
-
-@pytest.fixture(scope="module")
-def cooling_gap(tmp_path_factory):
-    out = tmp_path_factory.mktemp("gap") / "cooling"
-    done = subprocess.run(
-        [sys.executable, "-m", "stancal.cli", "gap", str(COOLING / "config.toml"), "--out", str(out),
-         *(str(a) for k, v in COOLING_SAMPLING.items() for a in (f"--{k}", v))],
-        capture_output=True, text=True)
-    assert done.returncode == 0, done.stderr[-3000:]
-    return json.loads((out / "gap.json").read_text()), out
 
 
 def gap_through_python(case, tmp_path_factory, sampling):
@@ -339,17 +326,32 @@ def test_bad_candidate_config(tmp_path, snippet, message):
 
 
 # ---- K-fold, used when Pareto k is high --------------------------------------------
-def test_kfold_comparison(exact_cooling_data):
+def test_kfold_comparison_and_a_failed_candidate(exact_cooling_data, monkeypatch):
     """Forced 3-fold on a small problem: every point gets a held-out density,
-    and a useless offset per half of the data does not beat the baseline."""
+    and a useless offset per half of the data does not beat the baseline.
+    A candidate whose fit fails (twice) is named and left out; the rest
+    are ranked (in-process, so that the failure can be planted)."""
     frame = exact_cooling_data.source.assign(half=np.where(np.arange(24) % 2, "odd", "even"))
     data = stancal.CalibrationData(frame, ["t", "T0"], "temperature", {"k": (0.01, 0.2)})
+    real_calibrate = stancal.gap.calibrate
+    attempts = []
+
+    def calibrate(data, **options):
+        if options["mean_formula"] == "t":
+            attempts.append(1)
+            raise RuntimeError("Stan failed while sampling: planted")
+        return real_calibrate(data, **options)
+
+    monkeypatch.setattr(stancal.gap, "calibrate", calibrate)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        analysis = diagnose_gap(data, [Candidate("half", formula="C(half)")],
-                                simulator=COOLING / "simulator.stan", kfold=3,
+        analysis = diagnose_gap(data, [Candidate("half", formula="C(half)"), Candidate("slope", formula="t")],
+                                simulator=COOLING / "simulator.stan", kfold=3, scheduler="in-process",
                                 chains=2, warmup=300, draws=300, seed=5)
     summary = analysis.to_json()
+    assert [c["name"] for c in summary["candidates"]] == ["half"] and len(attempts) == 2
+    assert summary["failed"] == [{"name": "candidate 'slope'", "error": "RuntimeError: Stan failed while "
+                                                                         "sampling: planted"}]
     assert summary["baseline"]["scheme"] == "kfold"
     assert np.isfinite(analysis.baseline_score.elpd_i).all()
     assert summary["candidates"][0]["elpd_diff"] < 2 * summary["candidates"][0]["elpd_diff_se"]

@@ -131,6 +131,7 @@ def test_poisson_mean_terms_match_maximum_likelihood():
         assert abs(draws.mean() - reference) < 0.2 * draws.std(), (name, draws.mean(), reference, draws.std())
 
 
+@pytest.mark.slow  # 143 s: two 4-chain latent fits; test_binomial_from_runs keeps koh_latent_emulator in the default run
 def test_counts_case_study_from_runs():
     """The shipped case study (a finite-size detector the simulator lacks)
     from the simulator runs alone: the emulator on the log scale."""

@@ -7,7 +7,7 @@ from scipy import stats
 from scipy.stats import norm
 
 import stancal
-from stancal.scoring import Score, refit_unreliable
+from stancal.scoring import Score, refit_rows, rescored, unreliable_tests
 
 
 class Refit:
@@ -31,7 +31,8 @@ def test_only_the_observations_with_high_pareto_k_are_refitted():
     psis = Score(np.full(6, -9.0), np.zeros(6), np.array([0.2, 0.9, 0.3, 0.5, 0.75, 0.1]), "psis-loo",
                  np.zeros((10, 6)))
     refit = Refit()
-    score = refit_unreliable(data, refit, psis)
+    tests = unreliable_tests(psis)
+    score = rescored(psis, data, tests, [refit(*refit_rows(data, test)) for test in tests], kfold=False)
     assert refit.held_out == [[1.0], [4.0]]  # one refit per point with k > 0.7, that point alone
     expected = np.full(6, -9.0)
     expected[[1, 4]] = norm.logpdf(x[[1, 4]] / 2, 1, 1)

@@ -13,6 +13,7 @@ version), and installs it into httpstan's cache on demand.
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import hashlib
 import io
 import logging
@@ -133,18 +134,35 @@ def _install(code: str, module: Path) -> None:
         shutil.copy2(module, target)
 
 
-def compile_into_cache(code: str) -> None:
-    """Make the program's module available to httpstan: from the store if
-    this machine built it before, else by building it (and storing it)."""
-    if is_compiled(code):
-        return
+def build_into_store(code: str) -> Path:
+    """The program's module in the machine's store, built if no process of
+    this machine built it before. Processes that ask at once (Dask workers,
+    two commands) take a lock per program: one builds, the others wait and
+    find it built."""
     stored = _stored_module(code)
-    if not stored.is_file():
-        stored.parent.mkdir(parents=True, exist_ok=True)
-        with tempfile.TemporaryDirectory(dir=stored.parent) as folder:
-            built = _build_module(code, Path(folder))
-            os.replace(built, stored)  # atomic: a concurrent reader sees all or nothing
-    _install(code, stored)
+    if stored.is_file():
+        return stored
+    stored.parent.mkdir(parents=True, exist_ok=True)
+    with open(stored.parent / f"{stored.name.split('.')[0]}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes
+        if not stored.is_file():
+            logger.info("building %s", stored.name)
+            with tempfile.TemporaryDirectory(dir=stored.parent) as folder:
+                built = _build_module(code, Path(folder))
+                os.replace(built, stored)  # atomic: a reader without the lock sees all or nothing
+    return stored
+
+
+def use_private_httpstan_cache(folder: Path) -> None:
+    """Give this process's httpstan a cache of its own. Processes that share
+    one race: each deletes the fits that appeared while it sampled
+    (_sampling_output), which may be another process's fit not read yet
+    ("Fit ... not found"). Modules still come from the machine's store, by
+    hard link, so nothing is compiled again."""
+    import httpstan.cache
+
+    folder.mkdir(parents=True, exist_ok=True)
+    httpstan.cache.cache_directory = lambda: folder  # httpstan looks it up at every use
 
 
 @contextlib.contextmanager
@@ -174,11 +192,11 @@ def held_output():
 
 
 def _compile_in_subprocess(program: FlatProgram) -> None:
-    """One compile in its own Python process (its g++ output held back), so
+    """One build into the store in its own Python process (its g++ output held back), so
     that several run side by side; a subprocess rather than multiprocessing,
     which would re-import the user's script in every worker."""
-    script = ("import sys; from stancal.backends.pystan_compile import compile_into_cache; "
-              "compile_into_cache(sys.stdin.read())")
+    script = ("import sys; from stancal.backends.pystan_compile import build_into_store; "
+              "build_into_store(sys.stdin.read())")
     done = subprocess.run([sys.executable, "-c", script], input=program.code, capture_output=True, text=True)
     if done.returncode != 0:
         tail = "\n".join((done.stdout + done.stderr).strip().splitlines()[-20:])
@@ -192,15 +210,17 @@ def compile_programs(programs: list[FlatProgram]) -> None:
     if not todo:
         return
     building = [p for p in todo.values() if not _stored_module(p.code).is_file()]
-    workers = min(len(todo), os.cpu_count() or 1)
+    workers = max(1, min(len(building), os.cpu_count() or 1))
     if building:
         logger.warning("Compiling %d Stan program%s with PyStan, %d at a time (%s); each takes two to "
                        "four minutes on a 2-core machine, once per machine.",
-                       len(building), "s" if len(building) > 1 else "", min(len(building), workers),
+                       len(building), "s" if len(building) > 1 else "", workers,
                        ", ".join(Path(p.origin[0][0]).name if p.origin else "?" for p in building))
     started = time.perf_counter()
     with ThreadPoolExecutor(max_workers=workers) as pool:  # each thread waits on one subprocess
-        list(pool.map(_compile_in_subprocess, todo.values()))
+        list(pool.map(_compile_in_subprocess, building))
+    for code in todo:  # into this process's httpstan cache, which may be private to it
+        _install(code, _stored_module(code))
     if building:
         logger.info("compiled %d program%s in %.0f s", len(building), "s" if len(building) > 1 else "",
                     time.perf_counter() - started)

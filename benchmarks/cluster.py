@@ -1,0 +1,85 @@
+"""Dask's cost and gain for stancal's many-fit commands (issue 16).
+
+    python benchmarks/cluster.py [--repeats 2]
+
+- Per-task overhead: N tasks that do nothing, on the local cluster (one
+  worker per core) against the same tasks in-process; and the cluster's
+  start and stop.
+- Speed-up: the cooling gap diagnosis (tests' settings: 2 x (400 + 700)) in
+  one process against the local cluster, alternated in this process so that
+  both see the same machine load.
+
+Writes benchmarks/cluster.json and prints the figures.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+import warnings
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from stancal.cluster import IN_PROCESS, FitRunner, FitTask  # noqa: E402
+from stancal.config import load_config  # noqa: E402
+from stancal.gap import diagnose_gap  # noqa: E402
+
+SAMPLING = dict(chains=2, warmup=400, draws=700, seed=3)
+
+
+def nothing(i: int) -> int:
+    return i
+
+
+def task_overhead(tasks: int) -> dict[str, float]:
+    batch = [FitTask(f"task {i}", nothing, {"i": i}) for i in range(tasks)]
+    started = time.perf_counter()
+    with FitRunner(progress=False) as runner:
+        ready = time.perf_counter()
+        runner.map(batch)
+        mapped = time.perf_counter()
+    stopped = time.perf_counter()
+    with FitRunner(IN_PROCESS, progress=False) as runner:
+        here = time.perf_counter()
+        runner.map(batch)
+        here = time.perf_counter() - here
+    return {"tasks": tasks, "workers": os.cpu_count(), "start_s": ready - started, "stop_s": stopped - mapped,
+            "per_task_ms": 1000 * (mapped - ready) / tasks, "per_task_in_process_ms": 1000 * here / tasks}
+
+
+def gap_seconds(scheduler: str | None) -> float:
+    problem = load_config(ROOT / "case_studies" / "cooling" / "config.toml")
+    started = time.perf_counter()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        diagnose_gap(problem.data, problem.candidates, simulator=problem.simulator, scheduler=scheduler,
+                     **SAMPLING)
+    return time.perf_counter() - started
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--repeats", type=int, default=2)
+    parser.add_argument("--tasks", type=int, default=200)
+    args = parser.parse_args()
+    figures = {"overhead": task_overhead(args.tasks)}
+    times: dict[str, list[float]] = {"in_process_s": [], "local_cluster_s": []}
+    for _ in range(args.repeats):
+        times["in_process_s"].append(gap_seconds(IN_PROCESS))
+        times["local_cluster_s"].append(gap_seconds(None))
+    figures["cooling_gap"] = {**times, "speed_up": sum(times["in_process_s"]) / sum(times["local_cluster_s"])}
+    (Path(__file__).parent / "cluster.json").write_text(json.dumps(figures, indent=2))
+    o, g = figures["overhead"], figures["cooling_gap"]
+    print(f"local cluster of {o['workers']} workers: start {o['start_s']:.1f} s, stop {o['stop_s']:.1f} s; "
+          f"{o['per_task_ms']:.1f} ms per task (in-process {o['per_task_in_process_ms']:.3f} ms)")
+    print(f"cooling gap: in-process {g['in_process_s']} s, local cluster {g['local_cluster_s']} s; "
+          f"speed-up {g['speed_up']:.2f}")
+
+
+if __name__ == "__main__":
+    main()
