@@ -7,7 +7,10 @@
   start and stop.
 - Speed-up: the cooling gap diagnosis (tests' settings: 2 x (400 + 700)) in
   one process against the local cluster, alternated in this process so that
-  both see the same machine load.
+  both see the same machine load; and SBC with one chain per fit (koh
+  with a GP discrepancy, 40 simulations), where a fit leaves cores idle.
+
+    python benchmarks/cluster.py --parts sbc   # one part; the others' figures are kept
 
 Writes benchmarks/cluster.json and prints the figures.
 """
@@ -62,23 +65,47 @@ def gap_seconds(scheduler: str | None) -> float:
     return time.perf_counter() - started
 
 
+def sbc_seconds(scheduler: str | None, simulations: int = 40) -> float:
+    sys.path.insert(0, str(ROOT / "tests"))
+    from conftest import cooling_data
+
+    from stancal.sbc import simulation_based_calibration
+
+    started = time.perf_counter()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        simulation_based_calibration(cooling_data(seed=7), simulator=ROOT / "case_studies" / "cooling" / "simulator.stan",
+                                     method="koh", discrepancy="gp", simulations=simulations, draws_per_fit=100,
+                                     chains=1, seed=1, scheduler=scheduler)
+    return time.perf_counter() - started
+
+
 def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--repeats", type=int, default=2)
     parser.add_argument("--tasks", type=int, default=200)
+    parser.add_argument("--parts", nargs="+", default=["overhead", "gap", "sbc"], choices=["overhead", "gap", "sbc"])
     args = parser.parse_args()
-    figures = {"overhead": task_overhead(args.tasks)}
-    times: dict[str, list[float]] = {"in_process_s": [], "local_cluster_s": []}
-    for _ in range(args.repeats):
-        times["in_process_s"].append(gap_seconds(IN_PROCESS))
-        times["local_cluster_s"].append(gap_seconds(None))
-    figures["cooling_gap"] = {**times, "speed_up": sum(times["in_process_s"]) / sum(times["local_cluster_s"])}
-    (Path(__file__).parent / "cluster.json").write_text(json.dumps(figures, indent=2))
+    path = Path(__file__).parent / "cluster.json"
+    figures = json.loads(path.read_text()) if path.is_file() else {}
+    if "overhead" in args.parts:
+        figures["overhead"] = task_overhead(args.tasks)
+    for part, key, run in (("gap", "cooling_gap", gap_seconds), ("sbc", "sbc_one_chain", sbc_seconds)):
+        if part in args.parts:
+            times: dict[str, list[float]] = {"in_process_s": [], "local_cluster_s": []}
+            for _ in range(args.repeats):  # alternated: both see the same load
+                times["in_process_s"].append(run(IN_PROCESS))
+                times["local_cluster_s"].append(run(None))
+            figures[key] = {**times, "speed_up": sum(times["in_process_s"]) / sum(times["local_cluster_s"])}
+    path.write_text(json.dumps(figures, indent=2))
     o, g = figures["overhead"], figures["cooling_gap"]
     print(f"local cluster of {o['workers']} workers: start {o['start_s']:.1f} s, stop {o['stop_s']:.1f} s; "
           f"{o['per_task_ms']:.1f} ms per task (in-process {o['per_task_in_process_ms']:.3f} ms)")
     print(f"cooling gap: in-process {g['in_process_s']} s, local cluster {g['local_cluster_s']} s; "
           f"speed-up {g['speed_up']:.2f}")
+    b = figures["sbc_one_chain"]
+    print(f"SBC, one chain per fit: in-process {b['in_process_s']} s, local cluster {b['local_cluster_s']} s; "
+          f"speed-up {b['speed_up']:.2f}")
 
 
 if __name__ == "__main__":

@@ -1,13 +1,17 @@
 """Simulation-based calibration of stancal's program families, one table
 row each: S simulations, L draws per fit, each parameter's p-value, wall
-time (one process; issue 16 puts these on Dask).
+time on the local Dask cluster (or --scheduler).
 
     python benchmarks/sbc_families.py [--family koh koh_none] [--sims 200]
 
 Writes benchmarks/sbc.json (merged with earlier rows) and prints the table.
-Families so far, all on the cooling design (24 points; the shipped runs
-for the emulator families): koh with a GP, no, orthogonal or scaled
-discrepancy; modular; koh_emulator.
+The Gaussian families run on the cooling design (24 points; the shipped
+runs for the emulator families): koh with a GP, no, orthogonal or scaled
+discrepancy; modular; koh_emulator. The latent families (koh_latent) run on
+their test designs: Poisson counts (the detector, 35 points), binomial
+successes (the decay survival, 16 points), censored concentrations (the
+detection-limit lab, every third of its 90 points, censored by the lab's
+two limits) and a functional theta(x) (the beam's E(temperature), 45 points).
 """
 
 from __future__ import annotations
@@ -19,14 +23,44 @@ import time
 import warnings
 from pathlib import Path
 
+import numpy as np
+
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tests"))
 
+import pandas as pd  # noqa: E402
 from conftest import COOLING, cooling_data  # noqa: E402
+from test_latent import BEAM, CENSORED, COUNTS, beam_data, censored_data, decay, exact_counts  # noqa: E402
+
+import stancal  # noqa: E402
 from stancal.sbc import simulation_based_calibration  # noqa: E402
 
 SIMULATOR = COOLING / "simulator.stan"
+
+
+def binomial_design() -> stancal.CalibrationData:
+    t = np.linspace(0.5, 14, 16)
+    physical = pd.DataFrame({"t": t, "c0": 0.9, "n": 30, "alive": 0})
+    return stancal.CalibrationData(physical, ["t", "c0"], "alive", {"k": (0.01, 0.5)},
+                                   likelihood="binomial", trials="n")
+
+
+def censored_design() -> stancal.CalibrationData:
+    return censored_data(pd.read_csv(CENSORED / "physical.csv").iloc[::3].reset_index(drop=True))
+
+
+DESIGNS = {"counts": lambda: exact_counts("poisson", seed=1), "binomial": binomial_design,
+           "censored": censored_design, "beam": beam_data}
+LATENT = {
+    "koh_latent_poisson": ("counts", dict(simulator=COUNTS / "simulator.stan", method="koh", discrepancy="gp")),
+    "koh_latent_binomial": ("binomial", dict(simulator=CENSORED / "simulator.stan", method="koh",
+                                             discrepancy="gp")),
+    "koh_latent_censored": ("censored", dict(simulator=CENSORED / "simulator.stan", method="koh",
+                                             discrepancy="none")),
+    "koh_latent_functional": ("beam", dict(simulator=BEAM / "simulator.stan", method="koh", discrepancy="none",
+                                           functional=["E"], functional_inputs=["temperature"])),
+}
 FAMILIES = {
     "koh": dict(simulator=SIMULATOR, method="koh", discrepancy="gp"),
     "koh_none": dict(simulator=SIMULATOR, method="koh", discrepancy="none"),
@@ -34,6 +68,7 @@ FAMILIES = {
     "koh_scaled": dict(simulator=SIMULATOR, method="koh", discrepancy="scaled"),
     "modular": dict(method="modular", discrepancy="gp"),
     "koh_emulator": dict(method="koh_emulator", discrepancy="gp"),
+    **{name: options for name, (_, options) in LATENT.items()},
 }
 
 
@@ -42,6 +77,7 @@ def main() -> None:
     parser.add_argument("--family", nargs="+", default=list(FAMILIES), choices=list(FAMILIES))
     parser.add_argument("--sims", type=int, default=200)
     parser.add_argument("--draws-per-fit", type=int, default=100)
+    parser.add_argument("--scheduler", default=None, help="a Dask address; default: a local cluster")
     args = parser.parse_args()
     path = Path(__file__).parent / "sbc.json"
     rows = json.loads(path.read_text()) if path.is_file() else {}
@@ -49,7 +85,8 @@ def main() -> None:
         started = time.perf_counter()
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            result = simulation_based_calibration(cooling_data(seed=7), simulations=args.sims,
+            data = DESIGNS[LATENT[family][0]]() if family in LATENT else cooling_data(seed=7)
+            result = simulation_based_calibration(data, simulations=args.sims, scheduler=args.scheduler,
                                                   draws_per_fit=args.draws_per_fit, seed=1, warmup=300,
                                                   **FAMILIES[family])
         rows[family] = {"simulations": args.sims, "draws_per_fit": args.draws_per_fit,

@@ -290,6 +290,7 @@ def _sample(stan_backend, flat: FlatProgram, data: CalibrationData, chosen: Meth
         prior_tree = build_datatree(prior_sample, data, fit_points, parameter_names, options)
         tree["prior"] = prior_tree["posterior"]
         tree["prior_predictive"] = prior_tree["posterior_predictive"]
+        tree["prior_stan_parameters"] = prior_tree["stan_parameters"]  # the program's own, for SBC
     return sample, stan_json, tree, parameter_names
 
 

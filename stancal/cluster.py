@@ -4,7 +4,9 @@ A command that makes many fits (a gap diagnosis, compare, SBC) hands them
 to a FitRunner as FitTasks. The runner sends them to
 
 - by default, a local cluster that it starts and stops: one single-threaded
-  worker process per core (each fit runs its chains in processes of its own);
+  worker process per core (each fit runs its chains in processes of its own),
+  started as fresh processes (distributed's SubprocessCluster), so that a
+  user's script needs no ``if __name__ == "__main__"`` guard;
 - ``scheduler="tcp://host:8786"``: an existing cluster (``dask scheduler`` and
   ``dask worker``, or dask-jobqueue on SLURM/PBS);
 - ``scheduler="in-process"``: this process, one fit after another, no Dask.
@@ -103,11 +105,12 @@ def _prepare_worker(programs: list[FlatProgram], backend: str | None, dask_worke
     return problem
 
 
-def _private_cache_plugin():
+def _private_cache_plugin(scratch: Path | None):
     """A worker plugin that gives each worker process a httpstan cache of
-    its own (pystan_compile.use_private_httpstan_cache), and removes it when
-    the worker stops. Registered with the scheduler, so that workers that
-    join later (a restarted one) get it too."""
+    its own (pystan_compile.use_private_httpstan_cache), under ``scratch``
+    (else the temporary folder), and removes it when the worker stops.
+    Registered with the scheduler, so that workers that join later (a
+    restarted one) get it too."""
     from distributed import WorkerPlugin
 
     class PrivateHttpstanCache(WorkerPlugin):
@@ -116,7 +119,7 @@ def _private_cache_plugin():
         def setup(self, worker) -> None:
             from .backends.pystan_compile import use_private_httpstan_cache
 
-            self.folder = Path(tempfile.mkdtemp(prefix="stancal-httpstan-"))
+            self.folder = Path(tempfile.mkdtemp(prefix="stancal-httpstan-", dir=scratch))
             use_private_httpstan_cache(self.folder)
 
         def teardown(self, worker) -> None:
@@ -167,24 +170,29 @@ class FitRunner:
         self.progress = _Progress(progress)
         self.client = None
         self._cluster = None
-        self._prepared: set[str] = set()
+        self._scratch: Path | None = None
 
     def __enter__(self) -> FitRunner:
         if self.scheduler == IN_PROCESS:
             return self
-        import dask
-        from distributed import Client, LocalCluster
+        from distributed import Client
 
         started = time.perf_counter()
         if self.scheduler is None:
-            # workers that may start processes: a fit samples its chains in processes of its own
-            with dask.config.set({"distributed.worker.daemon": False}):
-                self._cluster = LocalCluster(n_workers=self.workers, threads_per_worker=1, processes=True,
-                                             memory_limit=0, dashboard_address=":0")
+            # workers as fresh `dask spec` processes, not multiprocessing children: these never
+            # re-run the user's script (no __main__ guard needed), and a plain Worker (no nanny)
+            # is not daemonic, so a fit can start its chains' processes
+            from distributed.deploy.subprocess import SubprocessCluster
+
+            self._scratch = Path(tempfile.mkdtemp(prefix="stancal-cluster-"))
+            self._cluster = SubprocessCluster(n_workers=self.workers, threads_per_worker=1,
+                                              worker_class="distributed.Worker", dashboard_address=":0",
+                                              worker_kwargs={"memory_limit": 0})
             self.client = Client(self._cluster)
+            self.client.wait_for_workers(self.workers)
         else:
             self.client = Client(self.scheduler, timeout="30s")
-        self.client.register_plugin(_private_cache_plugin())
+        self.client.register_plugin(_private_cache_plugin(self._scratch))
         logger.info("Dask: %d workers (%s), dashboard %s; started in %.1f s",
                     len(self.client.scheduler_info()["workers"]),
                     "local cluster" if self._cluster else self.scheduler,
@@ -195,7 +203,8 @@ class FitRunner:
         if self.client is not None:
             self.client.close()
         if self._cluster is not None:
-            self._cluster.close()
+            self._cluster.close()  # kills the workers: their private caches go with the scratch folder
+            shutil.rmtree(self._scratch, ignore_errors=True)
 
     def prepare(self, programs: list[FlatProgram], backend: str | None = None) -> None:
         """Compile the programs here (stanc's errors point at the user's

@@ -283,9 +283,27 @@ class CalibrationData:
         """The same problem with other outputs (simulated ones) and this
         problem's scaling kept: the programs' priors live on the
         standardised scale, so a fit of simulated data must standardise as
-        the simulation did."""
+        the simulation did. Censored data censor the new values as the lab
+        did: a value inside one of the censoring ranges this data has (each
+        distinct lower, upper pair) is reported as that range."""
         source = self.source.copy()
-        source[self.output] = np.asarray(y)
+        y = np.asarray(y)
+        source[self.output] = y
+        observations = self.observations
+        if observations.any_censored:
+            lower, upper = self.observation_columns["lower"], self.observation_columns["upper"]
+            censored = ~observations.observed
+            ranges = sorted(set(zip(observations.lower[censored], observations.upper[censored])))
+            for column in (lower, upper):
+                if column:
+                    source[column] = np.nan
+            for low, high in ranges:
+                inside = (y >= low) & (y <= high)
+                source.loc[inside, self.output] = np.nan
+                if lower and np.isfinite(low):
+                    source.loc[inside, lower] = low
+                if upper and np.isfinite(high):
+                    source.loc[inside, upper] = high
         other = self._rebuilt(source)
         other.scaling = self.scaling
         return other

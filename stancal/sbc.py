@@ -2,32 +2,41 @@
 al. 2018; Modrák et al. 2023): draw parameters from the program's prior,
 simulate data at the problem's design from the program itself, fit each
 simulated data set, and test that the rank of every true value among its
-posterior draws is uniform (stancal.sbc_ranks).
+posterior draws is uniform (stancal.sbc_ranks). The log-likelihood, a
+function of the parameters and the data, is ranked too (Modrák et al.
+2023): it reacts to a wrong likelihood that leaves each parameter's
+marginal ranks nearly uniform.
 
 The prior and the prior predictive come from the same program run with
 ``prior_only = 1`` (its y_rep), thinned so the draws are nearly
-independent. Every fit keeps the original data's standardisation: the
-programs' priors live on the standardised scale, so re-standardising each
-simulated data set would fit a different prior from the one simulated.
+independent; censored outputs are censored as the data were
+(CalibrationData.with_output). Every fit keeps the original data's
+standardisation: the programs' priors live on the standardised scale, so
+re-standardising each simulated data set would fit a different prior from
+the one simulated.
 """
 
 from __future__ import annotations
 
 import json
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from .backends import get_backend
 from .calibrate import calibrate
 from .cluster import FitFailure, FitRunner, FitTask, fit_runner
 from .data import CalibrationData
+from .result import CalibrationResult
 from .sbc_ranks import Uniformity, fractional_ranks, rank_of, uniformity
 from .seeds import command_seed, fit_seed
+from .standata import build_stan_data, to_stan_json
 
 PRIOR_THINNING = 5  # prior draws kept: every 5th of one long chain
+LOG_LIKELIHOOD = "log_likelihood"  # ranked beside the parameters (Modrák et al. 2023)
 
 
 @dataclass
@@ -72,14 +81,37 @@ def _thinned(values: np.ndarray, count: int) -> np.ndarray:
     return values[np.linspace(0, len(values) - 1, count).round().astype(int)]
 
 
-def simulated_ranks(data: CalibrationData, truth: dict[str, float], draws_per_fit: int,
+def _log_likelihood(fit: CalibrationResult, parameters: dict[str, np.ndarray] | None = None,
+                    functional_parametrization: str | None = None) -> np.ndarray:
+    """The fit program's log-likelihood (its log_lik summed over the
+    observations) on the fit's data: at every posterior draw, or at the
+    program's own ``parameters`` (one draw, in ``functional_parametrization``
+    if given), through its generated quantities."""
+    if parameters is None:
+        return np.asarray(fit.idata["log_likelihood"]["y"]).reshape(-1, len(fit.data.physical)).sum(1)
+    points = fit.idata["predictions_constant_data"].to_dataset().to_dataframe().reset_index(drop=True)
+    options = replace(fit.options, functional_parametrization=functional_parametrization
+                      or fit.options.functional_parametrization)
+    stan_data = build_stan_data(fit.data, fit.method, options, points,
+                                emulator_hyperparameters=fit.emulator.get("hyperparameters"))
+    draws = get_backend(fit.backend).generate_quantities(
+        fit.program, to_stan_json(stan_data), {k: np.asarray(v)[None, None] for k, v in parameters.items()}, seed=1)
+    return draws["log_lik"].reshape(1, -1).sum(1)
+
+
+def simulated_ranks(data: CalibrationData, truth: dict[str, float], truth_parameters: dict[str, np.ndarray],
+                    draws_per_fit: int, prior_parametrization: str | None = None,
                     **calibrate_options: Any) -> dict[str, int]:
     """Fit one simulated data set and rank each true value among L evenly
-    thinned posterior draws (run where the fit runs: only ranks travel back)."""
+    thinned posterior draws, and the log-likelihood at the truth among its
+    values at those draws (run where the fit runs: only ranks travel back)."""
     fit = calibrate(data, **calibrate_options)
     posterior = _scalars(fit.idata["posterior"].to_dataset())
-    return {name: rank_of(value, _thinned(posterior[name], draws_per_fit))
-            for name, value in truth.items() if name in posterior}
+    ranks = {name: rank_of(value, _thinned(posterior[name], draws_per_fit))
+             for name, value in truth.items() if name in posterior}
+    ranks[LOG_LIKELIHOOD] = rank_of(_log_likelihood(fit, truth_parameters, prior_parametrization)[0],
+                                    _thinned(_log_likelihood(fit), draws_per_fit))
+    return ranks
 
 
 def simulation_based_calibration(
@@ -103,20 +135,26 @@ def simulation_based_calibration(
     ``draws_per_fit`` draws, evenly thinned from 2 x draws_per_fit per chain.
     The fits run side by side on Dask (``scheduler``, see stancal.cluster).
     ``calibrate_options`` (chains, warmup, discrepancy, ...) go to every fit."""
-    if data.latent_reason == "censored outputs":
-        raise ValueError("SBC simulates exact outputs; censored data have no simulated censoring here")
     seed = command_seed(seed)
     started = time.perf_counter()
     chains = calibrate_options.pop("chains", 2)
     warmup = calibrate_options.pop("warmup", 300)
     per_chain = -(-2 * draws_per_fit // chains)
+    # without data a hierarchical theta(x) is a funnel that the centred form samples badly
+    prior_parametrization = "non_centred" if calibrate_options.get("functional") else None
+    prior_options = {**calibrate_options, **({"functional_parametrization": prior_parametrization}
+                                             if prior_parametrization else {})}
     prior_fit = calibrate(data, simulator=simulator, method=method, prior=True, chains=1, warmup=warmup,
-                          draws=PRIOR_THINNING * simulations, seed=seed, **calibrate_options)
+                          draws=PRIOR_THINNING * simulations, seed=seed, **prior_options)
     prior = {k: _thinned(v, simulations) for k, v in _scalars(prior_fit.idata["prior"].to_dataset()).items()}
+    prior_parameters = {k: _thinned(np.asarray(v).reshape(v.shape[0] * v.shape[1], *v.shape[2:]), simulations)
+                        for k, v in prior_fit.idata["prior_stan_parameters"].data_vars.items()}
     replicated = np.asarray(prior_fit.idata["prior_predictive"]["y"]).reshape(-1, len(data.physical))
     replicated = _thinned(replicated, simulations)
     tasks = [FitTask(f"simulation {s}", simulated_ranks, dict(
         data=data.with_output(replicated[s]), truth={name: float(v[s]) for name, v in prior.items()},
+        truth_parameters={name: v[s] for name, v in prior_parameters.items()},
+        prior_parametrization=prior_parametrization,
         draws_per_fit=draws_per_fit, simulator=simulator, method=method, program=program, chains=chains,
         warmup=warmup, draws=per_chain, seed=fit_seed(seed, f"simulation {s}"),
         out_dir=None if out_dir is None else Path(out_dir) / "fits" / f"{s:04d}", **calibrate_options))

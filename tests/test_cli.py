@@ -81,3 +81,21 @@ def test_stan_error_points_at_the_users_file_and_line(tmp_path):
     message = done.stderr.strip().splitlines()[-1]
     assert f"line 3 of {tmp_path / 'broken.stan'}" in message
     assert "thta" in message
+
+
+def test_sbc_command_writes_ranks_and_verdicts(tmp_path):
+    """`stancal sbc` end to end on a few simulations: a rank per simulation
+    for every parameter and for the log-likelihood, an ECDF figure, and a
+    verdict line per quantity."""
+    out = tmp_path / "sbc"
+    done = run("sbc", COOLING / "config.toml", "--out", out, "--sims", 6, "--draws-per-fit", 20, "--chains", 1,
+               "--warmup", 100, "--seed", 2, "--scheduler", "in-process")
+    assert done.returncode == 0, done.stderr[-3000:]
+    summary = json.loads((out / "sbc.json").read_text())
+    assert summary["simulations"] == 6 and summary["draws_per_fit"] == 20 and summary["failed_simulations"] == []
+    parameters = summary["parameters"]
+    assert {"theta[k]", "noise_sd", "delta_sd", "log_likelihood"} <= set(parameters)
+    for name, row in parameters.items():
+        assert len(row["ranks"]) == 6 and all(0 <= r <= 20 for r in row["ranks"]), name
+        assert 0 <= row["p_value"] <= 1 and row["verdict"].startswith(name) and row["verdict"] in done.stdout
+    assert (out / "ecdf.png").is_file() and len(list((out / "fits").iterdir())) == 6

@@ -44,7 +44,8 @@ def test_fit_seeds_depend_on_the_command_seed_and_the_fit_only():
 
 
 @pytest.mark.parametrize("scheduler", [IN_PROCESS, None], ids=["in-process", "local-cluster"])
-def test_a_failed_fit_is_retried_once_then_named(scheduler, tmp_path):
+def test_a_failed_fit_is_retried_once_then_named(scheduler, tmp_path, monkeypatch):
+    monkeypatch.setenv("PYTHONPATH", str(Path(__file__).parent))  # the workers import flaky from here
     tasks = [FitTask("fit a", flaky, {"counter": str(tmp_path / "a"), "fail_times": 1}),
              FitTask("fit b", flaky, {"counter": str(tmp_path / "b"), "fail_times": 5}),
              FitTask("fit c", flaky, {"counter": str(tmp_path / "c"), "fail_times": 0})]

@@ -47,7 +47,8 @@ def test_the_simultaneous_band_holds_uniform_ecdfs_at_its_level():
 def test_sbc_passes_koh_and_flags_a_likelihood_with_the_wrong_noise_scale(tmp_path):
     """koh without a discrepancy on the cooling design, 60 simulations: no
     parameter is rejected. The same simulations fitted by a copy of koh.stan
-    whose likelihood doubles the noise sd are flagged (noise_sd's ranks)."""
+    whose likelihood doubles the noise sd are flagged (noise_sd's ranks and
+    the log-likelihood's)."""
     from stancal.sbc import simulation_based_calibration
     from stancal.stan_source import shipped_models_dir
 
@@ -62,5 +63,48 @@ def test_sbc_passes_koh_and_flags_a_likelihood_with_the_wrong_noise_scale(tmp_pa
     wrong.write_text(source.replace("resid ~ normal(0, noise_sd);", "resid ~ normal(0, 2 * noise_sd);"))
     bad = simulation_based_calibration(data, program=wrong, **settings)
     print({n: round(t.p_value, 4) for n, t in bad.tests.items()})
-    assert bad.tests["noise_sd"].rejected
+    assert bad.tests["noise_sd"].rejected and bad.tests["log_likelihood"].rejected
     assert (tmp_path / "good" / "sbc.json").is_file() and (tmp_path / "good" / "ecdf.png").is_file()
+
+
+def test_the_log_likelihood_at_given_parameters_matches_numpy():
+    """SBC ranks the log-likelihood at the true parameters among its values
+    at the posterior draws. At one posterior draw's own Stan parameters it
+    must equal the sampler's log_lik there, and, for koh without a
+    discrepancy, the normal density of the residuals (original units)."""
+    from make_data import newton
+    from scipy.stats import norm
+
+    import stancal
+    from stancal.sbc import _log_likelihood
+
+    data = cooling_data(seed=7)
+    fit = stancal.calibrate(data, simulator=COOLING / "simulator.stan", method="koh", discrepancy="none",
+                            chains=1, warmup=150, draws=20, seed=2)
+    draw = 7
+    parameters = {k: np.asarray(v)[0, draw] for k, v in fit.idata["stan_parameters"].data_vars.items()}
+    at_truth = _log_likelihood(fit, parameters)[0]
+    assert at_truth == pytest.approx(_log_likelihood(fit)[draw], rel=1e-10)
+    k = float(np.asarray(fit.idata["posterior"]["theta"])[0, draw, 0])
+    sd = float(np.asarray(fit.idata["posterior"]["noise_sd"])[0, draw])
+    physical = data.physical
+    residual = physical["temperature"] - newton(physical["t"], physical["T0"], k)
+    assert at_truth == pytest.approx(norm.logpdf(residual, 0, sd).sum(), rel=1e-8)
+
+
+def test_simulated_outputs_are_censored_as_the_lab_censored():
+    """A detection limit (below 1: left-censored) and a quantification limit
+    ([1, 1.5]: interval) in the data censor simulated values the same way."""
+    import pandas as pd
+
+    import stancal
+
+    frame = pd.DataFrame({"t": np.arange(5.0), "y": [np.nan, np.nan, 2.0, 3.0, 4.0],
+                          "lo": [np.nan, 1.0, np.nan, np.nan, np.nan], "hi": [1.0, 1.5, np.nan, np.nan, np.nan]})
+    data = stancal.CalibrationData(frame, ["t"], "y", {"k": (0.0, 1.0)}, lower="lo", upper="hi")
+    simulated = data.with_output(np.array([2.5, 0.4, 1.2, 0.9, 3.0]))
+    observations = simulated.observations
+    np.testing.assert_array_equal(observations.observed, [True, False, False, False, True])
+    np.testing.assert_array_equal(observations.lower[1:4], [-np.inf, 1.0, -np.inf])
+    np.testing.assert_array_equal(observations.upper[1:4], [1.0, 1.5, 1.0])
+    assert simulated.scaling == data.scaling
