@@ -31,7 +31,7 @@ sys.path.insert(0, str(ROOT / "tests"))
 
 import pandas as pd  # noqa: E402
 from conftest import COOLING, cooling_data  # noqa: E402
-from test_latent import BEAM, CENSORED, COUNTS, beam_data, censored_data, decay, exact_counts  # noqa: E402
+from test_latent import BEAM, CENSORED, COUNTS, beam_data, censored_data, exact_counts  # noqa: E402
 
 import stancal  # noqa: E402
 from stancal.sbc import simulation_based_calibration  # noqa: E402

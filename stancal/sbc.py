@@ -99,6 +99,17 @@ def _log_likelihood(fit: CalibrationResult, parameters: dict[str, np.ndarray] | 
     return draws["log_lik"].reshape(1, -1).sum(1)
 
 
+def functional_parametrizations(calibrate_options: dict[str, Any]) -> tuple[str | None, str | None]:
+    """How a functional theta(x)'s GP is sampled for the prior and for the
+    fits (None: no functional theta). Without data the hierarchical GP is a
+    funnel that the centred form samples badly, and data drawn from the
+    prior seldom pin theta(x), so both are non-centred unless the caller
+    asks for another form of the fits."""
+    if not calibrate_options.get("functional"):
+        return None, None
+    return "non_centred", calibrate_options.get("functional_parametrization", "non_centred")
+
+
 def simulated_ranks(data: CalibrationData, truth: dict[str, float], truth_parameters: dict[str, np.ndarray],
                     draws_per_fit: int, prior_parametrization: str | None = None,
                     **calibrate_options: Any) -> dict[str, int]:
@@ -140,8 +151,9 @@ def simulation_based_calibration(
     chains = calibrate_options.pop("chains", 2)
     warmup = calibrate_options.pop("warmup", 300)
     per_chain = -(-2 * draws_per_fit // chains)
-    # without data a hierarchical theta(x) is a funnel that the centred form samples badly
-    prior_parametrization = "non_centred" if calibrate_options.get("functional") else None
+    prior_parametrization, fit_parametrization = functional_parametrizations(calibrate_options)
+    if fit_parametrization:
+        calibrate_options["functional_parametrization"] = fit_parametrization
     prior_options = {**calibrate_options, **({"functional_parametrization": prior_parametrization}
                                              if prior_parametrization else {})}
     prior_fit = calibrate(data, simulator=simulator, method=method, prior=True, chains=1, warmup=warmup,

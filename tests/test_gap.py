@@ -6,9 +6,6 @@ real effect is a multiplicative variant; decoys include a nearly constant
 air pressure)."""
 
 import importlib.util
-import json
-import subprocess
-import sys
 import warnings
 
 import numpy as np
