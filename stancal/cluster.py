@@ -125,7 +125,7 @@ def _private_cache_plugin(scratch: Path | None):
         def teardown(self, worker) -> None:
             import httpstan.services_stub
 
-            # its sampling processes would keep the worker from exiting for the nanny's 4 s grace
+            # its sampling processes would otherwise hold the worker's exit back
             httpstan.services_stub.executor.shutdown(wait=False, cancel_futures=True)
             shutil.rmtree(self.folder, ignore_errors=True)
 

@@ -346,8 +346,7 @@ def diagnose_gap(
         if failure is not None:
             _record_failure(c, failure, failed)
         else:
-            kept.append((c, fit, rescored(score, data_for(c), label_tests, results, kfold=kfold is not None)
-                         if label_tests else score))
+            kept.append((c, fit, rescored(score, data_for(c), label_tests, results, kfold=kfold is not None)))
     labels, fits, scores = (list(column) for column in zip(*kept))
     clock.lap("refits")
     location = locate_gap(fits[0], seed=seed, along=tuple(data.output_index) if vector else ())

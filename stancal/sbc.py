@@ -81,14 +81,17 @@ def _thinned(values: np.ndarray, count: int) -> np.ndarray:
     return values[np.linspace(0, len(values) - 1, count).round().astype(int)]
 
 
-def _log_likelihood(fit: CalibrationResult, parameters: dict[str, np.ndarray] | None = None,
-                    functional_parametrization: str | None = None) -> np.ndarray:
+def _log_likelihood_draws(fit: CalibrationResult) -> np.ndarray:
     """The fit program's log-likelihood (its log_lik summed over the
-    observations) on the fit's data: at every posterior draw, or at the
-    program's own ``parameters`` (one draw, in ``functional_parametrization``
-    if given), through its generated quantities."""
-    if parameters is None:
-        return np.asarray(fit.idata["log_likelihood"]["y"]).reshape(-1, len(fit.data.physical)).sum(1)
+    observations) at every posterior draw."""
+    return np.asarray(fit.idata["log_likelihood"]["y"]).reshape(-1, len(fit.data.physical)).sum(1)
+
+
+def _log_likelihood_at(fit: CalibrationResult, parameters: dict[str, np.ndarray],
+                       functional_parametrization: str | None = None) -> float:
+    """The same log-likelihood on the fit's data at the program's own
+    ``parameters`` (one draw, in ``functional_parametrization`` if given),
+    through its generated quantities."""
     points = fit.idata["predictions_constant_data"].to_dataset().to_dataframe().reset_index(drop=True)
     options = replace(fit.options, functional_parametrization=functional_parametrization
                       or fit.options.functional_parametrization)
@@ -96,7 +99,7 @@ def _log_likelihood(fit: CalibrationResult, parameters: dict[str, np.ndarray] | 
                                 emulator_hyperparameters=fit.emulator.get("hyperparameters"))
     draws = get_backend(fit.backend).generate_quantities(
         fit.program, to_stan_json(stan_data), {k: np.asarray(v)[None, None] for k, v in parameters.items()}, seed=1)
-    return draws["log_lik"].reshape(1, -1).sum(1)
+    return float(draws["log_lik"].sum())
 
 
 def functional_parametrizations(calibrate_options: dict[str, Any]) -> tuple[str | None, str | None]:
@@ -120,8 +123,8 @@ def simulated_ranks(data: CalibrationData, truth: dict[str, float], truth_parame
     posterior = _scalars(fit.idata["posterior"].to_dataset())
     ranks = {name: rank_of(value, _thinned(posterior[name], draws_per_fit))
              for name, value in truth.items() if name in posterior}
-    ranks[LOG_LIKELIHOOD] = rank_of(_log_likelihood(fit, truth_parameters, prior_parametrization)[0],
-                                    _thinned(_log_likelihood(fit), draws_per_fit))
+    ranks[LOG_LIKELIHOOD] = rank_of(_log_likelihood_at(fit, truth_parameters, prior_parametrization),
+                                    _thinned(_log_likelihood_draws(fit), draws_per_fit))
     return ranks
 
 
@@ -152,10 +155,10 @@ def simulation_based_calibration(
     warmup = calibrate_options.pop("warmup", 300)
     per_chain = -(-2 * draws_per_fit // chains)
     prior_parametrization, fit_parametrization = functional_parametrizations(calibrate_options)
+    prior_options = dict(calibrate_options)
     if fit_parametrization:
         calibrate_options["functional_parametrization"] = fit_parametrization
-    prior_options = {**calibrate_options, **({"functional_parametrization": prior_parametrization}
-                                             if prior_parametrization else {})}
+        prior_options["functional_parametrization"] = prior_parametrization
     prior_fit = calibrate(data, simulator=simulator, method=method, prior=True, chains=1, warmup=warmup,
                           draws=PRIOR_THINNING * simulations, seed=seed, **prior_options)
     prior = {k: _thinned(v, simulations) for k, v in _scalars(prior_fit.idata["prior"].to_dataset()).items()}

@@ -76,15 +76,15 @@ def test_the_log_likelihood_at_given_parameters_matches_numpy():
     from scipy.stats import norm
 
     import stancal
-    from stancal.sbc import _log_likelihood
+    from stancal.sbc import _log_likelihood_at, _log_likelihood_draws
 
     data = cooling_data(seed=7)
     fit = stancal.calibrate(data, simulator=COOLING / "simulator.stan", method="koh", discrepancy="none",
                             chains=1, warmup=150, draws=20, seed=2)
     draw = 7
     parameters = {k: np.asarray(v)[0, draw] for k, v in fit.idata["stan_parameters"].data_vars.items()}
-    at_truth = _log_likelihood(fit, parameters)[0]
-    assert at_truth == pytest.approx(_log_likelihood(fit)[draw], rel=1e-10)
+    at_truth = _log_likelihood_at(fit, parameters)
+    assert at_truth == pytest.approx(_log_likelihood_draws(fit)[draw], rel=1e-10)
     k = float(np.asarray(fit.idata["posterior"]["theta"])[0, draw, 0])
     sd = float(np.asarray(fit.idata["posterior"]["noise_sd"])[0, draw])
     physical = data.physical
