@@ -28,9 +28,9 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from stancal.cluster import IN_PROCESS, FitRunner, FitTask  # noqa: E402
-from stancal.config import load_config  # noqa: E402
-from stancal.gap import diagnose_gap  # noqa: E402
+from stancal.fitting.cluster import IN_PROCESS, FitRunner, FitTask  # noqa: E402
+from stancal.problem.config import load_config  # noqa: E402
+from stancal.diagnosing.gap import diagnose_gap  # noqa: E402
 
 SAMPLING = dict(chains=2, warmup=400, draws=700, seed=3)
 
@@ -69,7 +69,7 @@ def sbc_seconds(scheduler: str | None, simulations: int = 40) -> float:
     sys.path.insert(0, str(ROOT / "tests"))
     from conftest import cooling_data
 
-    from stancal.sbc import simulation_based_calibration
+    from stancal.diagnosing.sbc import simulation_based_calibration
 
     started = time.perf_counter()
     with warnings.catch_warnings():

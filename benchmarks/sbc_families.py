@@ -34,7 +34,7 @@ from conftest import COOLING, cooling_data  # noqa: E402
 from test_latent import BEAM, CENSORED, COUNTS, beam_data, censored_data, exact_counts  # noqa: E402
 
 import stancal  # noqa: E402
-from stancal.sbc import simulation_based_calibration  # noqa: E402
+from stancal.diagnosing.sbc import simulation_based_calibration  # noqa: E402
 
 SIMULATOR = COOLING / "simulator.stan"
 

@@ -30,10 +30,10 @@ from pathlib import Path
 import numpy as np
 
 import stancal
-from stancal.backends import get_backend
-from stancal.calibrate import choose_method, stan_programs
-from stancal.config import load_config
-from stancal.models import ModelOptions
+from stancal.stan.backends import get_backend
+from stancal.fitting.calibrate import choose_method, stan_programs
+from stancal.problem.config import load_config
+from stancal.stan.registry import ModelOptions
 
 ROOT = Path(__file__).resolve().parent.parent
 EXACT_LIMIT_S = 600.0
@@ -192,7 +192,7 @@ def report(results: dict[str, list[dict]], out: Path) -> None:
 
 
 def plot(results: dict[str, list[dict]], slopes: dict[str, dict], path: Path) -> None:
-    from stancal.plots import finish, pyplot
+    from stancal.reporting.plots import finish, pyplot
 
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(6, 4.2))

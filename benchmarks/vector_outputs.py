@@ -30,8 +30,8 @@ import pandas as pd
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from stancal.vector_calibrate import calibrate_vector  # noqa: E402
-from stancal.vector_data import VectorCalibrationData  # noqa: E402
+from stancal.fitting.vector_calibrate import calibrate_vector  # noqa: E402
+from stancal.problem.vector_data import VectorCalibrationData  # noqa: E402
 
 THETA = {"k": (0.01, 0.1), "Ta": (15.0, 25.0)}
 

@@ -2,18 +2,18 @@
 
 import logging
 
-from .calibrate import calibrate
-from .compare import Comparison, compare_methods, write_comparison
-from .data import CalibrationData, DataError, InputRangeWarning
-from .diagnostics import SamplerWarning
-from .gap import Candidate, CandidateError, GapWarning, diagnose_gap
-from .gap_report import write_gap_report
-from .mean_terms import FormulaError
-from .models import MODELS, Kernel, Method
-from .modes import MultimodalWarning
-from .report import write_calibration
-from .result import CalibrationResult
-from .stan_source import StanProgramError
+from stancal.fitting.calibrate import calibrate
+from stancal.diagnosing.compare import Comparison, compare_methods, write_comparison
+from stancal.problem.data import CalibrationData, DataError, InputRangeWarning
+from stancal.results.diagnostics import SamplerWarning
+from stancal.diagnosing.gap import Candidate, CandidateError, GapWarning, diagnose_gap
+from stancal.reporting.gap_report import write_gap_report
+from stancal.problem.mean_terms import FormulaError
+from stancal.stan.registry import MODELS, Kernel, Method
+from stancal.results.modes import MultimodalWarning
+from stancal.reporting.report import write_calibration
+from stancal.results.result import CalibrationResult
+from stancal.stan.source import StanProgramError
 
 logging.getLogger("stancal").addHandler(logging.NullHandler())
 

@@ -10,13 +10,13 @@ import sys
 import warnings
 from pathlib import Path
 
-from .backends import BACKENDS, StanRuntimeError, get_backend
-from .calibrate import L2, calibrate, choose_method, stan_programs
-from .cluster import IN_PROCESS
-from .compare import METHODS
-from .config import ConfigError, load_config
-from .data import DataError
-from .models import (
+from stancal.stan.backends import BACKENDS, StanRuntimeError, get_backend
+from stancal.fitting.calibrate import L2, calibrate, choose_method, stan_programs
+from stancal.fitting.cluster import IN_PROCESS
+from stancal.diagnosing.compare import METHODS
+from stancal.problem.config import ConfigError, load_config
+from stancal.problem.data import DataError
+from stancal.stan.registry import (
     APPROXIMATIONS,
     DISCREPANCIES,
     EXACT_SIZE_LIMIT,
@@ -24,9 +24,9 @@ from .models import (
     ModelOptions,
     model_spec,
 )
-from .report import write_calibration, write_vector_calibration
-from .stan_source import FlatProgram, StanProgramError
-from .vector_data import VectorCalibrationData
+from stancal.reporting.report import write_calibration, write_vector_calibration
+from stancal.stan.source import FlatProgram, StanProgramError
+from stancal.problem.vector_data import VectorCalibrationData
 
 logger = logging.getLogger("stancal")
 
@@ -85,8 +85,8 @@ def _stancal_warnings(caught) -> list[str]:
 
 
 def run_gap(args: argparse.Namespace) -> dict:
-    from .gap import diagnose_gap
-    from .gap_report import write_gap_report
+    from stancal.diagnosing.gap import diagnose_gap
+    from stancal.reporting.gap_report import write_gap_report
 
     problem = load_config(args.config)
     vector = isinstance(problem.data, VectorCalibrationData)
@@ -143,7 +143,7 @@ def run_calibrate(args: argparse.Namespace) -> dict:
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         if vector:
-            from .vector_calibrate import calibrate_vector
+            from stancal.fitting.vector_calibrate import calibrate_vector
 
             result = calibrate_vector(problem.data, simulator=problem.simulator,
                                       method=args.method or configured_method, **sampler, **model)
@@ -158,7 +158,7 @@ def run_calibrate(args: argparse.Namespace) -> dict:
 
 
 def run_compare(args: argparse.Namespace) -> dict:
-    from .compare import compare_methods, write_comparison
+    from stancal.diagnosing.compare import compare_methods, write_comparison
 
     problem = load_config(args.config)
     _scalar_only(problem, "compare")
@@ -184,7 +184,7 @@ def run_compare(args: argparse.Namespace) -> dict:
 
 
 def run_sbc(args: argparse.Namespace) -> dict:
-    from .sbc import simulation_based_calibration
+    from stancal.diagnosing.sbc import simulation_based_calibration
 
     problem = load_config(args.config)
     _scalar_only(problem, "sbc")
@@ -199,10 +199,10 @@ def run_sbc(args: argparse.Namespace) -> dict:
 def config_programs(problem, all_methods: bool) -> list[FlatProgram]:
     """The programs that calibrate and gap run on a config: its method (or
     every method the problem admits) and its candidates' simulator variants."""
-    from .gap import variant_program
+    from stancal.diagnosing.gap import variant_program
 
     if isinstance(problem.data, VectorCalibrationData):
-        from .vector_calibrate import choose_vector_method, vector_program
+        from stancal.fitting.vector_calibrate import choose_vector_method, vector_program
 
         configured = problem.model.get("method")
         methods = [configured] + (["koh", "modular"] if all_methods else [])

@@ -2,8 +2,8 @@ import time
 
 import pytest
 
-from stancal.backends import get_backend
-from stancal.backends.cmdstanpy_backend import cmdstan_available
+from stancal.stan.backends import get_backend
+from stancal.stan.backends.cmdstanpy_backend import cmdstan_available
 
 needs_cmdstan = pytest.mark.skipif(
     not cmdstan_available(),
@@ -50,8 +50,8 @@ def test_a_cached_build_prints_nothing(koh_fit, capfd):
     stancal shows the user's own once, at compile time (test_stan_source)."""
     import pandas as pd
 
-    from stancal.backends.pystan_backend import PyStanBackend
-    from stancal.standata import build_stan_data, to_stan_json
+    from stancal.stan.backends.pystan_backend import PyStanBackend
+    from stancal.stan.standata import build_stan_data, to_stan_json
 
     point = pd.DataFrame({"t": [10.0], "T0": [70.0]})
     data = to_stan_json(build_stan_data(koh_fit.data, koh_fit.method, koh_fit.options, point))
@@ -68,7 +68,7 @@ def test_draws_written_for_cmdstans_standalone_generated_quantities_read_back(tm
     import cmdstanpy
     import numpy as np
 
-    from stancal.backends.cmdstanpy_backend import write_stan_csv
+    from stancal.stan.backends.cmdstanpy_backend import write_stan_csv
 
     rng = np.random.default_rng(1)
     draws = {"theta_unit": rng.uniform(size=(2, 5, 1)), "noise_sd": rng.uniform(size=(2, 5)),
@@ -85,7 +85,7 @@ def test_the_cmdstanpy_backend_runs_without_pystan():
     import ast
     from pathlib import Path
 
-    from stancal.backends import cmdstanpy_backend
+    from stancal.stan.backends import cmdstanpy_backend
 
     tree = ast.parse(Path(cmdstanpy_backend.__file__).read_text())
     imported = {alias.name for node in ast.walk(tree) if isinstance(node, ast.Import) for alias in node.names}
@@ -100,9 +100,9 @@ def test_programs_compile_side_by_side_quietly_into_the_cache(capfd):
     from the machine's store instead of compiling again."""
     import httpstan.cache
 
-    from stancal.backends.pystan_backend import PyStanBackend
-    from stancal.backends.pystan_compile import _model_name, _stored_module, is_compiled
-    from stancal.stan_source import FlatProgram
+    from stancal.stan.backends.pystan_backend import PyStanBackend
+    from stancal.stan.backends.pystan_compile import _model_name, _stored_module, is_compiled
+    from stancal.stan.source import FlatProgram
 
     programs = [FlatProgram(f"parameters {{ real {name}; }}\nmodel {{ {name} ~ std_normal(); }}\n",
                             (("side_by_side.stan", 1), ("side_by_side.stan", 2)))

@@ -13,9 +13,9 @@ from scipy import optimize
 
 import stancal
 from stancal.cli import main
-from stancal.compare import compare_methods, discrepancy_rms, write_comparison
-from stancal.l2 import project
-from stancal.quadrature import input_box_quadrature
+from stancal.diagnosing.compare import compare_methods, discrepancy_rms, write_comparison
+from stancal.fitting.l2 import project
+from stancal.numerics.quadrature import input_box_quadrature
 
 sys.path.insert(0, str(ROOT / "case_studies" / "tuo_wu"))
 import tuo_wu  # noqa: E402

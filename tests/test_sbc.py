@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from conftest import COOLING, cooling_data
-from stancal.sbc_ranks import fractional_ranks, rank_of, uniformity
+from stancal.diagnosing.sbc_ranks import fractional_ranks, rank_of, uniformity
 
 
 def test_rank_counts_the_draws_below_the_truth():
@@ -49,8 +49,8 @@ def test_sbc_passes_koh_and_flags_a_likelihood_with_the_wrong_noise_scale(tmp_pa
     parameter is rejected. The same simulations fitted by a copy of koh.stan
     whose likelihood doubles the noise sd are flagged (noise_sd's ranks and
     the log-likelihood's)."""
-    from stancal.sbc import simulation_based_calibration
-    from stancal.stan_source import shipped_models_dir
+    from stancal.diagnosing.sbc import simulation_based_calibration
+    from stancal.stan.source import shipped_models_dir
 
     data = cooling_data(seed=7)
     settings = dict(simulator=COOLING / "simulator.stan", method="koh", discrepancy="none", simulations=60,
@@ -76,7 +76,7 @@ def test_the_log_likelihood_at_given_parameters_matches_numpy():
     from scipy.stats import norm
 
     import stancal
-    from stancal.sbc import _log_likelihood_at, _log_likelihood_draws
+    from stancal.diagnosing.sbc import _log_likelihood_at, _log_likelihood_draws
 
     data = cooling_data(seed=7)
     fit = stancal.calibrate(data, simulator=COOLING / "simulator.stan", method="koh", discrepancy="none",
@@ -114,7 +114,7 @@ def test_functional_theta_is_simulated_and_fitted_non_centred_unless_told():
     """Data drawn from the prior seldom pin theta(x): fitted centred, the beam's
     SBC hit the maximum tree depth in most transitions and rejected every
     parameter (S = 200, p < 0.001); fitted non-centred, no divergence."""
-    from stancal.sbc import functional_parametrizations
+    from stancal.diagnosing.sbc import functional_parametrizations
 
     assert functional_parametrizations({}) == (None, None)
     assert functional_parametrizations({"functional": ["E"]}) == ("non_centred", "non_centred")

@@ -13,13 +13,13 @@ import pytest
 from scipy import optimize
 
 import stancal
-from stancal import hsgp
-from stancal import scalable_emulator as scalable
-from stancal.backends import get_backend
-from stancal.calibrate import choose_method, stan_programs
-from stancal.kernels import ard_cross_cov
-from stancal.models import EXACT_SIZE_LIMIT, Method, ModelOptions
-from stancal.standata import build_emulator_data, emulator_run_data, to_stan_json
+from stancal.numerics import hsgp
+from stancal.numerics import scalable_emulator as scalable
+from stancal.stan.backends import get_backend
+from stancal.fitting.calibrate import choose_method, stan_programs
+from stancal.numerics.kernels import ard_cross_cov
+from stancal.stan.registry import EXACT_SIZE_LIMIT, Method, ModelOptions
+from stancal.stan.standata import build_emulator_data, emulator_run_data, to_stan_json
 
 from conftest import ROOT, assert_healthy, fit
 
@@ -263,7 +263,7 @@ def test_hsgp_predictions_carry_the_discrepancy_band(koh_hsgp_fit, sensor_small)
     width = table.delta_q95 - table.delta_q05
     stored_width = np.quantile(stored, 0.95, axis=0) - np.quantile(stored, 0.05, axis=0)
     np.testing.assert_allclose(width, stored_width, rtol=0.25)
-    from stancal.gap_location import locate_gap
+    from stancal.diagnosing.gap_location import locate_gap
     location = locate_gap(koh_hsgp_fit, max_draws=50)
     assert location.importance["t"]["mean"] > 0.5  # the discrepancy is mostly a function of t
 
@@ -323,8 +323,8 @@ def test_gap_diagnosis_runs_on_the_scalable_path(tmp_path):
     candidates, any refits) stays on the scalable path, and it still finds
     a withheld effect of the inputs: a heat loss growing as t (T0 - 55),
     given as a formula candidate beside a decoy column."""
-    from stancal.gap import Candidate, diagnose_gap
-    from stancal.gap_report import write_gap_report
+    from stancal.diagnosing.gap import Candidate, diagnose_gap
+    from stancal.reporting.gap_report import write_gap_report
 
     rng = np.random.default_rng(8)
     cool_downs, readings = 24, 50  # n = 1,200 > EXACT_SIZE_LIMIT

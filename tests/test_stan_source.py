@@ -1,7 +1,7 @@
 import pytest
 
-from stancal.models import MODELS, Kernel
-from stancal.stan_source import StanProgramError, flatten, shipped_models_dir
+from stancal.stan.registry import MODELS, Kernel
+from stancal.stan.source import StanProgramError, flatten, shipped_models_dir
 
 
 def test_every_registered_program_flattens(tmp_path):

@@ -12,7 +12,7 @@ import pytest
 from conftest import ROOT
 from test_vector_outputs import long_experiments
 
-from stancal.vector_data import VectorCalibrationData
+from stancal.problem.vector_data import VectorCalibrationData
 
 CURVES = ROOT / "case_studies" / "cooling_curves"
 WIND = ROOT / "case_studies" / "cooling_wind"
@@ -31,7 +31,7 @@ def test_koh_vector_posterior_matches_quadrature():
     mean within 0.1 sd and its sd within 5 % of a grid quadrature of the
     same density (uniform prior on the box); R-hat <= 1.01. The simulator
     is the draught case study's Newton's law, theta = (k, Ta)."""
-    from stancal.vector_calibrate import calibrate_vector
+    from stancal.fitting.vector_calibrate import calibrate_vector
 
     data = VectorCalibrationData(long_experiments(1), "exp", ["T0"], "T", "t", THETA, noise_sd="sd")
     result = calibrate_vector(data, simulator=WIND / "simulator.stan", discrepancy="none", chains=4,
@@ -64,7 +64,7 @@ def test_the_cli_calibrates_the_cooling_curves_by_koh_and_by_modular(tmp_path):
     by default, modular on request (short runs: the files and fields; the
     statistics are checked above and in the slow coverage study)."""
     from stancal.cli import main
-    from stancal.config import load_config
+    from stancal.problem.config import load_config
 
     config = CURVES / "config.toml"
     problem = load_config(config)
@@ -159,8 +159,8 @@ def test_koh_vector_covers_the_cooling_curves_truth():
     """Proof 1 for koh: the shipped cooling curves (six ragged cool-downs,
     a probe offset each, known noise, a GP discrepancy), 4 x (1000 + 1000):
     the 90 % intervals cover k, Ta and every offset; R-hat <= 1.01."""
-    from stancal.config import load_config
-    from stancal.vector_calibrate import calibrate_vector
+    from stancal.problem.config import load_config
+    from stancal.fitting.vector_calibrate import calibrate_vector
 
     problem = load_config(CURVES / "config.toml")
     result = calibrate_vector(problem.data, simulator=problem.simulator, chains=4, warmup=1000, draws=1000,
@@ -195,7 +195,7 @@ def test_vector_gap_from_runs_finds_the_draught_too(tmp_path):
 
 
 def test_prediction_rows_of_an_unknown_experiment_are_named():
-    from stancal.vector_calibrate import VectorOptions, koh_vector_data
+    from stancal.fitting.vector_calibrate import VectorOptions, koh_vector_data
 
     data = VectorCalibrationData(long_experiments(1), "exp", ["T0"], "T", "t", THETA, noise_sd="sd")
     rows = pd.DataFrame({"exp": ["shot0", "nope"], "T0": [70.0, 70.0], "t": [1.0, 2.0]})

@@ -7,9 +7,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from stancal.output_basis import OutputBasis
-from stancal.validation import DataError
-from stancal.vector_data import VectorCalibrationData
+from stancal.numerics.output_basis import OutputBasis
+from stancal.problem.validation import DataError
+from stancal.problem.vector_data import VectorCalibrationData
 
 THETA = {"k": (0.01, 0.1), "Ta": (15.0, 25.0)}
 GRID = np.linspace(0, 60, 31)
@@ -175,7 +175,7 @@ def test_component_emulator_predicts_held_out_curves_within_its_bands():
     (measured 0.9 %), and the truth inside the 90 % band at 80 to 99.5 % of
     the held-out values (measured 90.4 %: the bands are neither too narrow
     nor useless)."""
-    from stancal.vector_calibrate import fit_vector_emulator
+    from stancal.fitting.vector_calibrate import fit_vector_emulator
 
     data = vector_data()
     emulator = fit_vector_emulator(data, seed=1)
@@ -229,7 +229,7 @@ def test_modular_vector_posterior_matches_quadrature(vector_problem):
     mean within 0.15 sd and its sd within 10 % of a grid quadrature of the
     same density, computed in numpy (coarse grid over the box, then finer
     ones about the mode); R-hat <= 1.01."""
-    from stancal.vector_calibrate import VectorOptions, calibrate_vector, modular_vector_data, prediction_rows
+    from stancal.fitting.vector_calibrate import VectorOptions, calibrate_vector, modular_vector_data, prediction_rows
 
     data = vector_problem
     result = calibrate_vector(data, discrepancy="none", chains=4, warmup=1000, draws=1000, seed=3)
@@ -257,7 +257,7 @@ def test_modular_vector_recovers_shared_and_per_experiment_theta_beside_a_discre
     90 % intervals cover k, Ta and every offset, the sampler is healthy,
     and the predictions are curves per experiment along the output index
     whose zeta band holds the readings."""
-    from stancal.vector_calibrate import calibrate_vector
+    from stancal.fitting.vector_calibrate import calibrate_vector
 
     rng = np.random.default_rng(11)
     offsets = rng.uniform(-0.8, 0.8, 5)
@@ -302,9 +302,9 @@ def test_many_runs_condition_the_weights_covariance_on_a_subset_that_only_widens
     prior's."""
     from scipy import linalg
 
-    from stancal.scalable_emulator import _se, run_covariance
-    from stancal.vector_calibrate import fit_vector_emulator
-    from stancal.vector_emulator import VectorEmulator
+    from stancal.numerics.scalable_emulator import _se, run_covariance
+    from stancal.fitting.vector_calibrate import fit_vector_emulator
+    from stancal.numerics.vector_emulator import VectorEmulator
 
     data = vector_data(runs=long_runs(300, 5))
     full = fit_vector_emulator(data, seed=1)
@@ -327,7 +327,7 @@ def test_many_runs_condition_the_weights_covariance_on_a_subset_that_only_widens
 def test_the_posterior_keeps_one_noise_sd_or_one_per_experiment():
     """noise = 'one' is a scalar per draw; 'per_experiment' has the
     experiment dimension, even with a single experiment."""
-    from stancal.vector_calibrate import VectorOptions, _datatree
+    from stancal.fitting.vector_calibrate import VectorOptions, _datatree
 
     data = vector_data(physical=long_experiments(1, experiments=1))
     rows = pd.DataFrame({"exp": "shot0", "t": [1.0, 2.0]})
@@ -348,7 +348,7 @@ def test_joint_vector_emulator_agrees_with_the_quadrature_when_the_runs_pin_it_d
     quadrature of the modular density (stage 1 fixed): means within 0.25 sd,
     sds within 20 %; R-hat <= 1.01, and the hyperparameters are in the
     posterior."""
-    from stancal.vector_calibrate import VectorOptions, calibrate_vector, modular_vector_data, prediction_rows
+    from stancal.fitting.vector_calibrate import VectorOptions, calibrate_vector, modular_vector_data, prediction_rows
 
     data = vector_problem
     result = calibrate_vector(data, method="koh_emulator", discrepancy="none", chains=4, warmup=500, draws=500,

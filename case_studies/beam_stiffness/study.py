@@ -13,8 +13,8 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 import stancal  # noqa: E402
-from stancal.report import write_calibration  # noqa: E402
-from stancal.config import load_config  # noqa: E402
+from stancal.reporting.report import write_calibration  # noqa: E402
+from stancal.problem.config import load_config  # noqa: E402
 
 HERE = Path(__file__).parent
 sys.path.insert(0, str(HERE))

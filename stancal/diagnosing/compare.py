@@ -1,0 +1,192 @@
+"""One problem, several identifiable-calibration methods side by side
+(review section 6): KOH, L2 calibration, orthogonal GP and scaled GP."""
+
+from __future__ import annotations
+
+import json
+import time
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from stancal.fitting.calibrate import L2, calibrate, choose_method, require_gaussian
+from stancal.fitting.cluster import FitFailure, FitRunner, FitTask, fit_runner
+from stancal.problem.data import CalibrationData
+from stancal.fitting.l2 import l2_result
+from stancal.stan.registry import HSGP_METHODS, RESTRICTED_DISCREPANCIES, ModelOptions
+from stancal.numerics.quadrature import Quadrature, input_box_quadrature
+from stancal.results.result import CalibrationResult
+from stancal.diagnosing.scoring import psis_score
+from stancal.fitting.seeds import command_seed, fit_seed
+from stancal.results.summaries import band
+
+METHODS = ("koh", "l2", *RESTRICTED_DISCREPANCIES)
+
+
+@dataclass
+class MethodFit:
+    name: str
+    result: CalibrationResult | None
+    seconds: float = 0.0
+    skipped: str | None = None  # why the method could not run on this problem
+
+
+@dataclass
+class Comparison:
+    fits: list[MethodFit]
+    quadrature: Quadrature
+
+    @property
+    def theta_names(self) -> list[str]:
+        return next((f.result.data.theta_names for f in self.fits if f.result is not None), [])
+
+    def table(self) -> pd.DataFrame:
+        """One row per method: theta (median, 90 %), the discrepancy's RMS over
+        the input box ||zeta - f(., theta)||, PSIS-LOO ELPD and held-out RMSE."""
+        return pd.DataFrame([self._row(fit) for fit in self.fits]).set_index("method")
+
+    def _row(self, fit: MethodFit) -> dict[str, Any]:
+        row: dict[str, Any] = {"method": fit.name}
+        if fit.result is None:
+            return {**row, "skipped": fit.skipped}
+        result = fit.result
+        for name, s in result.theta_summary().items():
+            row.update({f"{name}_q50": s["q50"], f"{name}_q05": s["q05"], f"{name}_q95": s["q95"]})
+        size = band(discrepancy_rms(result, self.quadrature))
+        row.update({f"discrepancy_rms_{q}": float(size[q]) for q in ("q05", "q50", "q95")})
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # Pareto k is reported in the table
+            score = psis_score(result)
+        y = result.data.physical[result.data.output].to_numpy()
+        row.update(elpd=score.elpd, elpd_se=score.elpd_se,
+                   loo_rmse=score.holdout_rmse(y),
+                   max_pareto_k=score.max_pareto_k,
+                   divergences=result.diagnostics.divergences if result.diagnostics else None,
+                   max_rhat=result.diagnostics.max_rhat if result.diagnostics else None,
+                   seconds=fit.seconds, skipped=None)
+        return row
+
+
+def discrepancy_rms(result: CalibrationResult, quadrature: Quadrature) -> np.ndarray:
+    """Per draw, sqrt(mean over the input box of (zeta - f(., theta))^2), from
+    the predictions at the quadrature nodes (the fit's last prediction points)."""
+    predictions = result.idata["predictions"]
+    r = len(quadrature.weights)
+    gap = np.asarray(predictions["zeta_new"])[..., -r:] - np.asarray(predictions["f_new"])[..., -r:]
+    return np.sqrt(quadrature.mean_square(gap.reshape(-1, r)))
+
+
+def _method_fit(name: str, **options: Any) -> MethodFit:
+    """One method's fit, timed where it runs."""
+    started = time.perf_counter()
+    return MethodFit(name, calibrate(**options), time.perf_counter() - started)
+
+
+def compare_methods(data: CalibrationData, *, simulator: str | Path | None = None,
+                    methods: tuple[str, ...] = METHODS, seed: int | None = None,
+                    out_dir: str | Path | None = None, scheduler: str | FitRunner | None = None,
+                    **calibrate_options) -> Comparison:
+    """Fit ``data`` with each method (same sampler settings; each fit its
+    own seed), side by side on Dask (``scheduler``, see stancal.fitting.cluster). L2
+    projects the KOH fit's zeta draws, so it adds no sampling when koh is also
+    compared. Methods that cannot run on this problem, or whose fit failed
+    twice, are listed as skipped. ``calibrate_options`` go to every
+    calibrate() call (chains, draws, kernel, ...)."""
+    unknown = set(methods) - set(METHODS)
+    if unknown:
+        raise ValueError(f"unknown methods {sorted(unknown)}; choose from {', '.join(METHODS)}")
+    require_gaussian("the method comparison", data)
+    quadrature = input_box_quadrature(data)
+    seed = command_seed(seed)
+    chosen = choose_method(data, simulator, None,
+                           ModelOptions(approximation=calibrate_options.get("approximation", "auto")))
+    fits: dict[str, MethodFit] = {}
+    tasks: list[FitTask] = []
+    for name in methods:
+        if name in RESTRICTED_DISCREPANCIES and simulator is None:
+            fits[name] = MethodFit(name, None, skipped="needs a simulator written in Stan (method koh)")
+        elif name in RESTRICTED_DISCREPANCIES and chosen in HSGP_METHODS:
+            fits[name] = MethodFit(name, None, skipped=f"needs the dense GP, and this problem is on the scalable "
+                                                       f"path ({chosen}); approximation = 'exact' forces it")
+        elif not (name == L2 and "koh" in methods):  # else L2 projects koh's fit below
+            options = ({"method": str(chosen)} if name == "koh" else {"method": L2} if name == L2
+                       else {"method": "koh", "discrepancy": name})
+            tasks.append(FitTask(name, _method_fit, dict(
+                name=name, data=data, simulator=simulator, seed=fit_seed(seed, name),
+                new_points=quadrature.nodes, out_dir=None if out_dir is None else Path(out_dir) / name,
+                **calibrate_options, **options)))
+    with fit_runner(scheduler) as runner:
+        runner.prepare([], calibrate_options.get("backend"))  # each fit compiles its program once per machine
+        for task, fit in zip(tasks, runner.map(tasks)):
+            fits[task.name] = (MethodFit(task.name, None, skipped=f"the fit failed twice: {fit.error}")
+                               if isinstance(fit, FitFailure) else fit)
+    koh = fits.get("koh")
+    if L2 in methods and "koh" in methods and koh.result is not None:
+        started = time.perf_counter()
+        result = l2_result(koh.result, quadrature, len(quadrature.weights))
+        if out_dir is not None:
+            result.save(Path(out_dir) / L2 / "posterior.nc")
+        fits[L2] = MethodFit(L2, result, koh.seconds + time.perf_counter() - started)
+    elif L2 in methods and "koh" in methods:
+        fits[L2] = MethodFit(L2, None, skipped="projects koh's fit, which failed")
+    return Comparison([fits[name] for name in methods], quadrature)
+
+
+def plot_comparison(comparison: Comparison, path: str | Path | None = None):
+    """theta (median and 90 % interval) and discrepancy size per method."""
+    from stancal.reporting.plots import finish, pyplot
+
+    plt = pyplot()
+    fitted = [f for f in comparison.fits if f.result is not None]
+    names = comparison.theta_names
+    fig, axes = plt.subplots(1, len(names) + 1, figsize=(3.6 * (len(names) + 1), 0.5 * len(fitted) + 2))
+    rows = range(len(fitted))
+    for ax, name in zip(axes, names):
+        for i, fit in enumerate(fitted):
+            s = fit.result.theta_summary()[name]
+            ax.errorbar(s["q50"], i, xerr=[[s["q50"] - s["q05"]], [s["q95"] - s["q50"]]], fmt="o", capsize=3)
+        ax.set_yticks(list(rows), [f.name for f in fitted])
+        ax.set_xlabel(f"{name} (median, 90 %)")
+    ax = axes[-1]
+    for i, fit in enumerate(fitted):
+        size = band(discrepancy_rms(fit.result, comparison.quadrature))
+        q05, q50, q95 = size["q05"], size["q50"], size["q95"]
+        ax.errorbar(q50, i, xerr=[[q50 - q05], [q95 - q50]], fmt="s", capsize=3, color="C3")
+    ax.set_yticks(list(rows), [f.name for f in fitted])
+    ax.set_xlabel("discrepancy RMS over the input box")
+    fig.suptitle("Calibration methods compared")
+    return finish(fig, path)
+
+
+def write_comparison(comparison: Comparison, folder: str | Path) -> dict[str, Any]:
+    """comparison.csv, comparison.json, comparison.png and report.md."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    table = comparison.table()
+    table.to_csv(folder / "comparison.csv")
+    summary = {"theta_names": comparison.theta_names,
+               "methods": json.loads(table.reset_index().to_json(orient="records")),
+               "quadrature_nodes": len(comparison.quadrature.weights)}
+    (folder / "comparison.json").write_text(json.dumps(summary, indent=2))
+    figure = folder / "comparison.png"
+    plot_comparison(comparison, figure)
+    (folder / "report.md").write_text(_report(table, figure))
+    return summary
+
+
+def _report(table: pd.DataFrame, figure: Path) -> str:
+    return "\n".join([
+        "# Calibration methods compared", "",
+        "- **koh**: Kennedy & O'Hagan; theta's target depends on the discrepancy prior (review 6.1).",
+        "- **l2**: each posterior draw of zeta (from the koh fit) projected onto the simulator: "
+        "theta = argmin ||zeta - f(., theta)||_L2 (Tuo & Wu 2015).",
+        "- **orthogonal**: the discrepancy GP orthogonal to df/dtheta (Plumlee 2017): theta targets "
+        "the L2 projection.",
+        "- **scaled**: S-GaSP (Gu & Wang 2018): the discrepancy's mean square is penalised.",
+        "", "The discrepancy RMS is sqrt(mean over the input box of (zeta - f(x, theta))^2). "
+        "ELPD is PSIS-LOO on the exact conditional likelihood; l2 shares koh's predictive model.", "",
+        table.round(4).to_markdown(), "", f"![comparison]({figure.name})", ""])
