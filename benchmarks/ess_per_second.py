@@ -49,13 +49,14 @@ def plain_baseline(data, args: argparse.Namespace) -> dict:
     import xarray as xr
 
     from stancal.stan.backends.pystan_backend import PyStanBackend
-    from stancal.stan.registry import ModelOptions
+    from stancal.stan.options import ModelOptions
     from stancal.stan.source import flatten
+    from stancal.stan.registry import PROGRAMS
     from stancal.stan.standata import build_stan_data, default_new_points, to_stan_json
 
     program = flatten(Path(__file__).with_name("plain_koh_joint.stan"))
     # the same standardised data koh_emulator gets, the variables the plain program declares
-    full = to_stan_json(build_stan_data(data, "koh_emulator", ModelOptions(), default_new_points(data)))
+    full = to_stan_json(build_stan_data(data, PROGRAMS["koh_emulator"].data, ModelOptions(), default_new_points(data)))
     stan_data = {k: full[k] for k in ("N", "M", "D", "Q", "x", "y", "x_sim", "theta_sim", "y_sim")}
     sample = PyStanBackend().sample(program, stan_data, chains=args.chains, warmup=args.warmup,
                                     draws=args.draws, seed=1, inits=None, adapt_delta=0.8, max_treedepth=10)

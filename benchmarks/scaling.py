@@ -31,9 +31,9 @@ import numpy as np
 
 import stancal
 from stancal.stan.backends import get_backend
-from stancal.fitting.calibrate import choose_method, stan_programs
+from stancal.fitting.plan import plan_scalar
 from stancal.problem.config import load_config
-from stancal.stan.registry import ModelOptions
+from stancal.stan.options import ModelOptions
 
 ROOT = Path(__file__).resolve().parent.parent
 EXACT_LIMIT_S = 600.0
@@ -97,7 +97,7 @@ def problem(size: int, seed: int = 0) -> stancal.CalibrationData:
 
 def time_fit(data: stancal.CalibrationData, approximation: str) -> dict:
     options = ModelOptions(approximation=approximation)
-    get_backend(None).compile(stan_programs(choose_method(data, None, "modular", options)))
+    get_backend(None).compile(plan_scalar(data, None, "modular", options).stan_programs())
     with PeakMemory() as memory:
         started = time.perf_counter()
         result = stancal.calibrate(data, method="modular", approximation=approximation, chains=4,

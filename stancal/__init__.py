@@ -9,7 +9,8 @@ from stancal.results.diagnostics import SamplerWarning
 from stancal.diagnosing.gap import Candidate, CandidateError, GapWarning, diagnose_gap
 from stancal.reporting.gap_report import write_gap_report
 from stancal.problem.mean_terms import FormulaError
-from stancal.stan.registry import MODELS, Kernel, Method
+from stancal.problem.codes import Kernel
+from stancal.stan.registry import MODELS, PROGRAMS, Program, register
 from stancal.results.modes import MultimodalWarning
 from stancal.reporting.report import write_calibration
 from stancal.results.result import CalibrationResult
@@ -21,8 +22,8 @@ load_result = CalibrationResult.load
 
 __all__ = [
     "CalibrationData", "CalibrationResult", "Candidate", "CandidateError", "Comparison", "DataError",
-    "FormulaError", "GapWarning", "InputRangeWarning", "Kernel", "MODELS", "Method",
+    "FormulaError", "GapWarning", "InputRangeWarning", "Kernel", "MODELS", "PROGRAMS", "Program",
     "MultimodalWarning", "SamplerWarning", "StanProgramError", "calibrate", "diagnose_gap",
-    "compare_methods", "load_result", "write_calibration", "write_comparison", "write_gap_report",
+    "compare_methods", "load_result", "register", "write_calibration", "write_comparison", "write_gap_report",
 ]
 __version__ = "0.1.0"

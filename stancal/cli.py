@@ -11,19 +11,14 @@ import warnings
 from pathlib import Path
 
 from stancal.stan.backends import BACKENDS, StanRuntimeError, get_backend
-from stancal.fitting.calibrate import L2, calibrate, choose_method, stan_programs
+from stancal.fitting.calibrate import calibrate
+from stancal.fitting.plan import make_plan, model_keywords
 from stancal.fitting.cluster import IN_PROCESS
 from stancal.diagnosing.compare import METHODS
 from stancal.problem.config import ConfigError, load_config
 from stancal.problem.data import DataError
-from stancal.stan.registry import (
-    APPROXIMATIONS,
-    DISCREPANCIES,
-    EXACT_SIZE_LIMIT,
-    Method,
-    ModelOptions,
-    model_spec,
-)
+from stancal.stan.options import APPROXIMATIONS, DISCREPANCIES, EXACT_SIZE_LIMIT
+from stancal.stan.registry import L2, entry_methods, method_names
 from stancal.reporting.report import write_calibration, write_vector_calibration
 from stancal.stan.source import FlatProgram, StanProgramError
 from stancal.problem.vector_data import VectorCalibrationData
@@ -60,7 +55,8 @@ def _parser() -> argparse.ArgumentParser:
                              help="exact (dense GPs), hsgp (scalable) or auto (hsgp above "
                                   f"{EXACT_SIZE_LIMIT} points plus runs)")
     for command in (cal, gap):
-        command.add_argument("--method", choices=[*(m.value for m in Method), *([L2] if command is cal else [])])
+        command.add_argument("--method", choices=list(dict.fromkeys([*method_names("scalar"), *method_names("vector"),
+                                                                      *([L2] if command is cal else [])])))
     cal.add_argument("--adapt-delta", type=float, default=0.9,
                      help="the sampler's target acceptance; raise it (0.95, 0.99) when transitions diverge")
     cal.add_argument("--discrepancy", choices=list(DISCREPANCIES),
@@ -201,37 +197,21 @@ def config_programs(problem, all_methods: bool) -> list[FlatProgram]:
     every method the problem admits) and its candidates' simulator variants."""
     from stancal.diagnosing.gap import variant_program
 
-    if isinstance(problem.data, VectorCalibrationData):
-        from stancal.fitting.vector_calibrate import choose_vector_method, vector_program
-
-        configured = problem.model.get("method")
-        methods = [configured] + (["koh", "modular"] if all_methods else [])
-        programs = []
-        for method in dict.fromkeys(methods):
-            try:
-                chosen = choose_vector_method(problem.data, problem.simulator, method)
-            except ValueError:  # a method this problem cannot run
-                continue
-            programs.append(vector_program(chosen, problem.simulator,
-                                           problem.model.get("program") if method == configured else None))
-        return programs + [variant_program(problem.data, c) for c in problem.candidates if c.kind == "variant"]
-
+    vector = isinstance(problem.data, VectorCalibrationData)
     model = dict(problem.model)
-    configured = model.pop("method", None)
-    options = ModelOptions(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in model.items()
-                              if k in ModelOptions.__dataclass_fields__})
-    methods = [configured]
-    if all_methods:
-        methods += [*([Method.KOH] if problem.simulator else []),
-                    *([Method.KOH_EMULATOR, Method.MODULAR] if problem.data.has_runs else [])]
-    programs = []
-    for method in methods:
+    configured, program = model.pop("method", None), model.pop("program", None)
+    model = {k: tuple(v) if isinstance(v, list) else v for k, v in model_keywords(model, vector).items()}
+    methods = [configured, *(entry_methods("vector" if vector else "scalar") if all_methods else [])]
+    programs, plans = [], []
+    for method in dict.fromkeys(methods):
         try:
-            chosen = choose_method(problem.data, problem.simulator, method, options)
+            plans.append(make_plan(problem.data, problem.simulator, method,
+                                   program if method == configured else None, **model))
         except ValueError:  # a method this problem cannot run
             continue
-        programs += stan_programs(chosen, problem.simulator if model_spec(chosen).needs_simulator else None)
-    return programs + [variant_program(problem.data, c) for c in problem.candidates if c.kind == "variant"]
+        programs += plans[-1].stan_programs()
+    return programs + [variant_program(problem.data, c, plans[0] if plans else None)
+                       for c in problem.candidates if c.kind == "variant"]
 
 
 def run_compile(args: argparse.Namespace) -> dict:

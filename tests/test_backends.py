@@ -36,12 +36,13 @@ def test_cmdstanpy_without_cmdstan_says_so():
 @pytest.mark.cmdstan
 @needs_cmdstan
 def test_cmdstanpy_recovers_theta(exact_cooling_data):
-    from conftest import COOLING, K_TRUE, fit
+    from conftest import COOLING, K_TRUE, assert_healthy, fit
 
     result = fit(exact_cooling_data, simulator=COOLING / "simulator.stan", method="koh",
                  backend="cmdstanpy")
     k = result.theta_summary()["k"]
     assert result.backend == "cmdstanpy"
+    assert_healthy(result)
     assert k["q05"] < K_TRUE < k["q95"]
 
 
@@ -51,10 +52,11 @@ def test_a_cached_build_prints_nothing(koh_fit, capfd):
     import pandas as pd
 
     from stancal.stan.backends.pystan_backend import PyStanBackend
+    from stancal.stan.registry import PROGRAMS
     from stancal.stan.standata import build_stan_data, to_stan_json
 
     point = pd.DataFrame({"t": [10.0], "T0": [70.0]})
-    data = to_stan_json(build_stan_data(koh_fit.data, koh_fit.method, koh_fit.options, point))
+    data = to_stan_json(build_stan_data(koh_fit.data, PROGRAMS[koh_fit.method].data, koh_fit.options, point))
     capfd.readouterr()
     PyStanBackend()._build(koh_fit.program, data, seed=1)
     printed = capfd.readouterr()

@@ -1,6 +1,7 @@
 import pytest
 
-from stancal.stan.registry import MODELS, Kernel
+from stancal.problem.codes import Kernel
+from stancal.stan.registry import MODELS
 from stancal.stan.source import StanProgramError, flatten, shipped_models_dir
 
 
@@ -10,7 +11,7 @@ def test_every_registered_program_flattens(tmp_path):
     for spec in MODELS.values():
         flat = flatten(spec.path, aliases={"simulator.stan": simulator})
         assert "#include" not in flat.code
-        assert ("simulator(matrix X" in flat.code) == spec.needs_simulator
+        assert ("simulator(matrix X" in flat.code) == spec.simulator
 
 
 def test_includes_resolve_next_to_the_file_first(tmp_path):

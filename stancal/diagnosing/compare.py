@@ -13,11 +13,13 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from stancal.fitting.calibrate import L2, calibrate, choose_method, require_gaussian
+from stancal.fitting.calibrate import calibrate, model_options
+from stancal.fitting.plan import Plan, plan_scalar, require_gaussian
 from stancal.fitting.cluster import FitFailure, FitRunner, FitTask, fit_runner
 from stancal.problem.data import CalibrationData
 from stancal.fitting.l2 import l2_result
-from stancal.stan.registry import HSGP_METHODS, RESTRICTED_DISCREPANCIES, ModelOptions
+from stancal.stan.options import RESTRICTED_DISCREPANCIES
+from stancal.stan.registry import L2
 from stancal.numerics.quadrature import Quadrature, input_box_quadrature
 from stancal.results.result import CalibrationResult
 from stancal.diagnosing.scoring import psis_score
@@ -59,7 +61,8 @@ class Comparison:
         size = band(discrepancy_rms(result, self.quadrature))
         row.update({f"discrepancy_rms_{q}": float(size[q]) for q in ("q05", "q50", "q95")})
         with warnings.catch_warnings():
-            warnings.simplefilter("ignore")  # Pareto k is reported in the table
+            # Pareto k is reported in the table (max_pareto_k), so its warning is not repeated
+            warnings.filterwarnings("ignore", message=".*Pareto k.*")
             score = psis_score(result)
         y = result.data.physical[result.data.output].to_numpy()
         row.update(elpd=score.elpd, elpd_se=score.elpd_se,
@@ -86,6 +89,31 @@ def _method_fit(name: str, **options: Any) -> MethodFit:
     return MethodFit(name, calibrate(**options), time.perf_counter() - started)
 
 
+# calibrate()'s keywords that describe the model, not the sampler
+_MODEL_KEYWORDS = ("kernel", "estimate_rho", "mean_formula", "mean_intercept", "scaled_lambda", "functional",
+                   "functional_inputs", "functional_parametrization", "approximation", "basis_functions",
+                   "boundary_factor")
+
+
+def _plans(data: CalibrationData, simulator, methods: tuple[str, ...],
+           model: dict[str, Any]) -> dict[str, Plan | str]:
+    """Each compared method's plan, or why it cannot run on this problem:
+    koh is the problem's default program, the restricted discrepancies are
+    koh with that discrepancy, l2 projects koh's fit (its own fit only when
+    koh is not compared)."""
+    plans: dict[str, Plan | str] = {}
+    for name in methods:
+        if name == L2 and "koh" in methods:
+            continue
+        restricted = name in RESTRICTED_DISCREPANCIES
+        try:
+            plans[name] = plan_scalar(data, simulator, "koh" if restricted else L2 if name == L2 else None,
+                                      model_options(discrepancy=name if restricted else None, **model))
+        except ValueError as err:  # a method this problem cannot run
+            plans[name] = str(err)
+    return plans
+
+
 def compare_methods(data: CalibrationData, *, simulator: str | Path | None = None,
                     methods: tuple[str, ...] = METHODS, seed: int | None = None,
                     out_dir: str | Path | None = None, scheduler: str | FitRunner | None = None,
@@ -102,23 +130,16 @@ def compare_methods(data: CalibrationData, *, simulator: str | Path | None = Non
     require_gaussian("the method comparison", data)
     quadrature = input_box_quadrature(data)
     seed = command_seed(seed)
-    chosen = choose_method(data, simulator, None,
-                           ModelOptions(approximation=calibrate_options.get("approximation", "auto")))
+    model = {k: calibrate_options.pop(k) for k in _MODEL_KEYWORDS if k in calibrate_options}
     fits: dict[str, MethodFit] = {}
     tasks: list[FitTask] = []
-    for name in methods:
-        if name in RESTRICTED_DISCREPANCIES and simulator is None:
-            fits[name] = MethodFit(name, None, skipped="needs a simulator written in Stan (method koh)")
-        elif name in RESTRICTED_DISCREPANCIES and chosen in HSGP_METHODS:
-            fits[name] = MethodFit(name, None, skipped=f"needs the dense GP, and this problem is on the scalable "
-                                                       f"path ({chosen}); approximation = 'exact' forces it")
-        elif not (name == L2 and "koh" in methods):  # else L2 projects koh's fit below
-            options = ({"method": str(chosen)} if name == "koh" else {"method": L2} if name == L2
-                       else {"method": "koh", "discrepancy": name})
-            tasks.append(FitTask(name, _method_fit, dict(
-                name=name, data=data, simulator=simulator, seed=fit_seed(seed, name),
-                new_points=quadrature.nodes, out_dir=None if out_dir is None else Path(out_dir) / name,
-                **calibrate_options, **options)))
+    for name, plan in _plans(data, simulator, methods, model).items():
+        if isinstance(plan, str):
+            fits[name] = MethodFit(name, None, skipped=plan)
+            continue
+        tasks.append(FitTask(name, _method_fit, dict(
+            name=name, data=data, plan=plan, seed=fit_seed(seed, name), new_points=quadrature.nodes,
+            out_dir=None if out_dir is None else Path(out_dir) / name, **calibrate_options)))
     with fit_runner(scheduler) as runner:
         runner.prepare([], calibrate_options.get("backend"))  # each fit compiles its program once per machine
         for task, fit in zip(tasks, runner.map(tasks)):

@@ -33,7 +33,7 @@ import functools
 import logging
 import re
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -41,12 +41,13 @@ import numpy as np
 import pandas as pd
 
 from stancal.stan.backends import get_backend
-from stancal.fitting.calibrate import calibrate, choose_method, stan_programs
+from stancal.fitting.calibrate import calibrate
+from stancal.fitting.plan import Plan, make_plan, model_keywords
 from stancal.fitting.cluster import FitFailure, FitRunner, FitTask, fit_runner
+from stancal.problem.candidates import Candidate, CandidateError
 from stancal.problem.data import CalibrationData, DataError
 from stancal.diagnosing.gap_location import GapLocation, interval, locate_gap
 from stancal.problem.mean_terms import FormulaError, build_mean_terms
-from stancal.stan.registry import HSGP_METHODS, ModelOptions
 from stancal.results.result import CalibrationResult
 from stancal.diagnosing.scoring import (
     PARETO_K_LIMIT,
@@ -60,12 +61,8 @@ from stancal.diagnosing.scoring import (
 from stancal.fitting.seeds import command_seed, fit_seed
 from stancal.stan.source import FlatProgram, StanProgramError
 from stancal.fitting.stopwatch import Stopwatch
-from stancal.fitting.vector_calibrate import (
-    VectorCalibrationResult,
-    calibrate_vector,
-    choose_vector_method,
-    vector_program,
-)
+from stancal.fitting.vector_calibrate import calibrate_vector
+from stancal.results.vector_result import VectorCalibrationResult
 from stancal.problem.vector_data import VectorCalibrationData
 
 logger = logging.getLogger("stancal")
@@ -76,35 +73,8 @@ FALLBACK_FOLDS = 5
 
 
 
-class CandidateError(ValueError):
-    """A candidate effect that cannot be fitted; the message names it."""
-
-
 class GapWarning(UserWarning):
     """Something that weakens the gap diagnosis (e.g. high Pareto k)."""
-
-
-@dataclass(frozen=True)
-class Candidate:
-    """One candidate unmodelled effect: give ``formula``, or ``stan`` (a
-    variant simulator) with the physical ``inputs`` it takes and the bounds
-    of its extra ``theta`` (the baseline's theta keep theirs)."""
-
-    name: str
-    formula: str | None = None
-    stan: Path | None = None
-    inputs: tuple[str, ...] = ()
-    theta: dict[str, tuple[float, float]] = field(default_factory=dict)
-
-    @property
-    def kind(self) -> str:
-        return "formula" if self.formula is not None else "variant"
-
-    def __post_init__(self) -> None:
-        if (self.formula is None) == (self.stan is None):
-            raise CandidateError(f"candidate '{self.name}': give a formula or a Stan simulator, not both")
-        if self.stan is not None and not self.inputs:
-            raise CandidateError(f"candidate '{self.name}': a simulator variant needs its 'inputs' columns")
 
 
 @dataclass
@@ -207,15 +177,17 @@ def variant_data(data: CalibrationData | VectorCalibrationData,
         raise CandidateError(f"candidate '{candidate.name}': {err}") from None
 
 
-def variant_program(data: CalibrationData | VectorCalibrationData, candidate: Candidate) -> FlatProgram:
-    """The program a simulator variant runs: koh (koh_vector for a vector
-    output), or koh_latent for what needs it."""
-    if isinstance(data, VectorCalibrationData):
-        return vector_program("koh", candidate.stan)
-    return stan_programs(choose_method(data, candidate.stan, "koh"), candidate.stan)[-1]
+def variant_program(data: CalibrationData | VectorCalibrationData, candidate: Candidate,
+                    plan: Plan | None = None) -> FlatProgram:
+    """The program a simulator variant runs: the baseline plan's model on
+    the variant (koh, or its latent or scalable version; koh_vector for a
+    vector output)."""
+    plan = plan or make_plan(data, candidate.stan, "koh")
+    return plan.with_simulator(candidate.stan).main_program()
 
 
-def check_candidates(data: CalibrationData | VectorCalibrationData, candidates: list[Candidate], backend) -> None:
+def check_candidates(data: CalibrationData | VectorCalibrationData, candidates: list[Candidate], backend,
+                     plan: Plan | None = None) -> None:
     """Fail before sampling: formulas must evaluate, variants must pass stanc."""
     names = [c.name for c in candidates]
     repeated = sorted({n for n in names if names.count(n) > 1})
@@ -234,22 +206,22 @@ def check_candidates(data: CalibrationData | VectorCalibrationData, candidates: 
             raise CandidateError(f"candidate '{c.name}': Stan file not found: {c.stan}")
         variant_data(data, c)
         try:
-            backend.check(variant_program(data, c))
+            backend.check(variant_program(data, c, plan))
         except StanProgramError as err:
             raise CandidateError(f"candidate '{c.name}': the variant does not compile: {err}") from None
 
 
 # ---- the analysis --------------------------------------------------------------
 def _fit_task(name: str, candidate: Candidate | None, data, new_points: pd.DataFrame | None,
-              folder: Path | None, *, vector: bool, simulator, method: str, seed: int,
-              sampling: dict[str, Any]) -> FitTask:
+              folder: Path | None, *, vector: bool, plan: Plan, seed: int, sampling: dict[str, Any]) -> FitTask:
     """The baseline's or a candidate's fit to ``data`` (all of it, or a
-    training set), with its own seed, as a task for the runner."""
-    variant = candidate is not None and candidate.kind == "variant"
-    options = dict(data=data, simulator=candidate.stan if variant else simulator,
-                   method="koh" if variant else method, seed=fit_seed(seed, name),
-                   mean_formula=None if candidate is None or variant else candidate.formula,
-                   out_dir=folder, **sampling)
+    training set), with its own seed, as a task for the runner: the baseline
+    plan, with the candidate's mean terms or on its simulator variant."""
+    if candidate is not None and candidate.kind == "variant":
+        plan = plan.with_simulator(candidate.stan)
+    elif candidate is not None:
+        plan = replace(plan, options=replace(plan.options, mean_formula=candidate.formula))
+    options = dict(data=data, plan=plan, seed=fit_seed(seed, name), out_dir=folder, **sampling)
     if vector:
         return FitTask(name, calibrate_vector, {**options, "new_rows": new_points})
     return FitTask(name, calibrate, {**options, "new_points": new_points})
@@ -281,25 +253,18 @@ def diagnose_gap(
     """
     vector = isinstance(data, VectorCalibrationData)
     if vector:
-        chosen = choose_vector_method(data, simulator, method)
         calibrate_options.pop("approximation", None)
-        baseline_programs = [vector_program(chosen, simulator)]
-    else:
-        chosen = choose_method(data, simulator, method,
-                               ModelOptions(approximation=calibrate_options.get("approximation", "auto")))
-        # K-fold's training sets are smaller: every fit keeps the baseline's approximation
-        calibrate_options["approximation"] = "hsgp" if chosen in HSGP_METHODS else "exact"
-        baseline_programs = stan_programs(chosen, simulator)
+    # one plan for every fit: K-fold's smaller training sets keep the baseline's program and
+    # approximation, and every fit has a constant in the discrepancy mean, so that no
+    # candidate term wins by standing in for the discrepancy's overall level
+    plan = make_plan(data, simulator, method, **model_keywords(calibrate_options, vector))
+    plan = replace(plan, options=replace(plan.options, mean_formula=None, mean_intercept=True))
     stan_backend = get_backend(calibrate_options.get("backend"))
-    check_candidates(data, candidates, stan_backend)
+    check_candidates(data, candidates, stan_backend, plan)
     clock = Stopwatch()
     seed = command_seed(seed)
     out = Path(out_dir) if out_dir is not None else None
-    # every fit has a constant in the discrepancy mean, so that no candidate
-    # term wins by standing in for the discrepancy's overall level
-    sampling = {**calibrate_options, "mean_intercept": True}
-    task = functools.partial(_fit_task, vector=vector, simulator=simulator, method=str(chosen), seed=seed,
-                             sampling=sampling)
+    task = functools.partial(_fit_task, vector=vector, plan=plan, seed=seed, sampling=calibrate_options)
 
     def data_for(candidate: Candidate | None):
         return variant_data(data, candidate) if candidate and candidate.kind == "variant" else data
@@ -308,7 +273,8 @@ def diagnose_gap(
     failed: list[FitFailure] = []
     with fit_runner(scheduler) as runner:
         # every program up front, side by side on the machine's cores, then on every worker
-        runner.prepare([*baseline_programs, *(variant_program(data, c) for c in candidates if c.kind == "variant")],
+        runner.prepare([*plan.stan_programs(), *(variant_program(data, c, plan) for c in candidates
+                                                 if c.kind == "variant")],
                        calibrate_options.get("backend"))
         clock.lap("compile")
         fits = runner.map([task(label_name(c), c, data_for(c),

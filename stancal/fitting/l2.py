@@ -20,7 +20,8 @@ from scipy.stats import qmc
 
 from stancal.stan.backends import get_backend
 from stancal.numerics.kernels import ard_cross_cov
-from stancal.stan.registry import Method, ModelOptions
+from stancal.stan.options import ModelOptions
+from stancal.stan.registry import program
 from stancal.numerics.quadrature import Quadrature
 from stancal.stan.standata import build_stan_data, to_stan_json
 
@@ -59,7 +60,7 @@ def stan_simulator(result) -> SimulatorAt:
 
     def at(points: pd.DataFrame, theta: np.ndarray) -> np.ndarray:
         if last.get("points") is not points:
-            stan_data = to_stan_json(build_stan_data(data, Method.KOH, options, points))
+            stan_data = to_stan_json(build_stan_data(data, program(result.method).data, options, points))
             last.update(points=points, run=backend.quantities_function(result.program, stan_data, seed=1))
         unit = np.clip(_theta_unit(data, theta), 1e-12, 1 - 1e-12)
         parameters = {name: np.broadcast_to(value, (1, len(unit), *np.shape(value)))
@@ -110,7 +111,8 @@ def _theta_unit(data, theta: np.ndarray) -> np.ndarray:
 
 
 def simulator_of(result) -> SimulatorAt:
-    return stan_simulator(result) if result.method == Method.KOH else emulator_mean(result)
+    # a program with a Stan simulator runs it; one from runs has its emulator's mean
+    return stan_simulator(result) if program(result.method).simulator else emulator_mean(result)
 
 
 def global_design(lower: np.ndarray, upper: np.ndarray, seed: int = 0) -> np.ndarray:

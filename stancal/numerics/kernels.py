@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from stancal.stan.registry import Kernel
+from stancal.problem.codes import Kernel
 
 
 def ard_cross_cov(x1: np.ndarray, x2: np.ndarray, kernel_id: int, marginal_sd: float,

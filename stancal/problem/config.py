@@ -10,7 +10,7 @@ from typing import Any
 import pandas as pd
 
 from stancal.problem.data import CalibrationData
-from stancal.diagnosing.gap import Candidate, CandidateError
+from stancal.problem.candidates import Candidate, CandidateError
 from stancal.problem.vector_data import VectorCalibrationData
 
 

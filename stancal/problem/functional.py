@@ -1,6 +1,5 @@
 """Functional calibration parameters theta_j(x) (review section 8.2): which
-theta vary over which inputs, the grid their curves are reported on, and
-the curves' summaries."""
+theta vary over which inputs, and the grid their curves are reported on."""
 
 from __future__ import annotations
 
@@ -10,9 +9,6 @@ import numpy as np
 import pandas as pd
 
 from stancal.problem.data import CalibrationData
-from stancal.results.diagnostics import RHAT_LIMIT, Diagnostics
-from stancal.stan.registry import ModelOptions
-from stancal.results.summaries import band
 from stancal.problem.validation import DataError
 
 # points per input of the theta(x) grid: 50 for one input, a coarse product grid for more
@@ -43,23 +39,6 @@ def check_functional(data: CalibrationData, functional: tuple[str, ...],
         raise DataError(f"functional_inputs: an input is named twice in {list(functional_inputs)}")
 
 
-def parametrization_advice(options: ModelOptions, diagnostics: Diagnostics) -> list[str]:
-    """The other parametrization of theta(x)'s latent GP, when a fit with
-    functional theta struggled. Measured on the beam case: centred mixes well when the data pin
-    theta(x) (noise 0.1 mm, 3 loads per temperature: no tree-depth hits) and
-    hits the maximum tree depth in 70 % of transitions when they do not
-    (noise 1 mm, one load per temperature); non-centred is the reverse."""
-    struggled = (diagnostics.treedepth_hits or diagnostics.low_bfmi_chains or diagnostics.divergences
-                 or diagnostics.max_rhat > RHAT_LIMIT)
-    if not options.functional or not struggled:
-        return []
-    other = "non_centred" if options.functional_parametrization == "centred" else "centred"
-    when = ("suits noisy or sparse data, which leave theta(x) loosely pinned" if other == "non_centred"
-            else "suits data that pin theta(x) closely")
-    return [f"theta(x)'s latent GP was sampled {options.functional_parametrization}; if the trouble "
-            f"above involves theta_function_*, try functional_parametrization = \"{other}\" ({when})."]
-
-
 def functional_grid(data: CalibrationData, functional_inputs: tuple[str, ...]) -> pd.DataFrame:
     """A grid over the observed range of the functional inputs."""
     if not functional_inputs:
@@ -68,15 +47,3 @@ def functional_grid(data: CalibrationData, functional_inputs: tuple[str, ...]) -
     axes = [np.linspace(data.physical[c].min(), data.physical[c].max(), per_input)
             for c in functional_inputs]
     return pd.DataFrame(list(product(*axes)), columns=list(functional_inputs))
-
-
-def theta_function_summary(curves: np.ndarray, grid: pd.DataFrame,
-                           names: list[str]) -> dict[str, dict]:
-    """curves: (samples, grid point, functional theta) -> summary.json's
-    theta_functions: per theta, the grid and the mean and 90 % band."""
-    out = {}
-    for k, name in enumerate(names):
-        summary = band(curves[:, :, k])
-        out[name] = {"inputs": {c: grid[c].tolist() for c in grid.columns},
-                     **{q: summary[q].tolist() for q in ("mean", "q05", "q95")}}
-    return out

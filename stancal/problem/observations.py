@@ -9,7 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from stancal.stan.registry import Censoring, Likelihood
+from stancal.problem.codes import Censoring, Likelihood
 from stancal.problem.validation import DataError, numeric_values, require_whole
 from stancal.problem.validation import row_labels as _rows
 

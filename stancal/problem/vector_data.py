@@ -112,6 +112,11 @@ class VectorCalibrationData:
         return [p.name for p in self.parameters]
 
     @property
+    def has_runs(self) -> bool:
+        """Simulator runs were given (and reduced to a basis)."""
+        return self.basis is not None
+
+    @property
     def all_parameters(self) -> list[Parameter]:
         """The shared theta, then the per-experiment ones (each of those
         once per experiment in a fit)."""

@@ -12,15 +12,16 @@ import numpy as np
 import pandas as pd
 import xarray as xr
 
-from stancal.stan.backends import Draws, SampleOutput, get_backend
+from stancal.stan.backends.base import Draws, SampleOutput
 from stancal.problem.data import CalibrationData
 from stancal.results.diagnostics import Diagnostics
-from stancal.problem.functional import functional_grid, theta_function_summary
-from stancal.stan.registry import Likelihood, ModelOptions
+from stancal.problem.functional import functional_grid
+from stancal.problem.codes import Likelihood
+from stancal.stan.options import ModelOptions
 from stancal.results.modes import Mode
 from stancal.stan.source import FlatProgram
-from stancal.stan.standata import EMULATOR_HYPERPARAMETERS, build_stan_data, mean_terms_of, to_stan_json
-from stancal.results.summaries import band, summary_by_mode, theta_summary
+from stancal.stan.standata import EMULATOR_HYPERPARAMETERS, mean_terms_of
+from stancal.results.summaries import band, summary_by_mode, theta_function_summary, theta_summary
 
 # Stan program variables -> names in the posterior group (original units)
 _REPORTED = {
@@ -32,11 +33,11 @@ _REPORTED = {
 }
 # the latent programs declare these as arrays of size 0 or 1 (present or not)
 _OPTIONAL_SCALARS = ("noise_sd", "delta_sd", "phi")
-_PREDICTED = ("f_new", "delta_new", "zeta_new")
-_NEW_OBSERVATION = "y_new"  # latent programs: a new observation from the likelihood
+PREDICTED = ("f_new", "delta_new", "zeta_new")
+NEW_OBSERVATION = "y_new"  # latent programs: a new observation from the likelihood
 # per physical point: the GP part of delta (a draw, and its mean given the
 # parameters), and E(y_i | y_-i) for held-out error
-_AT_OBSERVATIONS = ("delta_gp", "delta_gp_mean", "y_loo_mean")
+AT_OBSERVATIONS = ("delta_gp", "delta_gp_mean", "y_loo_mean")
 # parameters of stancal's programs that the posterior group holds in another
 # form (original units, or not at all: latent standard normals); any other
 # parameter of a program goes into the posterior group as it is
@@ -85,8 +86,8 @@ def build_datatree(sample: SampleOutput, data: CalibrationData,
         "posterior_predictive": {"y": d["y_rep"]},
         "log_likelihood": {"y": d["log_lik"]},
         "sample_stats": sample.sample_stats,
-        "predictions": {k: d[k] for k in (*_PREDICTED, _NEW_OBSERVATION) if k in d},
-        "at_observations": {k: d[k] for k in _AT_OBSERVATIONS if k in d},
+        "predictions": {k: d[k] for k in (*PREDICTED, NEW_OBSERVATION) if k in d},
+        "at_observations": {k: d[k] for k in AT_OBSERVATIONS if k in d},
     }
     if options.functional:
         sampled["theta_functions"] = {"theta_function": d["theta_function_grid"]}
@@ -95,8 +96,8 @@ def build_datatree(sample: SampleOutput, data: CalibrationData,
     dims = {
         "theta": ["theta_name"], "delta_length_scale": ["delta_input"], "delta_relevance": ["delta_covariate"],
         "emulator_length_scale": ["emulator_input"], "y": ["obs"], "beta": ["mean_term"],
-        **{k: ["obs"] for k in _AT_OBSERVATIONS},
-        **{k: ["new_point"] for k in (*_PREDICTED, _NEW_OBSERVATION)},
+        **{k: ["obs"] for k in AT_OBSERVATIONS},
+        **{k: ["new_point"] for k in (*PREDICTED, NEW_OBSERVATION)},
         "theta_function_sd": ["functional_theta"],
         "theta_function_length_scale": ["functional_theta", "functional_input"],
         "theta_function": ["grid_point", "functional_theta"],
@@ -133,7 +134,7 @@ def build_datatree(sample: SampleOutput, data: CalibrationData,
     return tree
 
 
-def _interval_table(values: np.ndarray, prefix: str) -> dict[str, np.ndarray]:
+def interval_table(values: np.ndarray, prefix: str) -> dict[str, np.ndarray]:
     """values: (samples, points) -> mean and quantiles per point."""
     return {f"{prefix}_{k}": v for k, v in band(values).items()}
 
@@ -186,46 +187,11 @@ class CalibrationResult:
         """zeta (the real process), f(x, theta) and delta at ``new_points``
         (columns: simulator inputs and covariates), with 5/50/95 % quantiles,
         plus ``y`` with measurement noise. Without ``new_points``, the points
-        stored with the fit."""
-        if new_points is None:
-            draws = {k: np.asarray(v) for k, v in self.idata["predictions"].data_vars.items()}
-            points = self.idata["predictions_constant_data"].to_dataset().to_dataframe()
-            points = points.reset_index(drop=True)
-        else:
-            points = new_points.reset_index(drop=True)
-            stan_data = build_stan_data(self.data, self.method, self.options, points,
-                                        emulator_hyperparameters=self.emulator.get("hyperparameters"))
-            params = {k: np.asarray(v) for k, v in self.idata["stan_parameters"].data_vars.items()}
-            draws = get_backend(backend or self.backend).generate_quantities(
-                self.program, to_stan_json(stan_data), params, seed)
-            if self.l2:
-                from stancal.fitting.l2 import reproject
+        stored with the fit. See stancal.fitting.predict."""
+        # imported here: rerunning Stan at new points is fitting's job, and a result holds data only
+        from stancal.fitting.predict import predict
 
-                draws = reproject(self, points, draws)
-        table = points.copy()
-        for name in _PREDICTED:
-            values = draws[name].reshape(-1, len(points))
-            table = table.assign(**_interval_table(values, name.removesuffix("_new")))
-        if new_points is None and _NEW_OBSERVATION in draws:  # drawn by the sampler's own RNG
-            new_y = draws[_NEW_OBSERVATION].reshape(-1, len(points))
-        else:  # PyStan reruns generated quantities with one fixed RNG seed: draw the noise here
-            new_y = self._observe(draws["zeta_new"].reshape(-1, len(points)), points, seed)
-        return table.assign(**_interval_table(new_y, "y"))
-
-    def _observe(self, zeta: np.ndarray, points: pd.DataFrame, seed: int) -> np.ndarray:
-        """New observations given draws (samples, points) of the mean response."""
-        rng = np.random.default_rng(seed)
-        likelihood = self.data.observations.likelihood
-        posterior = self.idata["posterior"]
-        if likelihood is Likelihood.POISSON:
-            return rng.poisson(zeta).astype(float)
-        if likelihood is Likelihood.NEGBINOMIAL:
-            phi = np.asarray(posterior["phi"]).reshape(-1, 1)
-            return rng.negative_binomial(phi, phi / (phi + zeta)).astype(float)
-        if likelihood is Likelihood.BINOMIAL:
-            return rng.binomial(self.data.trials_at(points), zeta).astype(float)
-        noise = np.asarray(posterior["noise_sd"]).reshape(-1, 1)
-        return zeta + noise * rng.standard_normal(zeta.shape)
+        return predict(self, new_points, backend=backend, seed=seed)
 
     # ---- persistence -----------------------------------------------------
     def _metadata(self) -> dict[str, Any]:

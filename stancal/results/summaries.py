@@ -95,3 +95,15 @@ def theta_summary(posterior: xr.Dataset, modes: list[Mode], theta_names: list[st
         posterior = posterior.isel(chain=modes[0].chains)
     table = posterior_table(posterior[["theta"]])
     return {name: {k: float(table.loc[f"theta[{name}]", k]) for k in keys} for name in theta_names}
+
+
+def theta_function_summary(curves: np.ndarray, grid: pd.DataFrame,
+                           names: list[str]) -> dict[str, dict]:
+    """curves: (samples, grid point, functional theta) -> summary.json's
+    theta_functions: per theta, the grid and the mean and 90 % band."""
+    out = {}
+    for k, name in enumerate(names):
+        summary = band(curves[:, :, k])
+        out[name] = {"inputs": {c: grid[c].tolist() for c in grid.columns},
+                     **{q: summary[q].tolist() for q in ("mean", "q05", "q95")}}
+    return out

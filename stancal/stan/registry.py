@@ -1,181 +1,157 @@
-"""The single registry of stancal's Stan programs and their integer codes."""
+"""The one registry of what can run: every Stan program stancal ships, what
+it needs, what it takes, the parts of its Stan data, and which commands
+accept it. A new program is one entry here; nothing outside this module
+asks which program it is (the plan, stancal.fitting.plan, reads these rows).
+
+Programs are chosen by method name and output kind: ``koh`` is koh.stan for
+a scalar output and koh_vector.stan for a vector one. A program may hand its
+job to another when the problem needs it: to its latent-GP version for
+non-Gaussian or censored outputs and functional theta, and to its scalable
+version for thousands of points and runs (review section 8.4)."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from enum import IntEnum, StrEnum
 from pathlib import Path
+from typing import Any
 
-import numpy as np
-
+from stancal.stan import standata as sd
+from stancal.stan import vector_standata as vd
+from stancal.stan.options import RESTRICTED_DISCREPANCIES
 from stancal.stan.source import shipped_models_dir
 
+# commands a program can be used by (besides calibrate, which takes all)
+GAP, COMPARE, SBC, L2 = "gap", "compare", "sbc", "l2"
 
-class Kernel(IntEnum):
-    """``kernel_id`` in the Stan programs (see functions/gp_kernels.stan)."""
-
-    SE = 1
-    MATERN52 = 2
-
-
-class Likelihood(IntEnum):
-    """``likelihood_id`` in the latent programs (functions/observation_model.stan)."""
-
-    GAUSSIAN = 1
-    POISSON = 2
-    NEGBINOMIAL = 3
-    BINOMIAL = 4
-
-
-class Censoring(IntEnum):
-    """``censoring`` codes per observation (functions/observation_model.stan)."""
-
-    OBSERVED = 0
-    LEFT = 1  # y <= upper
-    RIGHT = 2  # y >= lower
-    INTERVAL = 3  # lower <= y <= upper
-
-
-class Method(StrEnum):
-    KOH = "koh"
-    KOH_EMULATOR = "koh_emulator"
-    MODULAR = "modular"
-    KOH_LATENT = "koh_latent"
-    KOH_LATENT_EMULATOR = "koh_latent_emulator"
-    KOH_HSGP = "koh_hsgp"
-    MODULAR_HSGP = "modular_hsgp"
-
-
-# the latent-GP program that takes over a method's job when the outputs are
-# non-Gaussian or censored, or theta is functional
-LATENT_PROGRAM = {Method.KOH: Method.KOH_LATENT, Method.KOH_EMULATOR: Method.KOH_LATENT_EMULATOR,
-                  Method.MODULAR: Method.KOH_LATENT_EMULATOR,
-                  Method.KOH_LATENT: Method.KOH_LATENT,
-                  Method.KOH_LATENT_EMULATOR: Method.KOH_LATENT_EMULATOR}
-
-# the scalable program that takes over a method's job for many points or runs
-# (review section 8.4): a Hilbert-space discrepancy, and an emulator of
-# precomputed weights in place of the joint or modular GP emulator
-SCALABLE_PROGRAM = {Method.KOH: Method.KOH_HSGP, Method.KOH_EMULATOR: Method.MODULAR_HSGP,
-                    Method.MODULAR: Method.MODULAR_HSGP, Method.KOH_HSGP: Method.KOH_HSGP,
-                    Method.MODULAR_HSGP: Method.MODULAR_HSGP}
-HSGP_METHODS = (Method.KOH_HSGP, Method.MODULAR_HSGP)
-APPROXIMATIONS = ("auto", "exact", "hsgp")
+# stage 1 kinds: how a program's emulator is fitted before sampling
+STAGE_ONE_GP = "gp_emulator"  # emulator.stan's hyperparameters by optimisation
+STAGE_ONE_SCALABLE = "scalable_emulator"  # stancal.numerics.scalable_emulator
+STAGE_ONE_BASIS = "basis_emulator"  # stancal.numerics.vector_emulator: one GP per basis component
 
 
 @dataclass(frozen=True)
-class ModelSpec:
-    """One Stan program stancal ships."""
+class Program:
+    """One Stan program stancal ships, and everything stancal needs to run it."""
 
-    name: str
+    name: str  # also the method name that reaches it directly
     stan_file: str
-    needs_simulator: bool  # includes the user's simulator.stan
-    needs_runs: bool  # needs a table of simulator runs
     description: str
+    output: str = "scalar"  # scalar | vector
+    methods: tuple[str, ...] = ()  # other method names that choose it, for its output kind
+    simulator: bool = False  # includes the user's simulator.stan
+    runs: bool = False  # needs simulator runs
+    stage_one: str | None = None  # see STAGE_ONE_*
+    latent: bool = False  # latent GPs at the data: counts, binomial, censored, functional theta
+    approximation: str = "exact"  # exact | hsgp
+    discrepancies: tuple[str, ...] = ("gp", "none")
+    kernels: tuple[str, ...] = ("se", "matern52")
+    estimate_rho: bool = True  # can scale the simulator by rho
+    latent_version: str | None = None  # takes over for latent problems
+    scalable_version: str | None = None  # takes over above the exact programs' size limit
+    data: tuple[Callable[..., dict[str, Any]], ...] = ()  # Stan data parts, merged in order
+    samples_emulator: bool = False  # the emulator's hyperparameters are sampled with theta
+    commands: frozenset[str] = frozenset()
+    helper: bool = False  # a stage-1 program, not a calibration
 
     @property
     def path(self) -> Path:
         return shipped_models_dir() / self.stan_file
 
-
-MODELS: dict[str, ModelSpec] = {
-    spec.name: spec
-    for spec in (
-        ModelSpec("koh", "koh.stan", True, False,
-                  "KOH with a cheap simulator written in Stan"),
-        ModelSpec("koh_emulator", "koh_emulator.stan", False, True,
-                  "full KOH: emulator and calibration in one joint GP"),
-        ModelSpec("emulator", "emulator.stan", False, True,
-                  "GP emulator of simulator runs (stage 1 of modular)"),
-        ModelSpec("modular", "modular.stan", False, True,
-                  "modular KOH: stage 2 with the stage-1 emulator fixed"),
-        ModelSpec("koh_latent", "koh_latent.stan", True, False,
-                  "KOH with latent GPs: counts, binomial, censored outputs, functional theta"),
-        ModelSpec("koh_latent_emulator", "koh_latent_emulator.stan", False, True,
-                  "koh_latent from simulator runs: stage-1 emulator on the link scale, latent at the data"),
-        ModelSpec("koh_hsgp", "koh_hsgp.stan", True, False,
-                  "koh for thousands of points: Hilbert-space GP discrepancy"),
-        ModelSpec("modular_hsgp", "modular_hsgp.stan", False, True,
-                  "modular for thousands of runs and points: precomputed-weight emulator, "
-                  "Hilbert-space GP discrepancy"),
-        ModelSpec("koh_vector", "koh_vector.stan", True, False,
-                  "KOH for a vector output with a cheap Stan simulator, ragged experiments"),
-        ModelSpec("modular_vector", "modular_vector.stan", False, True,
-                  "modular KOH for a vector output: one emulator GP per basis component, ragged experiments"),
-    )
-}
+    def accepts(self, command: str) -> bool:
+        return command in self.commands
 
 
-def model_spec(name: str) -> ModelSpec:
+_SCALAR = frozenset({GAP, COMPARE, SBC})
+_GAUSSIAN = (sd.common_data, sd.gaussian_outputs)
+_LATENT = (sd.common_data, sd.latent_outputs)
+
+PROGRAMS: dict[str, Program] = {program.name: program for program in (
+    Program("koh", "koh.stan", "KOH with a cheap simulator written in Stan", simulator=True,
+            discrepancies=("gp", "none", *RESTRICTED_DISCREPANCIES), latent_version="koh_latent",
+            scalable_version="koh_hsgp", data=(*_GAUSSIAN, sd.simulator_points, sd.restricted_discrepancy),
+            commands=_SCALAR | {L2}),
+    Program("koh_emulator", "koh_emulator.stan", "full KOH: emulator and calibration in one joint GP",
+            runs=True, latent_version="koh_latent_emulator", scalable_version="modular_hsgp",
+            data=(*_GAUSSIAN, sd.emulator_inputs), samples_emulator=True, commands=_SCALAR | {L2}),
+    Program("emulator", "emulator.stan", "GP emulator of simulator runs (stage 1 of modular)", runs=True,
+            helper=True),
+    Program("modular", "modular.stan", "modular KOH: stage 2 with the stage-1 emulator fixed", runs=True,
+            stage_one=STAGE_ONE_GP, latent_version="koh_latent_emulator", scalable_version="modular_hsgp",
+            data=(*_GAUSSIAN, sd.emulator_inputs, sd.fixed_emulator), commands=_SCALAR | {L2}),
+    Program("koh_latent", "koh_latent.stan",
+            "KOH with latent GPs: counts, binomial, censored outputs, functional theta", simulator=True,
+            latent=True, estimate_rho=False, data=(*_LATENT, sd.simulator_points), commands=_SCALAR),
+    Program("koh_latent_emulator", "koh_latent_emulator.stan",
+            "koh_latent from simulator runs: stage-1 emulator on the link scale, latent at the data", runs=True,
+            stage_one=STAGE_ONE_GP, latent=True, estimate_rho=False,
+            data=(*_LATENT, sd.emulator_inputs, sd.fixed_emulator), commands=_SCALAR),
+    Program("koh_hsgp", "koh_hsgp.stan", "koh for thousands of points: Hilbert-space GP discrepancy",
+            simulator=True, approximation="hsgp",
+            data=(*_GAUSSIAN, sd.hsgp_discrepancy, sd.simulator_points), commands=_SCALAR),
+    Program("modular_hsgp", "modular_hsgp.stan",
+            "modular for thousands of runs and points: precomputed-weight emulator, Hilbert-space GP discrepancy",
+            runs=True, stage_one=STAGE_ONE_SCALABLE, approximation="hsgp",
+            data=(*_GAUSSIAN, sd.hsgp_discrepancy, sd.scalable_emulator), commands=_SCALAR),
+    Program("koh_vector", "koh_vector.stan",
+            "KOH for a vector output with a cheap Stan simulator, ragged experiments", output="vector",
+            methods=("koh",), simulator=True, estimate_rho=False, data=(vd.simulator_at_values,),
+            commands=frozenset({GAP})),
+    Program("modular_vector", "modular_vector.stan",
+            "modular KOH for a vector output: one emulator GP per basis component, ragged experiments",
+            output="vector", methods=("modular",), runs=True, stage_one=STAGE_ONE_BASIS, kernels=("se",),
+            estimate_rho=False, data=(vd.basis_emulator, vd.modular_weights), commands=frozenset({GAP})),
+    Program("koh_emulator_vector", "modular_vector.stan",
+            "koh_emulator for a vector output: the basis weights' GP hyperparameters sampled with theta",
+            output="vector", methods=("koh_emulator",), runs=True, stage_one=STAGE_ONE_BASIS, kernels=("se",),
+            estimate_rho=False, data=(vd.basis_emulator, vd.joint_weights), samples_emulator=True,
+            commands=frozenset({GAP})),
+)}
+MODELS = PROGRAMS  # the name of the registry in stancal's first releases
+STAGE_ONE_PROGRAM = {STAGE_ONE_GP: "emulator"}  # stage 1 kinds that run a Stan program
+
+
+def program(name: str) -> Program:
+    """The registry row of a program (or the method name of its scalar output)."""
     try:
-        return MODELS[name]
+        return PROGRAMS[name]
     except KeyError:
-        raise ValueError(
-            f"unknown model {name!r}; choose one of {', '.join(MODELS)}"
-        ) from None
+        raise ValueError(f"unknown program {name!r}; choose one of {', '.join(PROGRAMS)}") from None
 
 
-@dataclass(frozen=True)
-class ModelOptions:
-    """Choices that change the model, not the sampler."""
-
-    discrepancy: str = "gp"  # see DISCREPANCIES
-    kernel: str = "se"  # se | matern52
-    estimate_rho: bool = False
-    mean_formula: str | None = None  # discrepancy mean terms h(x, z)' beta, e.g. "I(v**2)"
-    mean_intercept: bool = False  # a constant term in the discrepancy mean
-    scaled_lambda: float | None = None  # scaled GP penalty lambda_z; None = sqrt(N)
-    functional: tuple[str, ...] = ()  # theta that vary over functional_inputs (review section 8.2)
-    functional_inputs: tuple[str, ...] = ()
-    # theta(x)'s latent GP: "centred" (data that pin theta(x)) or "non_centred" (data that do not)
-    functional_parametrization: str = "centred"
-    # exact dense GPs, the scalable hsgp programs, or auto (by size: models.EXACT_SIZE_LIMIT)
-    approximation: str = "auto"
-    # the Hilbert-space discrepancy's basis per discrepancy input (stancal.numerics.hsgp);
-    # empty: chosen by stancal from the length scales, and checked after the fit
-    basis_functions: tuple[int, ...] = ()
-    boundary_factor: tuple[float, ...] = ()
-
-    def __post_init__(self) -> None:
-        # lists from a config or a saved result
-        for name in ("functional", "functional_inputs", "basis_functions", "boundary_factor"):
-            object.__setattr__(self, name, tuple(getattr(self, name)))
-        if self.approximation not in APPROXIMATIONS:
-            raise ValueError(f"approximation must be one of {', '.join(APPROXIMATIONS)}; "
-                             f"got {self.approximation!r}")
-        if (len(self.basis_functions) != len(self.boundary_factor)
-                or any(m < 1 for m in self.basis_functions) or any(c < 1 for c in self.boundary_factor)):
-            raise ValueError(f"basis_functions (counts >= 1) and boundary_factor (>= 1) need one value "
-                             f"each per discrepancy input; got {list(self.basis_functions)} and "
-                             f"{list(self.boundary_factor)}")
-        if self.discrepancy not in DISCREPANCIES:
-            raise ValueError(f"discrepancy must be one of {', '.join(DISCREPANCIES)}; "
-                             f"got {self.discrepancy!r}")
-        if self.functional_parametrization not in FUNCTIONAL_PARAMETRIZATIONS:
-            raise ValueError(f"functional_parametrization must be one of "
-                             f"{', '.join(FUNCTIONAL_PARAMETRIZATIONS)}; got {self.functional_parametrization!r}")
-        if self.kernel not in ("se", "matern52"):
-            raise ValueError(f"kernel must be 'se' or 'matern52'; got {self.kernel!r}")
-        if self.scaled_lambda is not None and not (np.isfinite(self.scaled_lambda) and self.scaled_lambda > 0):
-            raise ValueError(f"scaled_lambda must be a positive number; got {self.scaled_lambda!r}")
-
-    @property
-    def kernel_id(self) -> int:
-        return int(Kernel.SE if self.kernel == "se" else Kernel.MATERN52)
-
-    @property
-    def has_discrepancy(self) -> bool:
-        return self.discrepancy != "none"
+def method_names(output: str) -> list[str]:
+    """The method names a user can give for an output kind."""
+    names = [name for p in PROGRAMS.values() if p.output == output and not p.helper
+             for name in (p.name, *p.methods)]
+    return list(dict.fromkeys(names))
 
 
-FUNCTIONAL_PARAMETRIZATIONS = ("centred", "non_centred")
+def entry_methods(output: str) -> list[str]:
+    """The methods a user picks among: every program that is not a stage-1
+    helper nor another program's latent or scalable version."""
+    derived = {name for p in PROGRAMS.values() for name in (p.latent_version, p.scalable_version) if name}
+    return [p.name if p.output == "scalar" else p.methods[0] for p in PROGRAMS.values()
+            if p.output == output and not p.helper and p.name not in derived]
 
-# approximation = "auto" switches to the scalable programs when the dense
-# matrix factorised at every gradient would be larger than this: N physical
-# points for koh, N points + M runs for the emulators (benchmarks/scaling.py:
-# past it a dense fit of 4 x (500 + 500) draws takes more than about ten minutes)
-EXACT_SIZE_LIMIT = 1000
 
-# discrepancy_form in koh.stan; "none" switches the discrepancy off
-DISCREPANCIES = {"gp": 1, "orthogonal": 2, "scaled": 3, "none": 1}
-RESTRICTED_DISCREPANCIES = ("orthogonal", "scaled")  # restricted_gp.stan, koh.stan only
+def for_method(method: str, output: str) -> Program:
+    """The program a method name chooses for an output kind."""
+    for row in PROGRAMS.values():
+        if row.output == output and not row.helper and method in (row.name, *row.methods):
+            return row
+    raise ValueError(f"method '{method}' is not built for a {output} output; choose one of "
+                     f"{', '.join(method_names(output))}")
+
+
+def default_program(output: str, *, simulator: bool) -> Program:
+    """koh with a Stan simulator, else the runs' default: koh_emulator for a
+    scalar output, modular for a vector one."""
+    return for_method("koh" if simulator else "koh_emulator" if output == "scalar" else "modular", output)
+
+
+def register(row: Program) -> Program:
+    """Add a program (a user's copy of a shipped one, say) under a new name."""
+    if row.name in PROGRAMS:
+        raise ValueError(f"a program named {row.name!r} is registered already")
+    PROGRAMS[row.name] = row
+    return row

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -11,7 +13,7 @@ from stancal.problem.data import CalibrationData
 from stancal.problem.functional import functional_grid
 from stancal.problem.mean_terms import MeanTerms, build_mean_terms
 from stancal.numerics.hsgp import HALF_RANGE, HSGPBasis, first_basis
-from stancal.stan.registry import DISCREPANCIES, HSGP_METHODS, RESTRICTED_DISCREPANCIES, Method, ModelOptions
+from stancal.stan.options import DISCREPANCIES, ModelOptions
 from stancal.numerics.quadrature import input_box_quadrature
 from stancal.numerics.scalable_emulator import ScalableEmulator
 
@@ -44,21 +46,41 @@ def mean_terms_of(data: CalibrationData, options: ModelOptions) -> MeanTerms | N
     return build_mean_terms(options.mean_formula, data.source, intercept=options.mean_intercept)
 
 
+@dataclass(frozen=True)
+class StanInputs:
+    """What every part of a program's Stan data is built from."""
+
+    data: CalibrationData
+    options: ModelOptions
+    raw_points: pd.DataFrame  # prediction points as given (formulas read any column)
+    points: pd.DataFrame  # the same, validated, categorical covariates one-hot
+    emulator: dict[str, Any] | None  # stage 1's hyperparameters, where the program has a stage 1
+
+
 def build_stan_data(
     data: CalibrationData,
-    method: Method | str,
+    parts: tuple[Callable[[StanInputs], dict[str, Any]], ...],
     options: ModelOptions,
     new_points: pd.DataFrame,
     prior_only: bool = False,
     emulator_hyperparameters: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
-    method = Method(method)
-    s = data.scaling
+    """A program's Stan data: the registry row's ``parts``, merged in order."""
+    inputs = StanInputs(data, options, new_points, data.check_new_points(new_points), emulator_hyperparameters)
+    out: dict[str, Any] = {}
+    for part in parts:
+        out.update(part(inputs))
+    out["prior_only"] = int(prior_only)
+    return out
+
+
+def common_data(inputs: StanInputs) -> dict[str, Any]:
+    """What every scalar program takes: sizes, the discrepancy's inputs,
+    scaling, mean terms, theta's bounds and the model switches."""
+    data, options, s = inputs.data, inputs.options, inputs.data.scaling
     terms = mean_terms_of(data, options)
-    h_new = terms.at(new_points) if terms else np.zeros((len(new_points), 0))
-    trials_new = data.trials_at(new_points)
-    new_points = data.check_new_points(new_points)
-    out: dict[str, Any] = dict(
+    h_new = terms.at(inputs.raw_points) if terms else np.zeros((len(inputs.points), 0))
+    return dict(
         N=len(data.physical),
         D=len(data.inputs),
         D_delta=len(data.discrepancy_inputs),
@@ -75,44 +97,62 @@ def build_stan_data(
         use_discrepancy=int(options.has_discrepancy),
         kernel_id=options.kernel_id,
         estimate_rho=int(options.estimate_rho),
-        prior_only=int(prior_only),
-        P=len(new_points),
-        x_delta_new=s.to_unit(new_points, data.discrepancy_inputs),
+        P=len(inputs.points),
+        x_delta_new=s.to_unit(inputs.points, data.discrepancy_inputs),
         # Stan's RNG draws at the prediction points; the PyStan backend gives
         # normals per draw when it reruns generated quantities (backends.base)
         P_normals=0,
         normals_new=np.zeros((0, 2 + len(options.functional))),
     )
-    if method in (Method.KOH_LATENT, Method.KOH_LATENT_EMULATOR):
-        out.update(latent_data(data, options, new_points, trials_new))
-    else:
-        out["y"] = data.scaling.standardise(data.physical[data.output].to_numpy())
-    if method in HSGP_METHODS:
-        out.update(hsgp_data(data, options, out["x_delta_new"]))
-    if method in (Method.KOH, Method.KOH_LATENT, Method.KOH_HSGP):
-        out["X"] = data.physical[data.inputs].to_numpy()
-        out["X_new"] = new_points[data.inputs].to_numpy()
-        if method is Method.KOH:
-            out.update(restricted_gp_data(data, options))
-        return out
-    if options.discrepancy in RESTRICTED_DISCREPANCIES:
-        raise ValueError(f"discrepancy '{options.discrepancy}' needs method 'koh' (a simulator "
-                         f"written in Stan); got method '{method}'")
-    if data.runs is None:
-        raise ValueError(f"method '{method}' needs simulator runs")
-    if method is Method.MODULAR_HSGP:
-        if emulator_hyperparameters is None:
-            raise ValueError(f"method '{method}' needs the stage-1 emulator")
-        out.update(scalable_emulator_data(data, emulator_hyperparameters, new_points))
-        return out
-    out.update(emulator_run_data(data))
-    out["x"] = s.to_unit(data.physical, data.inputs)
-    out["x_new"] = s.to_unit(new_points, data.inputs)
-    if method in (Method.MODULAR, Method.KOH_LATENT_EMULATOR):
-        if emulator_hyperparameters is None:
-            raise ValueError(f"method '{method}' needs the stage-1 emulator hyperparameters")
-        out.update(emulator_hyperparameters)
-    return out
+
+
+def gaussian_outputs(inputs: StanInputs) -> dict[str, Any]:
+    """The standardised outputs of the Gaussian programs."""
+    data = inputs.data
+    return {"y": data.scaling.standardise(data.physical[data.output].to_numpy())}
+
+
+def latent_outputs(inputs: StanInputs) -> dict[str, Any]:
+    """The observation model and functional theta of koh_latent*.stan."""
+    return latent_data(inputs.data, inputs.options, inputs.points, inputs.data.trials_at(inputs.raw_points))
+
+
+def simulator_points(inputs: StanInputs) -> dict[str, Any]:
+    """The raw inputs where a program's Stan simulator runs."""
+    data = inputs.data
+    return {"X": data.physical[data.inputs].to_numpy(), "X_new": inputs.points[data.inputs].to_numpy()}
+
+
+def hsgp_discrepancy(inputs: StanInputs) -> dict[str, Any]:
+    """The Hilbert-space discrepancy's basis (hsgp.stan)."""
+    x_delta_new = inputs.data.scaling.to_unit(inputs.points, inputs.data.discrepancy_inputs)
+    return hsgp_data(inputs.data, inputs.options, x_delta_new)
+
+
+def restricted_discrepancy(inputs: StanInputs) -> dict[str, Any]:
+    """koh.stan's orthogonal and scaled GPs (restricted_gp.stan)."""
+    return restricted_gp_data(inputs.data, inputs.options)
+
+
+def emulator_inputs(inputs: StanInputs) -> dict[str, Any]:
+    """The runs and the unit-scaled points of the GP-emulator programs."""
+    data = inputs.data
+    return {**emulator_run_data(data), "x": data.scaling.to_unit(data.physical, data.inputs),
+            "x_new": data.scaling.to_unit(inputs.points, data.inputs)}
+
+
+def fixed_emulator(inputs: StanInputs) -> dict[str, Any]:
+    """Stage 1's hyperparameters, fixed in the modular programs."""
+    if inputs.emulator is None:
+        raise ValueError("this program needs the stage-1 emulator's hyperparameters")
+    return {name: inputs.emulator[name] for name in EMULATOR_HYPERPARAMETERS}
+
+
+def scalable_emulator(inputs: StanInputs) -> dict[str, Any]:
+    """modular_hsgp.stan's precomputed-weight emulator."""
+    if inputs.emulator is None:
+        raise ValueError("this program needs the stage-1 emulator")
+    return scalable_emulator_data(inputs.data, inputs.emulator, inputs.points)
 
 
 def latent_data(data: CalibrationData, options: ModelOptions, new_points: pd.DataFrame,
