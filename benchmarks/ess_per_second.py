@@ -49,7 +49,7 @@ def plain_baseline(data, args: argparse.Namespace) -> dict:
     import xarray as xr
 
     from stancal.stan.backends.pystan_backend import PyStanBackend
-    from stancal.stan.options import ModelOptions
+    from stancal.problem.options import ModelOptions
     from stancal.stan.source import flatten
     from stancal.stan.registry import PROGRAMS
     from stancal.stan.standata import build_stan_data, default_new_points, to_stan_json

@@ -33,7 +33,7 @@ import stancal
 from stancal.stan.backends import get_backend
 from stancal.fitting.plan import plan_scalar
 from stancal.problem.config import load_config
-from stancal.stan.options import ModelOptions
+from stancal.problem.options import ModelOptions
 
 ROOT = Path(__file__).resolve().parent.parent
 EXACT_LIMIT_S = 600.0

@@ -3,7 +3,8 @@
 import logging
 
 from stancal.fitting.calibrate import calibrate
-from stancal.diagnosing.compare import Comparison, compare_methods, write_comparison
+from stancal.diagnosing.compare import Comparison, compare_methods
+from stancal.reporting.compare_report import write_comparison
 from stancal.problem.data import CalibrationData, DataError, InputRangeWarning
 from stancal.results.diagnostics import SamplerWarning
 from stancal.diagnosing.gap import Candidate, CandidateError, GapWarning, diagnose_gap

@@ -17,7 +17,7 @@ from stancal.fitting.cluster import IN_PROCESS
 from stancal.diagnosing.compare import METHODS
 from stancal.problem.config import ConfigError, load_config
 from stancal.problem.data import DataError
-from stancal.stan.options import APPROXIMATIONS, DISCREPANCIES, EXACT_SIZE_LIMIT
+from stancal.problem.options import APPROXIMATIONS, DISCREPANCIES, EXACT_SIZE_LIMIT
 from stancal.stan.registry import L2, entry_methods, method_names
 from stancal.reporting.report import write_calibration, write_vector_calibration
 from stancal.stan.source import FlatProgram, StanProgramError
@@ -154,7 +154,8 @@ def run_calibrate(args: argparse.Namespace) -> dict:
 
 
 def run_compare(args: argparse.Namespace) -> dict:
-    from stancal.diagnosing.compare import compare_methods, write_comparison
+    from stancal.diagnosing.compare import compare_methods
+    from stancal.reporting.compare_report import write_comparison
 
     problem = load_config(args.config)
     _scalar_only(problem, "compare")
@@ -181,6 +182,7 @@ def run_compare(args: argparse.Namespace) -> dict:
 
 def run_sbc(args: argparse.Namespace) -> dict:
     from stancal.diagnosing.sbc import simulation_based_calibration
+    from stancal.reporting.sbc_report import write_sbc_report
 
     problem = load_config(args.config)
     _scalar_only(problem, "sbc")
@@ -189,6 +191,7 @@ def run_sbc(args: argparse.Namespace) -> dict:
         problem.data, simulator=problem.simulator, simulations=args.sims, draws_per_fit=args.draws_per_fit,
         level=args.level, seed=args.seed, out_dir=args.out, chains=args.chains, warmup=args.warmup,
         backend=args.backend, scheduler=args.scheduler, **model)
+    write_sbc_report(result, args.out)
     return result.to_json()
 
 

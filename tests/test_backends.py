@@ -103,22 +103,22 @@ def test_programs_compile_side_by_side_quietly_into_the_cache(capfd):
     import httpstan.cache
 
     from stancal.stan.backends.pystan_backend import PyStanBackend
-    from stancal.stan.backends.pystan_compile import _model_name, _stored_module, is_compiled
+    from stancal.stan.backends.pystan_compile import model_name, stored_module, is_compiled
     from stancal.stan.source import FlatProgram
 
     programs = [FlatProgram(f"parameters {{ real {name}; }}\nmodel {{ {name} ~ std_normal(); }}\n",
                             (("side_by_side.stan", 1), ("side_by_side.stan", 2)))
                 for name in ("first", "second")]
     for program in programs:  # built before the store existed: build again, so that the store gets it
-        if not _stored_module(program.code).is_file():
-            httpstan.cache.delete_model_directory(_model_name(program.code))
+        if not stored_module(program.code).is_file():
+            httpstan.cache.delete_model_directory(model_name(program.code))
     capfd.readouterr()
     PyStanBackend().compile(programs)
     assert all(is_compiled(p.code) for p in programs)
-    assert all(_stored_module(p.code).is_file() for p in programs)
+    assert all(stored_module(p.code).is_file() for p in programs)
     assert "g++" not in capfd.readouterr().err
 
-    httpstan.cache.delete_model_directory(_model_name(programs[1].code))  # as a fresh venv sees it
+    httpstan.cache.delete_model_directory(model_name(programs[1].code))  # as a fresh venv sees it
     assert not is_compiled(programs[1].code)
     started = time.perf_counter()
     sample = PyStanBackend().sample(programs[1], {}, chains=1, warmup=50, draws=50, seed=1, inits=None,

@@ -8,7 +8,7 @@ import pandas as pd
 import pytest
 from conftest import assert_healthy
 
-from stancal.numerics.output_basis import OutputBasis
+from stancal.problem.output_basis import OutputBasis
 from stancal.problem.validation import DataError
 from stancal.problem.vector_data import VectorCalibrationData
 
@@ -231,7 +231,7 @@ def test_modular_vector_posterior_matches_quadrature(vector_problem):
     same density, computed in numpy (coarse grid over the box, then finer
     ones about the mode); R-hat <= 1.01."""
     from stancal.fitting.vector_calibrate import calibrate_vector, prediction_rows
-    from stancal.stan.options import VectorOptions
+    from stancal.problem.options import VectorOptions
     from stancal.stan.vector_standata import modular_vector_data
 
     data = vector_problem
@@ -306,7 +306,7 @@ def test_many_runs_condition_the_weights_covariance_on_a_subset_that_only_widens
     prior's."""
     from scipy import linalg
 
-    from stancal.numerics.scalable_emulator import _se, run_covariance
+    from stancal.numerics.scalable_emulator import se_correlation, run_covariance
     from stancal.fitting.stage_one import fit_vector_emulator
     from stancal.numerics.vector_emulator import VectorEmulator
 
@@ -318,7 +318,7 @@ def test_many_runs_condition_the_weights_covariance_on_a_subset_that_only_widens
     points = np.random.default_rng(2).uniform(size=(25, xt.shape[1]))
     for exact, approximate in zip(full.components, subset.components):
         h = exact.hyperparameters
-        cross = h.sd**2 * _se(points, xt, h.length_scale)
+        cross = h.sd**2 * se_correlation(points, xt, h.length_scale)
         factor = linalg.cho_factor(run_covariance(xt, h), lower=True)
         exact_variance = h.sd**2 - np.einsum("ij,ji->i", cross, linalg.cho_solve(factor, cross.T))
         mean, covariance = approximate.predict(xt, subset.variance_runs, points)
@@ -332,7 +332,7 @@ def test_the_posterior_keeps_one_noise_sd_or_one_per_experiment():
     """noise = 'one' is a scalar per draw; 'per_experiment' has the
     experiment dimension, even with a single experiment."""
     from stancal.results.vector_result import vector_datatree
-    from stancal.stan.options import VectorOptions
+    from stancal.problem.options import VectorOptions
 
     data = vector_data(physical=long_experiments(1, experiments=1))
     rows = pd.DataFrame({"exp": "shot0", "t": [1.0, 2.0]})
@@ -354,7 +354,7 @@ def test_joint_vector_emulator_agrees_with_the_quadrature_when_the_runs_pin_it_d
     sds within 20 %; R-hat <= 1.01, and the hyperparameters are in the
     posterior."""
     from stancal.fitting.vector_calibrate import calibrate_vector, prediction_rows
-    from stancal.stan.options import VectorOptions
+    from stancal.problem.options import VectorOptions
     from stancal.stan.vector_standata import modular_vector_data
 
     data = vector_problem

@@ -18,15 +18,14 @@ from stancal.fitting.plan import Plan, plan_scalar, require_gaussian
 from stancal.fitting.cluster import FitFailure, FitRunner, FitTask, fit_runner
 from stancal.problem.data import CalibrationData
 from stancal.fitting.l2 import l2_result
-from stancal.stan.options import RESTRICTED_DISCREPANCIES
-from stancal.stan.registry import L2
+from stancal.stan.registry import DEFAULT_ESTIMATOR, ESTIMATORS, L2
 from stancal.numerics.quadrature import Quadrature, input_box_quadrature
 from stancal.results.result import CalibrationResult
 from stancal.diagnosing.scoring import psis_score
 from stancal.fitting.seeds import command_seed, fit_seed
 from stancal.results.summaries import band
 
-METHODS = ("koh", "l2", *RESTRICTED_DISCREPANCIES)
+METHODS = tuple(ESTIMATORS)
 
 
 @dataclass
@@ -97,19 +96,18 @@ _MODEL_KEYWORDS = ("kernel", "estimate_rho", "mean_formula", "mean_intercept", "
 
 def _plans(data: CalibrationData, simulator, methods: tuple[str, ...],
            model: dict[str, Any]) -> dict[str, Plan | str]:
-    """Each compared method's plan, or why it cannot run on this problem:
-    koh is the problem's default program, the restricted discrepancies are
-    koh with that discrepancy, l2 projects koh's fit (its own fit only when
-    koh is not compared)."""
+    """Each compared estimator's plan, or why it cannot run on this problem;
+    a projection of the default fit needs no plan of its own when that fit
+    is compared too."""
     plans: dict[str, Plan | str] = {}
     for name in methods:
-        if name == L2 and "koh" in methods:
+        estimator = ESTIMATORS[name]
+        if estimator.projects and DEFAULT_ESTIMATOR in methods:
             continue
-        restricted = name in RESTRICTED_DISCREPANCIES
         try:
-            plans[name] = plan_scalar(data, simulator, "koh" if restricted else L2 if name == L2 else None,
-                                      model_options(discrepancy=name if restricted else None, **model))
-        except ValueError as err:  # a method this problem cannot run
+            plans[name] = plan_scalar(data, simulator, L2 if estimator.projects else estimator.method,
+                                      model_options(discrepancy=estimator.discrepancy, **model))
+        except ValueError as err:  # an estimator this problem cannot run
             plans[name] = str(err)
     return plans
 
@@ -145,69 +143,13 @@ def compare_methods(data: CalibrationData, *, simulator: str | Path | None = Non
         for task, fit in zip(tasks, runner.map(tasks)):
             fits[task.name] = (MethodFit(task.name, None, skipped=f"the fit failed twice: {fit.error}")
                                if isinstance(fit, FitFailure) else fit)
-    koh = fits.get("koh")
-    if L2 in methods and "koh" in methods and koh.result is not None:
+    koh = fits.get(DEFAULT_ESTIMATOR)
+    if L2 in methods and DEFAULT_ESTIMATOR in methods and koh.result is not None:
         started = time.perf_counter()
         result = l2_result(koh.result, quadrature, len(quadrature.weights))
         if out_dir is not None:
             result.save(Path(out_dir) / L2 / "posterior.nc")
         fits[L2] = MethodFit(L2, result, koh.seconds + time.perf_counter() - started)
-    elif L2 in methods and "koh" in methods:
+    elif L2 in methods and DEFAULT_ESTIMATOR in methods:
         fits[L2] = MethodFit(L2, None, skipped="projects koh's fit, which failed")
     return Comparison([fits[name] for name in methods], quadrature)
-
-
-def plot_comparison(comparison: Comparison, path: str | Path | None = None):
-    """theta (median and 90 % interval) and discrepancy size per method."""
-    from stancal.reporting.plots import finish, pyplot
-
-    plt = pyplot()
-    fitted = [f for f in comparison.fits if f.result is not None]
-    names = comparison.theta_names
-    fig, axes = plt.subplots(1, len(names) + 1, figsize=(3.6 * (len(names) + 1), 0.5 * len(fitted) + 2))
-    rows = range(len(fitted))
-    for ax, name in zip(axes, names):
-        for i, fit in enumerate(fitted):
-            s = fit.result.theta_summary()[name]
-            ax.errorbar(s["q50"], i, xerr=[[s["q50"] - s["q05"]], [s["q95"] - s["q50"]]], fmt="o", capsize=3)
-        ax.set_yticks(list(rows), [f.name for f in fitted])
-        ax.set_xlabel(f"{name} (median, 90 %)")
-    ax = axes[-1]
-    for i, fit in enumerate(fitted):
-        size = band(discrepancy_rms(fit.result, comparison.quadrature))
-        q05, q50, q95 = size["q05"], size["q50"], size["q95"]
-        ax.errorbar(q50, i, xerr=[[q50 - q05], [q95 - q50]], fmt="s", capsize=3, color="C3")
-    ax.set_yticks(list(rows), [f.name for f in fitted])
-    ax.set_xlabel("discrepancy RMS over the input box")
-    fig.suptitle("Calibration methods compared")
-    return finish(fig, path)
-
-
-def write_comparison(comparison: Comparison, folder: str | Path) -> dict[str, Any]:
-    """comparison.csv, comparison.json, comparison.png and report.md."""
-    folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
-    table = comparison.table()
-    table.to_csv(folder / "comparison.csv")
-    summary = {"theta_names": comparison.theta_names,
-               "methods": json.loads(table.reset_index().to_json(orient="records")),
-               "quadrature_nodes": len(comparison.quadrature.weights)}
-    (folder / "comparison.json").write_text(json.dumps(summary, indent=2))
-    figure = folder / "comparison.png"
-    plot_comparison(comparison, figure)
-    (folder / "report.md").write_text(_report(table, figure))
-    return summary
-
-
-def _report(table: pd.DataFrame, figure: Path) -> str:
-    return "\n".join([
-        "# Calibration methods compared", "",
-        "- **koh**: Kennedy & O'Hagan; theta's target depends on the discrepancy prior (review 6.1).",
-        "- **l2**: each posterior draw of zeta (from the koh fit) projected onto the simulator: "
-        "theta = argmin ||zeta - f(., theta)||_L2 (Tuo & Wu 2015).",
-        "- **orthogonal**: the discrepancy GP orthogonal to df/dtheta (Plumlee 2017): theta targets "
-        "the L2 projection.",
-        "- **scaled**: S-GaSP (Gu & Wang 2018): the discrepancy's mean square is penalised.",
-        "", "The discrepancy RMS is sqrt(mean over the input box of (zeta - f(x, theta))^2). "
-        "ELPD is PSIS-LOO on the exact conditional likelihood; l2 shares koh's predictive model.", "",
-        table.round(4).to_markdown(), "", f"![comparison]({figure.name})", ""])

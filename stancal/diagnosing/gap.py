@@ -146,9 +146,7 @@ class GapAnalysis:
 
 
 def _sampler(result: CalibrationResult | VectorCalibrationResult) -> dict[str, Any]:
-    d = result.diagnostics
-    return {"divergences": d.divergences, "max_rhat": d.max_rhat, "min_ess_bulk": d.min_ess_bulk,
-            "warnings": d.messages} if d else {}
+    return result.diagnostics.summary() if result.diagnostics else {}
 
 
 def label_name(candidate: Candidate | None) -> str:
@@ -182,7 +180,7 @@ def variant_program(data: CalibrationData | VectorCalibrationData, candidate: Ca
     """The program a simulator variant runs: the baseline plan's model on
     the variant (koh, or its latent or scalable version; koh_vector for a
     vector output)."""
-    plan = plan or make_plan(data, candidate.stan, "koh")
+    plan = plan or make_plan(data, candidate.stan)
     return plan.with_simulator(candidate.stan).main_program()
 
 

@@ -82,13 +82,13 @@ def _thinned(values: np.ndarray, count: int) -> np.ndarray:
     return values[np.linspace(0, len(values) - 1, count).round().astype(int)]
 
 
-def _log_likelihood_draws(fit: CalibrationResult) -> np.ndarray:
+def log_likelihood_draws(fit: CalibrationResult) -> np.ndarray:
     """The fit program's log-likelihood (its log_lik summed over the
     observations) at every posterior draw."""
     return np.asarray(fit.idata["log_likelihood"]["y"]).reshape(-1, len(fit.data.physical)).sum(1)
 
 
-def _log_likelihood_at(fit: CalibrationResult, parameters: dict[str, np.ndarray],
+def log_likelihood_at(fit: CalibrationResult, parameters: dict[str, np.ndarray],
                        functional_parametrization: str | None = None) -> float:
     """The same log-likelihood on the fit's data at the program's own
     ``parameters`` (one draw, in ``functional_parametrization`` if given),
@@ -124,8 +124,8 @@ def simulated_ranks(data: CalibrationData, truth: dict[str, float], truth_parame
     posterior = _scalars(fit.idata["posterior"].to_dataset())
     ranks = {name: rank_of(value, _thinned(posterior[name], draws_per_fit))
              for name, value in truth.items() if name in posterior}
-    ranks[LOG_LIKELIHOOD] = rank_of(_log_likelihood_at(fit, truth_parameters, prior_parametrization),
-                                    _thinned(_log_likelihood_draws(fit), draws_per_fit))
+    ranks[LOG_LIKELIHOOD] = rank_of(log_likelihood_at(fit, truth_parameters, prior_parametrization),
+                                    _thinned(log_likelihood_draws(fit), draws_per_fit))
     return ranks
 
 
@@ -188,32 +188,6 @@ def simulation_based_calibration(
     tests = {name: uniformity(fractional_ranks(r, draws_per_fit, rng), level, seed) for name, r in ranks.items()}
     result = SBCResult(simulations, draws_per_fit, ranks, tests, time.perf_counter() - started, failed)
     if out_dir is not None:
-        write_sbc(result, Path(out_dir))
+        Path(out_dir).mkdir(parents=True, exist_ok=True)
+        (Path(out_dir) / "sbc.json").write_text(json.dumps(result.to_json(), indent=2))
     return result
-
-
-def write_sbc(result: SBCResult, folder: Path) -> Path:
-    """sbc.json and ecdf.png (the ECDF difference of each parameter's
-    fractional ranks, with its simultaneous band)."""
-    from stancal.reporting.plots import finish, pyplot
-
-    folder.mkdir(parents=True, exist_ok=True)
-    (folder / "sbc.json").write_text(json.dumps(result.to_json(), indent=2))
-    plt = pyplot()
-    names = list(result.tests)
-    columns = min(4, len(names))
-    rows = -(-len(names) // columns)
-    fig, axes = plt.subplots(rows, columns, figsize=(3.4 * columns, 2.8 * rows), squeeze=False)
-    for ax, name in zip(axes.ravel(), names):
-        test = result.tests[name]
-        ax.fill_between(test.grid, *test.band, color="grey", alpha=0.3, label=f"{test.level:.0%} band")
-        ax.plot(test.grid, test.ecdf_difference, color="tab:red" if test.rejected else "tab:blue")
-        ax.axhline(0, color="black", lw=0.8)
-        ax.set_title(f"{name} (p = {test.p_value:.2g})", fontsize=8)
-        ax.set_xlabel("fractional rank")
-    for ax in axes.ravel()[len(names):]:
-        ax.set_visible(False)
-    axes[0][0].set_ylabel("ECDF - uniform")
-    fig.tight_layout()
-    finish(fig, folder / "ecdf.png")
-    return folder / "sbc.json"

@@ -13,7 +13,7 @@ import numpy as np
 from stancal.numerics.hsgp import BasisTooLargeError, HSGPBasis, basis_problems, refined_basis
 from stancal.numerics.scalable_emulator import MAX_ERROR_RANK
 from stancal.problem.data import CalibrationData
-from stancal.stan.options import ModelOptions
+from stancal.problem.options import ModelOptions
 from stancal.stan.standata import scalable_emulator_of
 
 logger = logging.getLogger("stancal")

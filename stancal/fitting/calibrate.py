@@ -23,7 +23,7 @@ from stancal.problem.data import CalibrationData
 from stancal.results.diagnostics import parametrization_advice
 from stancal.results.result import CalibrationResult, build_datatree
 from stancal.stan.backends import get_backend
-from stancal.stan.options import ModelOptions
+from stancal.problem.options import ModelOptions
 from stancal.stan.source import FlatProgram
 from stancal.stan.standata import EMULATOR_HYPERPARAMETERS, build_stan_data, default_new_points, to_stan_json
 

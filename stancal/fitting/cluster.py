@@ -123,11 +123,9 @@ def _private_cache_plugin(scratch: Path | None):
             use_private_httpstan_cache(self.folder)
 
         def teardown(self, worker) -> None:
-            import httpstan.services_stub
+            from stancal.stan.backends.pystan_compile import release_private_httpstan_cache
 
-            # its sampling processes would otherwise hold the worker's exit back
-            httpstan.services_stub.executor.shutdown(wait=False, cancel_futures=True)
-            shutil.rmtree(self.folder, ignore_errors=True)
+            release_private_httpstan_cache(self.folder)
 
     return PrivateHttpstanCache()
 

@@ -20,7 +20,7 @@ from scipy.stats import qmc
 
 from stancal.stan.backends import get_backend
 from stancal.numerics.kernels import ard_cross_cov
-from stancal.stan.options import ModelOptions
+from stancal.problem.options import ModelOptions
 from stancal.stan.registry import program
 from stancal.numerics.quadrature import Quadrature
 from stancal.stan.standata import build_stan_data, to_stan_json

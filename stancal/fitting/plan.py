@@ -12,7 +12,7 @@ from stancal.numerics.hsgp import first_basis
 from stancal.problem.data import CalibrationData
 from stancal.problem.functional import check_functional
 from stancal.problem.vector_data import VectorCalibrationData
-from stancal.stan.options import EXACT_SIZE_LIMIT, RESTRICTED_DISCREPANCIES, ModelOptions, VectorOptions
+from stancal.problem.options import EXACT_SIZE_LIMIT, RESTRICTED_DISCREPANCIES, ModelOptions, VectorOptions
 from stancal.stan.registry import L2, PROGRAMS, STAGE_ONE_PROGRAM, Program, default_program, for_method
 from stancal.stan.source import FlatProgram, flatten
 
@@ -46,7 +46,7 @@ class Plan:
 
     def with_simulator(self, simulator: Path) -> "Plan":
         """The same model on a variant simulator written in Stan (the gap's candidates)."""
-        base = for_method("koh", self.program.output)
+        base = default_program(self.program.output, simulator=True)
         version = base.latent_version if self.program.latent else (
             base.scalable_version if self.program.approximation == "hsgp" else None)
         chosen = PROGRAMS[version] if version else base

@@ -71,7 +71,7 @@ class Hyperparameters:
                    np.asarray(values["emulator_length_scale"], float), float(values["emulator_nugget"]))
 
 
-def _se(a: np.ndarray, b: np.ndarray, length_scale: np.ndarray) -> np.ndarray:
+def se_correlation(a: np.ndarray, b: np.ndarray, length_scale: np.ndarray) -> np.ndarray:
     """exp(-|(a - b) / l|^2 / 2) between the rows of a and b."""
     a, b = a / length_scale, b / length_scale
     sq = (a**2).sum(1)[:, None] + (b**2).sum(1)[None, :] - 2 * a @ b.T
@@ -80,7 +80,7 @@ def _se(a: np.ndarray, b: np.ndarray, length_scale: np.ndarray) -> np.ndarray:
 
 def run_covariance(xt: np.ndarray, h: Hyperparameters) -> np.ndarray:
     """emulator_run_cov of functions/gp_kernels.stan (squared exponential)."""
-    K = h.sd**2 * _se(xt, xt, h.length_scale)
+    K = h.sd**2 * se_correlation(xt, xt, h.length_scale)
     K[np.diag_indices_from(K)] += h.nugget**2 + JITTER * h.sd**2
     return K
 
@@ -94,7 +94,7 @@ def negative_log_posterior(u: np.ndarray, xt: np.ndarray, y: np.ndarray) -> tupl
     Jacobian, as Stan's optimiser with jacobian=True sees it), negated, and
     its gradient; u = (mean, log sd, log length scales, log nugget)."""
     h = _unpack(u)
-    correlation = _se(xt, xt, h.length_scale)
+    correlation = se_correlation(xt, xt, h.length_scale)
     K = h.sd**2 * correlation
     K[np.diag_indices_from(K)] += h.nugget**2 + JITTER * h.sd**2
     try:
@@ -201,8 +201,8 @@ def exact_mean(x_unit: np.ndarray, x_runs: np.ndarray, theta_runs: np.ndarray, a
                h: Hyperparameters, theta_unit: np.ndarray) -> np.ndarray:
     """The GP mean minus m at every (x_i, theta_t): (points, thetas)."""
     D = x_runs.shape[1]
-    Kx = _se(x_unit, x_runs, h.length_scale[:D])
-    return Kx @ (h.sd**2 * alpha[:, None] * _se(theta_runs, theta_unit, h.length_scale[D:]))
+    Kx = se_correlation(x_unit, x_runs, h.length_scale[:D])
+    return Kx @ (h.sd**2 * alpha[:, None] * se_correlation(theta_runs, theta_unit, h.length_scale[D:]))
 
 
 def theta_interpolant(x_runs: np.ndarray, theta_runs: np.ndarray, alpha: np.ndarray, h: Hyperparameters,
@@ -253,7 +253,7 @@ def local_variance(x_unit: np.ndarray, theta_unit: np.ndarray, xt_runs: np.ndarr
     variance = np.empty(len(points))
     for i, rows in enumerate(nearest):
         local = xt_runs[rows]
-        cross = h.sd**2 * _se(points[i : i + 1], local, h.length_scale)[0]
+        cross = h.sd**2 * se_correlation(points[i : i + 1], local, h.length_scale)[0]
         factor = linalg.cho_factor(run_covariance(local, h), lower=True)
         variance[i] = h.sd**2 - cross @ linalg.cho_solve(factor, cross)
     return np.maximum(variance, 0.0)
@@ -284,12 +284,12 @@ def error_basis(x_unit: np.ndarray, theta_unit: np.ndarray, xt_runs: np.ndarray,
                  else np.sort(rng.choice(len(points), LANDMARKS, replace=False)))
     # made again rather than kept: PyStan forks its sampling workers from this process, and
     # a factor held here (200 MB at N = 5,000) would sit in each of them
-    runs_solve = linalg.cho_solve(run_factor(xt_runs, h), h.sd**2 * _se(xt_runs, points[landmarks], h.length_scale))
+    runs_solve = linalg.cho_solve(run_factor(xt_runs, h), h.sd**2 * se_correlation(xt_runs, points[landmarks], h.length_scale))
     to_landmarks = np.empty((len(points), len(landmarks)))
     for start in range(0, len(points), 1000):  # k(P, runs) a block of points at a time
         block = points[start : start + 1000]
         to_landmarks[start : start + 1000] = h.sd**2 * (
-            _se(block, points[landmarks], h.length_scale) - _se(block, xt_runs, h.length_scale) @ runs_solve)
+            se_correlation(block, points[landmarks], h.length_scale) - se_correlation(block, xt_runs, h.length_scale) @ runs_solve)
     eigenvalues, eigenvectors = np.linalg.eigh(to_landmarks[landmarks])
     kept = eigenvalues > 1e-10 * max(eigenvalues.max(), 1e-300)
     half = to_landmarks @ (eigenvectors[:, kept] / np.sqrt(eigenvalues[kept]))  # C ~ half half'

@@ -1,6 +1,6 @@
 """Stage 1 of modular calibration for vector output (Higdon et al. 2008,
 section 2.2): one GP per component weight of the runs' reduced basis
-(stancal.numerics.output_basis), over the simulator inputs and theta.
+(stancal.problem.output_basis), over the simulator inputs and theta.
 
 Each component's hyperparameters are emulator.stan's posterior mode (the
 priors of the scalar path, which suit the weights: unit variance by
@@ -23,8 +23,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import linalg
 
-from stancal.numerics.output_basis import OutputBasis
-from stancal.numerics.scalable_emulator import Hyperparameters, _se, fit_hyperparameters, run_covariance
+from stancal.problem.output_basis import OutputBasis
+from stancal.numerics.scalable_emulator import Hyperparameters, se_correlation, fit_hyperparameters, run_covariance
 
 HYPERPARAMETER_RUNS = 400  # per component: the mode moves little beyond a few hundred runs
 VARIANCE_RUNS = 400  # the weights' covariance conditions on this many runs at most
@@ -42,9 +42,9 @@ class ComponentGP:
         the weight at the points, no nugget (the simulator is
         deterministic), as component_weights in functions/vector_output.stan."""
         h = self.hyperparameters
-        cross = h.sd**2 * _se(points, xt_runs, h.length_scale)
+        cross = h.sd**2 * se_correlation(points, xt_runs, h.length_scale)
         cross_variance = cross[:, variance_runs]
-        covariance = (h.sd**2 * _se(points, points, h.length_scale)
+        covariance = (h.sd**2 * se_correlation(points, points, h.length_scale)
                       - cross_variance @ linalg.cho_solve(self.variance_factor, cross_variance.T))
         return h.mean + cross @ self.alpha, covariance
 

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import tomllib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
@@ -11,6 +11,7 @@ import pandas as pd
 
 from stancal.problem.data import CalibrationData
 from stancal.problem.candidates import Candidate, CandidateError
+from stancal.problem.options import ModelOptions, VectorOptions
 from stancal.problem.vector_data import VectorCalibrationData
 
 
@@ -27,13 +28,12 @@ class Problem:
 
 
 _OBSERVATION_KEYS = {"likelihood", "trials", "lower", "upper"}  # go to CalibrationData
-_MODEL_KEYS = {"method", "discrepancy", "kernel", "estimate_rho", "program", "mean_formula",
-               "mean_intercept", "scaled_lambda", "functional", "functional_inputs",
-               "functional_parametrization", "approximation", "basis_functions", "boundary_factor",
-               *_OBSERVATION_KEYS}
+# [model]: the method, the user's copy of its program, and the options of the model (problem.options)
+_MODEL_KEYS = {"method", "program", *(f.name for f in fields(ModelOptions)), *_OBSERVATION_KEYS}
 _VARIANT_KEYS = {"stan", "inputs", "theta"}
-_VECTOR_MODEL_KEYS = {"method", "discrepancy", "noise", "kernel", "mean_formula", "mean_intercept", "program",
-                      "variance_share", "components"}
+# the vector programs' discrepancy is an exact GP: no basis to set
+_VECTOR_MODEL_KEYS = {"method", "program", "variance_share", "components",
+                      *(f.name for f in fields(VectorOptions) if f.name != "basis_functions")}
 
 
 def _candidates(table: dict[str, Any], base: Path) -> list[Candidate]:

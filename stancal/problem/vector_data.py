@@ -20,7 +20,7 @@ from stancal.problem.data import (
     require_runs_within_bounds,
     warn_outside_runs,
 )
-from stancal.numerics.output_basis import DEFAULT_VARIANCE_SHARE, OutputBasis
+from stancal.problem.output_basis import DEFAULT_VARIANCE_SHARE, OutputBasis
 from stancal.problem.validation import DataError
 from stancal.problem.validation import row_labels as _rows
 
@@ -64,7 +64,7 @@ class VectorCalibrationData:
     noise_sd : optional column of each measured value's known sd.
     covariates : physical columns the discrepancy may depend on (constant
         within an experiment).
-    variance_share, components : the runs' reduced basis (stancal.numerics.output_basis).
+    variance_share, components : the runs' reduced basis (stancal.problem.output_basis).
     """
 
     def __init__(

@@ -11,7 +11,7 @@ import numpy as np
 import xarray as xr
 
 if TYPE_CHECKING:  # annotations only: results do not depend on the model's options
-    from stancal.stan.options import ModelOptions
+    from stancal.problem.options import ModelOptions
 
 logger = logging.getLogger("stancal")
 
@@ -43,6 +43,13 @@ class Diagnostics:
 
     def to_dict(self) -> dict:
         return asdict(self)
+
+    def summary(self) -> dict:
+        """What summary.json and gap.json report of the sampler."""
+        return {"divergences": self.divergences, "draws": self.draws, "max_rhat": self.max_rhat,
+                "min_ess_bulk": self.min_ess_bulk, "min_ess_tail": self.min_ess_tail,
+                "treedepth_hits": self.treedepth_hits, "low_bfmi_chains": self.low_bfmi_chains,
+                "warnings": self.messages}
 
 
 def _bfmi(energy: np.ndarray) -> np.ndarray:

@@ -17,7 +17,7 @@ from stancal.problem.data import CalibrationData
 from stancal.results.diagnostics import Diagnostics
 from stancal.problem.functional import functional_grid
 from stancal.problem.codes import Likelihood
-from stancal.stan.options import ModelOptions
+from stancal.problem.options import ModelOptions
 from stancal.results.modes import Mode
 from stancal.stan.source import FlatProgram
 from stancal.stan.standata import EMULATOR_HYPERPARAMETERS, mean_terms_of
@@ -236,9 +236,7 @@ class CalibrationResult:
             "theta": self.theta_summary(),
             "modes": [m.to_dict() for m in self.modes],
             "parameters": json.loads(self.summary().reset_index().to_json(orient="records")),
-            "diagnostics": {"divergences": d.divergences, "max_rhat": d.max_rhat,
-                            "min_ess_bulk": d.min_ess_bulk, "min_ess_tail": d.min_ess_tail,
-                            "treedepth_hits": d.treedepth_hits, "warnings": d.messages},
+            "diagnostics": d.summary(),
             "timing": self.timing,
             "emulator": {k: v for k, v in self.emulator.items() if k != "hyperparameters"},
             **({"l2": self.l2} if self.l2 else {}),

@@ -19,7 +19,7 @@ from stancal.problem.vector_data import VectorCalibrationData
 from stancal.results import diagnostics as sampler_checks
 from stancal.results.result import AT_OBSERVATIONS  # the scalar programs' per-value quantities; both vector programs give them
 from stancal.results.summaries import posterior_table, summary_by_mode, theta_summary
-from stancal.stan.options import VectorOptions
+from stancal.problem.options import VectorOptions
 from stancal.stan.source import FlatProgram
 
 
@@ -65,9 +65,7 @@ class VectorCalibrationResult:
                 "components": basis.count, "explained": basis.explained.tolist(),
                 "truncation_sd": float(basis.scale * np.sqrt(basis.truncation_variance)),
                 "description": basis.describe()},
-            "diagnostics": {"divergences": d.divergences, "max_rhat": d.max_rhat, "min_ess_bulk": d.min_ess_bulk,
-                            "min_ess_tail": d.min_ess_tail, "treedepth_hits": d.treedepth_hits,
-                            "warnings": d.messages},
+            "diagnostics": d.summary(),
             "timing": self.timing,
         }
 

@@ -18,7 +18,7 @@ from typing import Any
 
 from stancal.stan import standata as sd
 from stancal.stan import vector_standata as vd
-from stancal.stan.options import RESTRICTED_DISCREPANCIES
+from stancal.problem.options import RESTRICTED_DISCREPANCIES
 from stancal.stan.source import shipped_models_dir
 
 # commands a program can be used by (besides calibrate, which takes all)
@@ -56,7 +56,9 @@ class Program:
 
     @property
     def path(self) -> Path:
-        return shipped_models_dir() / self.stan_file
+        """The program's file: shipped, or a user's copy given by its absolute path."""
+        path = Path(self.stan_file)
+        return path if path.is_absolute() else shipped_models_dir() / path
 
     def accepts(self, command: str) -> bool:
         return command in self.commands
@@ -109,6 +111,25 @@ PROGRAMS: dict[str, Program] = {program.name: program for program in (
 )}
 MODELS = PROGRAMS  # the name of the registry in stancal's first releases
 STAGE_ONE_PROGRAM = {STAGE_ONE_GP: "emulator"}  # stage 1 kinds that run a Stan program
+
+
+@dataclass(frozen=True)
+class Estimator:
+    """A way of estimating theta that `stancal compare` sets side by side
+    (review section 6): the problem's default fit (KOH), that fit's zeta
+    draws projected onto the simulator (L2, Tuo & Wu 2015), or a program
+    with a discrepancy restricted to keep theta identifiable."""
+
+    name: str
+    method: str | None = None  # None: the problem's default program
+    discrepancy: str | None = None
+    projects: bool = False  # theta = the L2 projection of the default fit's zeta draws
+
+
+DEFAULT_ESTIMATOR = "koh"
+ESTIMATORS: dict[str, Estimator] = {e.name: e for e in (
+    Estimator(DEFAULT_ESTIMATOR), Estimator(L2, projects=True),
+    *(Estimator(form, "koh", form) for form in RESTRICTED_DISCREPANCIES))}
 
 
 def program(name: str) -> Program:

@@ -13,7 +13,7 @@ from stancal.problem.data import CalibrationData
 from stancal.problem.functional import functional_grid
 from stancal.problem.mean_terms import MeanTerms, build_mean_terms
 from stancal.numerics.hsgp import HALF_RANGE, HSGPBasis, first_basis
-from stancal.stan.options import DISCREPANCIES, ModelOptions
+from stancal.problem.options import DISCREPANCIES, ModelOptions
 from stancal.numerics.quadrature import input_box_quadrature
 from stancal.numerics.scalable_emulator import ScalableEmulator
 

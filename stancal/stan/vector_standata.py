@@ -13,7 +13,7 @@ from stancal.numerics.vector_emulator import VectorEmulator
 from stancal.problem.codes import NOISE_MODES
 from stancal.problem.mean_terms import MeanTerms, build_mean_terms
 from stancal.problem.vector_data import VectorCalibrationData
-from stancal.stan.options import VectorOptions
+from stancal.problem.options import VectorOptions
 
 
 @dataclass(frozen=True)

@@ -2,13 +2,23 @@
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Protocol
 
 import numpy as np
 
 from stancal.stan.source import FlatProgram
+
+
+def cache_root() -> Path:
+    """Where every backend keeps what it builds: $STANCAL_CACHE, else
+    stancal's folder in the user cache ($XDG_CACHE_HOME, else ~/.cache)."""
+    if os.environ.get("STANCAL_CACHE"):
+        return Path(os.environ["STANCAL_CACHE"])
+    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "stancal"
 
 # Stan's sampler columns -> ArviZ sample_stats names
 SAMPLER_STATS = {

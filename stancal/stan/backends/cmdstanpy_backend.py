@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 
 from stancal.stan.source import FlatProgram, StanProgramError
-from stancal.stan.backends.base import SAMPLER_STATS, Draws, SampleOutput, StanRuntimeError
+from stancal.stan.backends.base import SAMPLER_STATS, Draws, SampleOutput, StanRuntimeError, cache_root
 
 logger = logging.getLogger("stancal")
 
@@ -28,8 +28,7 @@ def cmdstan_available() -> bool:
 
 
 def cache_dir() -> Path:
-    root = os.environ.get("STANCAL_CACHE") or os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
-    return Path(root) / "stancal" / "cmdstan"
+    return cache_root() / "cmdstan"
 
 
 class CmdStanPyBackend:

@@ -28,7 +28,7 @@ from importlib.machinery import EXTENSION_SUFFIXES
 from pathlib import Path
 
 from stancal.stan.source import FlatProgram
-from stancal.stan.backends.base import StanRuntimeError
+from stancal.stan.backends.base import StanRuntimeError, cache_root
 
 logger = logging.getLogger("stancal")
 
@@ -44,18 +44,16 @@ def store_directory() -> Path:
     """The machine's store of compiled modules ($STANCAL_CACHE, else the user cache)."""
     import httpstan
 
-    user_cache = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
-    root = os.environ.get("STANCAL_CACHE") or user_cache / "stancal"
     tag = f"httpstan-{httpstan.__version__}-py{sys.version_info[0]}{sys.version_info[1]}"
-    return Path(root) / "pystan" / tag
+    return cache_root() / "pystan" / tag
 
 
-def _stored_module(code: str) -> Path:
+def stored_module(code: str) -> Path:
     key = hashlib.sha256("\0".join([code, *COMPILE_ARGS]).encode()).hexdigest()[:24]
     return store_directory() / f"{key}{EXTENSION_SUFFIXES[0]}"
 
 
-def _model_name(code: str) -> str:
+def model_name(code: str) -> str:
     import httpstan.models
 
     return httpstan.models.calculate_model_name(code)
@@ -66,7 +64,7 @@ def is_compiled(code: str) -> bool:
     import httpstan.cache
 
     try:
-        folder = httpstan.cache.model_directory(_model_name(code))
+        folder = httpstan.cache.model_directory(model_name(code))
         return any(p.suffix in EXTENSION_SUFFIXES for p in folder.iterdir())
     except OSError:
         return False
@@ -97,7 +95,7 @@ def _build_module(code: str, folder: Path) -> Path:
     import setuptools
 
     package = Path(httpstan.__file__).parent
-    stan_name = f"model_{_model_name(code).split('/')[1]}"
+    stan_name = f"model_{model_name(code).split('/')[1]}"
     cpp, _ = httpstan.compile.compile(code, stan_name)
     source = folder / f"{stan_name}.cpp"
     source.write_text(cpp)
@@ -121,7 +119,7 @@ def _install(code: str, module: Path) -> None:
     and line (PyStanBackend.check), and holds back what stan.build prints."""
     import httpstan.cache
 
-    name = _model_name(code)
+    name = model_name(code)
     httpstan.cache.delete_model_directory(name)
     folder = httpstan.cache.model_directory(name)
     folder.mkdir(parents=True)
@@ -139,7 +137,7 @@ def build_into_store(code: str) -> Path:
     this machine built it before. Processes that ask at once (Dask workers,
     two commands) take a lock per program: one builds, the others wait and
     find it built."""
-    stored = _stored_module(code)
+    stored = stored_module(code)
     if stored.is_file():
         return stored
     stored.parent.mkdir(parents=True, exist_ok=True)
@@ -163,6 +161,15 @@ def use_private_httpstan_cache(folder: Path) -> None:
 
     folder.mkdir(parents=True, exist_ok=True)
     httpstan.cache.cache_directory = lambda: folder  # httpstan looks it up at every use
+
+
+def release_private_httpstan_cache(folder: Path) -> None:
+    """Undo use_private_httpstan_cache when a process (a Dask worker) stops:
+    its sampling processes would otherwise hold the exit back."""
+    import httpstan.services_stub
+
+    httpstan.services_stub.executor.shutdown(wait=False, cancel_futures=True)
+    shutil.rmtree(folder, ignore_errors=True)
 
 
 @contextlib.contextmanager
@@ -209,7 +216,7 @@ def compile_programs(programs: list[FlatProgram]) -> None:
     todo = {p.code: p for p in programs if not is_compiled(p.code)}
     if not todo:
         return
-    building = [p for p in todo.values() if not _stored_module(p.code).is_file()]
+    building = [p for p in todo.values() if not stored_module(p.code).is_file()]
     workers = max(1, min(len(building), os.cpu_count() or 1))
     if building:
         logger.warning("Compiling %d Stan program%s with PyStan, %d at a time (%s); each takes two to "
@@ -220,7 +227,7 @@ def compile_programs(programs: list[FlatProgram]) -> None:
     with ThreadPoolExecutor(max_workers=workers) as pool:  # each thread waits on one subprocess
         list(pool.map(_compile_in_subprocess, building))
     for code in todo:  # into this process's httpstan cache, which may be private to it
-        _install(code, _stored_module(code))
+        _install(code, stored_module(code))
     if building:
         logger.info("compiled %d program%s in %.0f s", len(building), "s" if len(building) > 1 else "",
                     time.perf_counter() - started)
