@@ -48,10 +48,10 @@ def plain_baseline(data, args: argparse.Namespace) -> dict:
     import numpy as np
     import xarray as xr
 
-    from stancal.stan.backends.pystan_backend import PyStanBackend
     from stancal.problem.options import ModelOptions
-    from stancal.stan.source import flatten
+    from stancal.stan.backends.pystan_backend import PyStanBackend
     from stancal.stan.registry import PROGRAMS
+    from stancal.stan.source import flatten
     from stancal.stan.standata import build_stan_data, default_new_points, to_stan_json
 
     program = flatten(Path(__file__).with_name("plain_koh_joint.stan"))

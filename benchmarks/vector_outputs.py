@@ -102,7 +102,7 @@ def large_problem(runs: int = 1000, seed: int = 0) -> VectorCalibrationData:
     physical = pd.DataFrame({"shot": np.repeat(["s1", "s2", "s3"], FEATURES), "x": np.repeat(x, FEATURES),
                              "feature": np.tile(np.arange(1, FEATURES + 1), 3), "y": measured.ravel(),
                              "sd": 0.02})
-    return VectorCalibrationData(physical, "shot", ["x"], "y", "feature", {n: (0.0, 1.0) for n in names},
+    return VectorCalibrationData(physical, "shot", ["x"], "y", "feature", dict.fromkeys(names, (0.0, 1.0)),
                                  runs=long, run="run", noise_sd="sd")
 
 

@@ -2,19 +2,19 @@
 
 import logging
 
-from stancal.fitting.calibrate import calibrate
 from stancal.diagnosing.compare import Comparison, compare_methods
-from stancal.reporting.compare_report import write_comparison
-from stancal.problem.data import CalibrationData, DataError, InputRangeWarning
-from stancal.results.diagnostics import SamplerWarning
 from stancal.diagnosing.gap import Candidate, CandidateError, GapWarning, diagnose_gap
-from stancal.reporting.gap_report import write_gap_report
-from stancal.problem.mean_terms import FormulaError
+from stancal.fitting.calibrate import calibrate
 from stancal.problem.codes import Kernel
-from stancal.stan.registry import MODELS, PROGRAMS, Program, register
-from stancal.results.modes import MultimodalWarning
+from stancal.problem.data import CalibrationData, DataError, InputRangeWarning
+from stancal.problem.mean_terms import FormulaError
+from stancal.reporting.compare_report import write_comparison
+from stancal.reporting.gap_report import write_gap_report
 from stancal.reporting.report import write_calibration
+from stancal.results.diagnostics import SamplerWarning
+from stancal.results.modes import MultimodalWarning
 from stancal.results.result import CalibrationResult
+from stancal.stan.registry import MODELS, PROGRAMS, Program, register
 from stancal.stan.source import StanProgramError
 
 logging.getLogger("stancal").addHandler(logging.NullHandler())

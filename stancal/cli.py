@@ -10,18 +10,18 @@ import sys
 import warnings
 from pathlib import Path
 
-from stancal.stan.backends import BACKENDS, StanRuntimeError, get_backend
-from stancal.fitting.calibrate import calibrate
-from stancal.fitting.plan import make_plan, model_keywords
-from stancal.fitting.cluster import IN_PROCESS
 from stancal.diagnosing.compare import METHODS
+from stancal.fitting.calibrate import calibrate
+from stancal.fitting.cluster import IN_PROCESS
+from stancal.fitting.plan import make_plan, model_keywords
 from stancal.problem.config import ConfigError, load_config
 from stancal.problem.data import DataError
 from stancal.problem.options import APPROXIMATIONS, DISCREPANCIES, EXACT_SIZE_LIMIT
-from stancal.stan.registry import L2, entry_methods, method_names
-from stancal.reporting.report import write_calibration, write_vector_calibration
-from stancal.stan.source import FlatProgram, StanProgramError
 from stancal.problem.vector_data import VectorCalibrationData
+from stancal.reporting.report import write_calibration, write_vector_calibration
+from stancal.stan.backends import BACKENDS, StanRuntimeError, get_backend
+from stancal.stan.registry import L2, entry_methods, method_names
+from stancal.stan.source import FlatProgram, StanProgramError
 
 logger = logging.getLogger("stancal")
 
@@ -133,8 +133,8 @@ def run_calibrate(args: argparse.Namespace) -> dict:
         model["discrepancy"] = args.discrepancy
     if args.approximation:
         model["approximation"] = args.approximation
-    sampler = dict(chains=args.chains, warmup=args.warmup, draws=args.draws, seed=args.seed,
-                   backend=args.backend, adapt_delta=args.adapt_delta, out_dir=args.out)
+    sampler = {"chains": args.chains, "warmup": args.warmup, "draws": args.draws, "seed": args.seed,
+                   "backend": args.backend, "adapt_delta": args.adapt_delta, "out_dir": args.out}
     args.out.mkdir(parents=True, exist_ok=True)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
@@ -258,7 +258,7 @@ def main(argv: list[str] | None = None) -> int:
               f"report in {args.out / 'report.md'}")
         return 0
     if args.command == "sbc":
-        for name, row in summary["parameters"].items():
+        for _name, row in summary["parameters"].items():
             print(row["verdict"])
         print(f"sbc: {summary['simulations']} simulations, {summary['draws_per_fit']} draws each; "
               f"results in {args.out / 'sbc.json'}")

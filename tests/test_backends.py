@@ -125,3 +125,41 @@ def test_programs_compile_side_by_side_quietly_into_the_cache(capfd):
                                     adapt_delta=0.8, max_treedepth=10)
     assert time.perf_counter() - started < 30  # from the store, not built again
     assert sample.draws["second"].shape == (1, 50)
+
+
+def test_stanc_waits_for_a_busy_machine(monkeypatch, tmp_path):
+    """httpstan gives stanc one second, which a loaded machine exceeds
+    (issue 29: subprocess.TimeoutExpired while compiles ran beside it);
+    stancal's stanc gives the same output and waits. A stanc slowed by 1.5 s
+    stands in for the busy machine."""
+    import subprocess
+
+    import httpstan.compile
+
+    from stancal.stan.backends import pystan_compile
+
+    slow = tmp_path / "stanc"
+    slow.write_text(f"#!/bin/sh\nsleep 1.5\nexec {pystan_compile.stanc_binary()} \"$@\"\n")
+    slow.chmod(0o755)
+    code = "parameters { real x; } model { x ~ normal(0, 1); }"
+    fast_cpp, fast_warnings = pystan_compile.stanc(code, "m")
+    monkeypatch.setattr(pystan_compile, "stanc_binary", lambda: slow)
+    cpp, warnings = pystan_compile.stanc(code, "m")
+    assert warnings == fast_warnings and "class m " in cpp and len(cpp.splitlines()) == len(fast_cpp.splitlines())
+    with monkeypatch.context() as patched:  # httpstan's own call, with the same slow stanc, gives up
+        patched.setattr(httpstan.compile.importlib.resources, "path", lambda *a: _Here(slow))
+        with pytest.raises(subprocess.TimeoutExpired):
+            httpstan.compile.compile(code, "m")
+
+
+class _Here:
+    """A context manager giving a fixed path (importlib.resources.path's shape)."""
+
+    def __init__(self, path):
+        self.path = path
+
+    def __enter__(self):
+        return self.path
+
+    def __exit__(self, *exc):
+        return False

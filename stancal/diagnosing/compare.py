@@ -3,7 +3,6 @@
 
 from __future__ import annotations
 
-import json
 import time
 import warnings
 from dataclasses import dataclass
@@ -13,17 +12,17 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from stancal.fitting.calibrate import calibrate, model_options
-from stancal.fitting.plan import Plan, plan_scalar, require_gaussian
-from stancal.fitting.cluster import FitFailure, FitRunner, FitTask, fit_runner
-from stancal.problem.data import CalibrationData
-from stancal.fitting.l2 import l2_result
-from stancal.stan.registry import DEFAULT_ESTIMATOR, ESTIMATORS, L2
-from stancal.numerics.quadrature import Quadrature, input_box_quadrature
-from stancal.results.result import CalibrationResult
 from stancal.diagnosing.scoring import psis_score
+from stancal.fitting.calibrate import calibrate, model_options
+from stancal.fitting.cluster import FitFailure, FitRunner, FitTask, fit_runner
+from stancal.fitting.l2 import l2_result
+from stancal.fitting.plan import Plan, plan_scalar, require_gaussian
 from stancal.fitting.seeds import command_seed, fit_seed
+from stancal.numerics.quadrature import Quadrature, input_box_quadrature
+from stancal.problem.data import CalibrationData
+from stancal.results.result import CalibrationResult
 from stancal.results.summaries import band
+from stancal.stan.registry import DEFAULT_ESTIMATOR, ESTIMATORS, L2
 
 METHODS = tuple(ESTIMATORS)
 
@@ -140,7 +139,7 @@ def compare_methods(data: CalibrationData, *, simulator: str | Path | None = Non
             out_dir=None if out_dir is None else Path(out_dir) / name, **calibrate_options)))
     with fit_runner(scheduler) as runner:
         runner.prepare([], calibrate_options.get("backend"))  # each fit compiles its program once per machine
-        for task, fit in zip(tasks, runner.map(tasks)):
+        for task, fit in zip(tasks, runner.map(tasks), strict=False):
             fits[task.name] = (MethodFit(task.name, None, skipped=f"the fit failed twice: {fit.error}")
                                if isinstance(fit, FitFailure) else fit)
     koh = fits.get(DEFAULT_ESTIMATOR)

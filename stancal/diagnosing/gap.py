@@ -40,15 +40,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from stancal.stan.backends import get_backend
-from stancal.fitting.calibrate import calibrate
-from stancal.fitting.plan import Plan, make_plan, model_keywords
-from stancal.fitting.cluster import FitFailure, FitRunner, FitTask, fit_runner
-from stancal.problem.candidates import Candidate, CandidateError
-from stancal.problem.data import CalibrationData, DataError
 from stancal.diagnosing.gap_location import GapLocation, interval, locate_gap
-from stancal.problem.mean_terms import FormulaError, build_mean_terms
-from stancal.results.result import CalibrationResult
 from stancal.diagnosing.scoring import (
     PARETO_K_LIMIT,
     Score,
@@ -58,12 +50,20 @@ from stancal.diagnosing.scoring import (
     rescored,
     unreliable_tests,
 )
+from stancal.fitting.calibrate import calibrate
+from stancal.fitting.cluster import FitFailure, FitRunner, FitTask, fit_runner
+from stancal.fitting.plan import Plan, make_plan, model_keywords
 from stancal.fitting.seeds import command_seed, fit_seed
-from stancal.stan.source import FlatProgram, StanProgramError
 from stancal.fitting.stopwatch import Stopwatch
 from stancal.fitting.vector_calibrate import calibrate_vector
-from stancal.results.vector_result import VectorCalibrationResult
+from stancal.problem.candidates import Candidate, CandidateError
+from stancal.problem.data import CalibrationData, DataError
+from stancal.problem.mean_terms import FormulaError, build_mean_terms
 from stancal.problem.vector_data import VectorCalibrationData
+from stancal.results.result import CalibrationResult
+from stancal.results.vector_result import VectorCalibrationResult
+from stancal.stan.backends import get_backend
+from stancal.stan.source import FlatProgram, StanProgramError
 
 logger = logging.getLogger("stancal")
 
@@ -280,49 +280,67 @@ def diagnose_gap(
                                 None if out is None else (out / "baseline" if c is None
                                                           else out / "candidates" / _slug(c.name)))
                            for c in labels])
-        for c, fit in zip(labels, fits):
+        for c, fit in zip(labels, fits, strict=False):
             if isinstance(fit, FitFailure):
                 _record_failure(c, fit, failed)
-        labels, fits = zip(*((c, fit) for c, fit in zip(labels, fits) if not isinstance(fit, FitFailure)))
+        labels, fits = zip(*((c, fit) for c, fit in zip(labels, fits, strict=True) if not isinstance(fit, FitFailure)),
+                           strict=True)
         clock.lap("fits")
         scores = [psis_score(r) for r in fits]
-        unreliable = {label_name(c): s.unreliable.size for c, s in zip(labels, scores) if s.unreliable.size}
-        if kfold is None and max(unreliable.values(), default=0) > FALLBACK_FOLDS:
-            warnings.warn(f"Pareto k above {PARETO_K_LIMIT} at more than {FALLBACK_FOLDS} observations "
-                          f"({_counts(unreliable)}): PSIS-LOO is unreliable, so every fit is compared by "
-                          f"{FALLBACK_FOLDS}-fold cross-validation instead", GapWarning, stacklevel=2)
-            kfold = FALLBACK_FOLDS
-        elif kfold is None and unreliable:
-            warnings.warn(f"Pareto k above {PARETO_K_LIMIT} at {_counts(unreliable)}: each of those "
-                          "observations is scored by an exact refit without it", GapWarning, stacklevel=2)
+        kfold = _scheme(labels, scores, kfold)
         tests = [kfold_tests(len(data_for(c).physical), kfold, seed) if kfold is not None else unreliable_tests(s)
-                 for c, s in zip(labels, scores)]
+                 for c, s in zip(labels, scores, strict=True)]
         # every refit of every fit in one batch
         jobs = [(i, test) for i, label_tests in enumerate(tests) for test in label_tests]
         refits = runner.map([task(f"{label_name(labels[i])} without {_rows(test)}", labels[i],
                                   *refit_rows(data_for(labels[i]), test), None) for i, test in jobs])
+    labels, fits, scores = _rescored(labels, fits, scores, tests, jobs, refits, data_for, kfold, failed)
+    clock.lap("refits")
+    location = locate_gap(fits[0], seed=seed, along=tuple(data.output_index) if vector else ())
+    clock.lap("locate")
+    ranked = sorted(
+        (CandidateFit(c, r, s) for c, r, s in zip(labels[1:], fits[1:], scores[1:], strict=False)),
+        key=lambda f: -(f.score.elpd_i - scores[0].elpd_i).sum())
+    return GapAnalysis(fits[0], scores[0], location, ranked, clock.laps, failed)
+
+
+def _scheme(labels: list, scores: list[Score], kfold: int | None) -> int | None:
+    """K-fold's fold count, or None for PSIS-LOO with exact refits of the
+    observations whose Pareto k is too high; said as a warning."""
+    unreliable = {label_name(c): s.unreliable.size for c, s in zip(labels, scores, strict=True)
+                  if s.unreliable.size}
+    if kfold is None and max(unreliable.values(), default=0) > FALLBACK_FOLDS:
+        warnings.warn(f"Pareto k above {PARETO_K_LIMIT} at more than {FALLBACK_FOLDS} observations "
+                      f"({_counts(unreliable)}): PSIS-LOO is unreliable, so every fit is compared by "
+                      f"{FALLBACK_FOLDS}-fold cross-validation instead", GapWarning, stacklevel=3)
+        return FALLBACK_FOLDS
+    if kfold is None and unreliable:
+        warnings.warn(f"Pareto k above {PARETO_K_LIMIT} at {_counts(unreliable)}: each of those "
+                      "observations is scored by an exact refit without it", GapWarning, stacklevel=3)
+    return kfold
+
+
+def _rescored(labels, fits, scores, tests, jobs, refits, data_for, kfold, failed) -> tuple[list, list, list]:
+    """Each fit's score with its refits' held-out densities; a fit whose
+    refit failed is left out (and recorded)."""
     grouped: list[list] = [[] for _ in labels]
-    for (i, _), refit in zip(jobs, refits):
+    for (i, _), refit in zip(jobs, refits, strict=True):
         grouped[i].append(refit)
     kept = []
-    for c, fit, score, label_tests, results in zip(labels, fits, scores, tests, grouped):
+    for c, fit, score, label_tests, results in zip(labels, fits, scores, tests, grouped, strict=True):
         failure = next((r for r in results if isinstance(r, FitFailure)), None)
         if failure is not None:
             _record_failure(c, failure, failed)
         else:
             kept.append((c, fit, rescored(score, data_for(c), label_tests, results, kfold=kfold is not None)))
-    labels, fits, scores = (list(column) for column in zip(*kept))
-    clock.lap("refits")
-    location = locate_gap(fits[0], seed=seed, along=tuple(data.output_index) if vector else ())
-    clock.lap("locate")
-    ranked = sorted(
-        (CandidateFit(c, r, s) for c, r, s in zip(labels[1:], fits[1:], scores[1:])),
-        key=lambda f: -(f.score.elpd_i - scores[0].elpd_i).sum())
-    return GapAnalysis(fits[0], scores[0], location, ranked, clock.laps, failed)
+    labels, fits, scores = (list(column) for column in zip(*kept, strict=True))
+    return labels, fits, scores
 
 
 def _rows(test: np.ndarray) -> str:
-    return f"row {test[0]}" if len(test) == 1 else f"{len(test)} rows ({', '.join(map(str, test[:4]))}{', ...' if len(test) > 4 else ''})"
+    if len(test) == 1:
+        return f"row {test[0]}"
+    return f"{len(test)} rows ({', '.join(map(str, test[:4]))}{', ...' if len(test) > 4 else ''})"
 
 
 def _record_failure(label: Candidate | None, failure: FitFailure, failed: list[FitFailure]) -> None:

@@ -26,13 +26,13 @@ from typing import Any
 
 import numpy as np
 
-from stancal.stan.backends import get_backend
+from stancal.diagnosing.sbc_ranks import Uniformity, fractional_ranks, rank_of, uniformity
 from stancal.fitting.calibrate import calibrate
 from stancal.fitting.cluster import FitFailure, FitRunner, FitTask, fit_runner
+from stancal.fitting.seeds import command_seed, fit_seed
 from stancal.problem.data import CalibrationData
 from stancal.results.result import CalibrationResult
-from stancal.diagnosing.sbc_ranks import Uniformity, fractional_ranks, rank_of, uniformity
-from stancal.fitting.seeds import command_seed, fit_seed
+from stancal.stan.backends import get_backend
 from stancal.stan.registry import program
 from stancal.stan.standata import build_stan_data, to_stan_json
 
@@ -71,7 +71,7 @@ def _scalars(group, draw: int | None = None) -> dict[str, np.ndarray]:
         extra = variable.dims[2:]
         for index in np.ndindex(*values.shape[1:]):
             labels = [str(variable.coords[d].values[i]) if d in variable.coords else str(i)
-                      for d, i in zip(extra, index)]
+                      for d, i in zip(extra, index, strict=False)]
             key = f"{name}[{', '.join(labels)}]" if labels else name
             column = values[(slice(None), *index)]
             out[key] = column if draw is None else column[draw]

@@ -11,8 +11,8 @@ import numpy as np
 import pandas as pd
 from scipy.special import logsumexp
 
-from stancal.problem.data import CalibrationData
 from stancal.diagnosing.gap_location import discrepancy_parts
+from stancal.problem.data import CalibrationData
 from stancal.results.result import CalibrationResult
 
 PARETO_K_LIMIT = 0.7  # above it PSIS-LOO is unreliable (Vehtari et al. 2024)

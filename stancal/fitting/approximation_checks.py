@@ -45,16 +45,16 @@ def check_emulator_variance(tree, data: CalibrationData, emulator: dict[str, Any
         "max_emulator_sd_over_noise_sd": float(np.sqrt(max(v.max() for v in variances) / noise_var)),
         "error_basis_rank": columns.shape[1]}
     messages = [] if columns.shape[1] < MAX_ERROR_RANK else [
-        f"the emulator's error at the points entered the fit through its {MAX_ERROR_RANK} leading "
+        (f"the emulator's error at the points entered the fit through its {MAX_ERROR_RANK} leading "
         f"eigenvectors, the most stancal takes; the rest was treated as independent between points, "
-        f"which narrows theta's band if it is large: more runs would shrink it"]
+        f"which narrows theta's band if it is large: more runs would shrink it")]
     if moved <= VARIANCE_TOLERANCE:
         return messages
     return messages + [
-        f"the emulator's covariance entered the fit at theta's least-squares fit; at posterior draws of theta "
+        (f"the emulator's covariance entered the fit at theta's least-squares fit; at posterior draws of theta "
         f"an observation's predictive sd differs from the one used by up to {moved:.0%}: theta's band may be "
         f"off by about as much. More runs where the posterior lies, or approximation = 'exact' on a "
-        f"subsample, would settle it"]
+        f"subsample, would settle it")]
 
 
 def _with_basis(options: ModelOptions, basis: HSGPBasis) -> ModelOptions:
@@ -83,5 +83,5 @@ def check_basis(tree, data: CalibrationData, options: ModelOptions,
         else:
             logger.info("Hilbert-space basis: %s; refitting with %s", "; ".join(problems), better.describe())
             return _with_basis(options, better), True, []
-    return options, False, [f"the Hilbert-space discrepancy's basis ({basis.describe()}) may be inadequate: "
-                            f"{'; '.join(problems)}. {advice}"]
+    return options, False, [(f"the Hilbert-space discrepancy's basis ({basis.describe()}) may be inadequate: "
+                            f"{'; '.join(problems)}. {advice}")]

@@ -20,10 +20,10 @@ from stancal.fitting.seeds import command_seed
 from stancal.fitting.stage_one import run_stage_one
 from stancal.numerics.quadrature import Quadrature, input_box_quadrature
 from stancal.problem.data import CalibrationData
+from stancal.problem.options import ModelOptions
 from stancal.results.diagnostics import parametrization_advice
 from stancal.results.result import CalibrationResult, build_datatree
 from stancal.stan.backends import get_backend
-from stancal.problem.options import ModelOptions
 from stancal.stan.source import FlatProgram
 from stancal.stan.standata import EMULATOR_HYPERPARAMETERS, build_stan_data, default_new_points, to_stan_json
 
@@ -173,8 +173,8 @@ def calibrate(
     new_points, fit_points, quadrature = _prediction_points(data, new_points, plan.l2)
     emulator = run_stage_one(plan.program.stage_one, data, plan.options, programs, backend=stan_backend,
                              seed=seed) or {}
-    sampler = dict(chains=chains, warmup=warmup, draws=draws, seed=seed, adapt_delta=adapt_delta,
-                   max_treedepth=max_treedepth)
+    sampler = {"chains": chains, "warmup": warmup, "draws": draws, "seed": seed, "adapt_delta": adapt_delta,
+                   "max_treedepth": max_treedepth}
     flat = programs[-1]
     fit, options, messages = _sample_checked(
         lambda options: _sample(stan_backend, flat, data, plan, options, fit_points, emulator, prior, sampler),

@@ -18,11 +18,11 @@ import numpy as np
 import pandas as pd
 from scipy.stats import qmc
 
-from stancal.stan.backends import get_backend
 from stancal.numerics.kernels import ard_cross_cov
-from stancal.problem.options import ModelOptions
-from stancal.stan.registry import program
 from stancal.numerics.quadrature import Quadrature
+from stancal.problem.options import ModelOptions
+from stancal.stan.backends import get_backend
+from stancal.stan.registry import program
 from stancal.stan.standata import build_stan_data, to_stan_json
 
 # (points with the simulator inputs, theta (S, Q) in original units) -> f, (S, points)

@@ -11,8 +11,8 @@ from pathlib import Path
 from stancal.numerics.hsgp import first_basis
 from stancal.problem.data import CalibrationData
 from stancal.problem.functional import check_functional
-from stancal.problem.vector_data import VectorCalibrationData
 from stancal.problem.options import EXACT_SIZE_LIMIT, RESTRICTED_DISCREPANCIES, ModelOptions, VectorOptions
+from stancal.problem.vector_data import VectorCalibrationData
 from stancal.stan.registry import L2, PROGRAMS, STAGE_ONE_PROGRAM, Program, default_program, for_method
 from stancal.stan.source import FlatProgram, flatten
 
@@ -44,7 +44,7 @@ class Plan:
     def main_program(self) -> FlatProgram:
         return self.stan_programs()[-1]
 
-    def with_simulator(self, simulator: Path) -> "Plan":
+    def with_simulator(self, simulator: Path) -> Plan:
         """The same model on a variant simulator written in Stan (the gap's candidates)."""
         base = default_program(self.program.output, simulator=True)
         version = base.latent_version if self.program.latent else (
@@ -180,9 +180,10 @@ def _scalable_version(data: CalibrationData, base: Program, options: ModelOption
     scalable = PROGRAMS[base.scalable_version]
     size = dense_size(data, base)
     obstacles = [why for why, present in (
-        (f"discrepancy '{options.discrepancy}' (needs the dense GP)", options.discrepancy not in scalable.discrepancies),
-        ("covariates in the discrepancy (a Hilbert-space basis vanishes at its boundary, so it cannot "
-         "switch a covariate off)", options.has_discrepancy and len(data.discrepancy_inputs) > len(data.inputs)),
+        (f"discrepancy '{options.discrepancy}' (needs the dense GP)",
+         options.discrepancy not in scalable.discrepancies),
+        (("covariates in the discrepancy (a Hilbert-space basis vanishes at its boundary, so it cannot "
+         "switch a covariate off)"), options.has_discrepancy and len(data.discrepancy_inputs) > len(data.inputs)),
     ) if present]
     if options.approximation == "hsgp":
         if obstacles:

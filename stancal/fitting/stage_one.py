@@ -12,11 +12,17 @@ from typing import Any
 
 import numpy as np
 
-from stancal.numerics.scalable_emulator import ERROR_RANK_SHARE, NEIGHBOURS, ScalableEmulator, chebyshev_basis, least_squares_theta
+from stancal.numerics.scalable_emulator import (
+    ERROR_RANK_SHARE,
+    NEIGHBOURS,
+    ScalableEmulator,
+    chebyshev_basis,
+    least_squares_theta,
+)
 from stancal.numerics.vector_emulator import VectorEmulator
 from stancal.problem.data import CalibrationData
-from stancal.problem.vector_data import VectorCalibrationData
 from stancal.problem.options import ModelOptions
+from stancal.problem.vector_data import VectorCalibrationData
 from stancal.stan.registry import STAGE_ONE_BASIS, STAGE_ONE_GP, STAGE_ONE_SCALABLE
 from stancal.stan.source import FlatProgram
 from stancal.stan.standata import EMULATOR_HYPERPARAMETERS, build_emulator_data, emulator_run_data, to_stan_json

@@ -19,10 +19,10 @@ from stancal.fitting.postfit import check_fit, save_draws
 from stancal.fitting.seeds import command_seed
 from stancal.fitting.stage_one import run_stage_one
 from stancal.numerics.vector_emulator import VectorEmulator
+from stancal.problem.options import VectorOptions
 from stancal.problem.vector_data import VectorCalibrationData
 from stancal.results.vector_result import VectorCalibrationResult, vector_datatree
 from stancal.stan.backends import get_backend
-from stancal.problem.options import VectorOptions
 from stancal.stan.standata import to_stan_json
 from stancal.stan.vector_standata import build_vector_stan_data, mean_terms
 

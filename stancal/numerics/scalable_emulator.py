@@ -66,7 +66,7 @@ class Hyperparameters:
                 "emulator_length_scale": self.length_scale.tolist(), "emulator_nugget": self.nugget}
 
     @classmethod
-    def from_stan(cls, values: dict) -> "Hyperparameters":
+    def from_stan(cls, values: dict) -> Hyperparameters:
         return cls(float(values["emulator_mean"]), float(values["emulator_sd"]),
                    np.asarray(values["emulator_length_scale"], float), float(values["emulator_nugget"]))
 
@@ -284,12 +284,14 @@ def error_basis(x_unit: np.ndarray, theta_unit: np.ndarray, xt_runs: np.ndarray,
                  else np.sort(rng.choice(len(points), LANDMARKS, replace=False)))
     # made again rather than kept: PyStan forks its sampling workers from this process, and
     # a factor held here (200 MB at N = 5,000) would sit in each of them
-    runs_solve = linalg.cho_solve(run_factor(xt_runs, h), h.sd**2 * se_correlation(xt_runs, points[landmarks], h.length_scale))
+    runs_solve = linalg.cho_solve(run_factor(xt_runs, h),
+                                  h.sd**2 * se_correlation(xt_runs, points[landmarks], h.length_scale))
     to_landmarks = np.empty((len(points), len(landmarks)))
     for start in range(0, len(points), 1000):  # k(P, runs) a block of points at a time
         block = points[start : start + 1000]
         to_landmarks[start : start + 1000] = h.sd**2 * (
-            se_correlation(block, points[landmarks], h.length_scale) - se_correlation(block, xt_runs, h.length_scale) @ runs_solve)
+            se_correlation(block, points[landmarks], h.length_scale)
+            - se_correlation(block, xt_runs, h.length_scale) @ runs_solve)
     eigenvalues, eigenvectors = np.linalg.eigh(to_landmarks[landmarks])
     kept = eigenvalues > 1e-10 * max(eigenvalues.max(), 1e-300)
     half = to_landmarks @ (eigenvectors[:, kept] / np.sqrt(eigenvalues[kept]))  # C ~ half half'
@@ -318,7 +320,7 @@ class ScalableEmulator:
 
     @classmethod
     def fit(cls, x_runs: np.ndarray, theta_runs: np.ndarray, y_runs: np.ndarray, x_points: np.ndarray,
-            seed: int) -> tuple["ScalableEmulator", dict]:
+            seed: int) -> tuple[ScalableEmulator, dict]:
         """Stage 1: hyperparameters, weights and the theta interpolant
         (checked at the physical points ``x_points``). Returns it and what to
         keep of it (``emulator`` of the result: enough to rebuild it with ``of``)."""
@@ -336,7 +338,7 @@ class ScalableEmulator:
 
     @classmethod
     def of(cls, x_runs: np.ndarray, theta_runs: np.ndarray, y_runs: np.ndarray,
-           stored: dict) -> "ScalableEmulator":
+           stored: dict) -> ScalableEmulator:
         """The emulator ``fit`` described with ``stored`` (no optimisation)."""
         key = _key(x_runs, theta_runs, y_runs, stored)
         if key not in _BUILT:

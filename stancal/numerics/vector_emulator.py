@@ -23,8 +23,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import linalg
 
+from stancal.numerics.scalable_emulator import Hyperparameters, fit_hyperparameters, run_covariance, se_correlation
 from stancal.problem.output_basis import OutputBasis
-from stancal.numerics.scalable_emulator import Hyperparameters, se_correlation, fit_hyperparameters, run_covariance
 
 HYPERPARAMETER_RUNS = 400  # per component: the mode moves little beyond a few hundred runs
 VARIANCE_RUNS = 400  # the weights' covariance conditions on this many runs at most
@@ -60,7 +60,7 @@ class VectorEmulator:
     @classmethod
     def fit(cls, basis: OutputBasis, xt_runs: np.ndarray, run_outputs: np.ndarray, seed: int,
             hyperparameter_runs: int = HYPERPARAMETER_RUNS,
-            variance_runs: int = VARIANCE_RUNS) -> "VectorEmulator":
+            variance_runs: int = VARIANCE_RUNS) -> VectorEmulator:
         """``xt_runs`` (N, D + Q) on the unit cube, ``run_outputs`` (N, K) on the basis's grid."""
         scores = basis.weights(run_outputs)
         chosen = np.sort(np.random.default_rng(seed).choice(len(xt_runs), min(variance_runs, len(xt_runs)),

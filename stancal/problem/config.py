@@ -9,8 +9,8 @@ from typing import Any
 
 import pandas as pd
 
-from stancal.problem.data import CalibrationData
 from stancal.problem.candidates import Candidate, CandidateError
+from stancal.problem.data import CalibrationData
 from stancal.problem.options import ModelOptions, VectorOptions
 from stancal.problem.vector_data import VectorCalibrationData
 

@@ -261,25 +261,25 @@ class CalibrationData:
 
     def _rebuilt(self, source: pd.DataFrame, inputs: Sequence[str] | None = None,
                  theta: Mapping[str, tuple[float, float]] | None = None,
-                 covariates: Sequence[str] | None = None, keep_runs: bool = True) -> "CalibrationData":
+                 covariates: Sequence[str] | None = None, keep_runs: bool = True) -> CalibrationData:
         """This problem rebuilt (and checked) with some parts changed; same categories."""
         return CalibrationData(source, self.inputs if inputs is None else inputs, self.output,
                                bounds_of(self.parameters) if theta is None else theta,
                                self.covariates if covariates is None else covariates,
                                self.runs if keep_runs else None, levels=self.levels, **self.observation_columns)
 
-    def subset(self, rows: Sequence[int]) -> "CalibrationData":
+    def subset(self, rows: Sequence[int]) -> CalibrationData:
         """The same problem on some physical rows (positions), same categories."""
         return self._rebuilt(self.source.iloc[list(rows)])
 
-    def variant(self, inputs: Sequence[str], extra_theta: Mapping[str, tuple[float, float]]) -> "CalibrationData":
+    def variant(self, inputs: Sequence[str], extra_theta: Mapping[str, tuple[float, float]]) -> CalibrationData:
         """The problem as a simulator variant sees it: its own inputs and
         theta (this one's, then its extra ones), no runs; the discrepancy
         keeps every variable of this one."""
         return self._rebuilt(self.source, inputs, bounds_of(self.parameters) | dict(extra_theta),
                              [v for v in self.discrepancy_variables if v not in inputs], keep_runs=False)
 
-    def with_output(self, y: np.ndarray) -> "CalibrationData":
+    def with_output(self, y: np.ndarray) -> CalibrationData:
         """The same problem with other outputs (simulated ones) and this
         problem's scaling kept: the programs' priors live on the
         standardised scale, so a fit of simulated data must standardise as
@@ -293,7 +293,7 @@ class CalibrationData:
         if observations.any_censored:
             lower, upper = self.observation_columns["lower"], self.observation_columns["upper"]
             censored = ~observations.observed
-            ranges = sorted(set(zip(observations.lower[censored], observations.upper[censored])))
+            ranges = sorted(set(zip(observations.lower[censored], observations.upper[censored], strict=False)))
             for column in (lower, upper):
                 if column:
                     source[column] = np.nan
@@ -426,7 +426,7 @@ class CalibrationData:
         }
 
     @classmethod
-    def from_dict(cls, d: dict) -> "CalibrationData":
+    def from_dict(cls, d: dict) -> CalibrationData:
         runs = None if d["runs"] is None else pd.DataFrame(d["runs"])
         return cls(pd.DataFrame(d["physical"]), d["inputs"], d["output"],
                    {k: tuple(v) for k, v in d["theta"].items()}, d["covariates"], runs,

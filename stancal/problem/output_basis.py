@@ -42,7 +42,7 @@ class OutputBasis:
 
     @classmethod
     def from_runs(cls, grid: np.ndarray, outputs: np.ndarray, variance_share: float = DEFAULT_VARIANCE_SHARE,
-                  components: int | None = None) -> "OutputBasis":
+                  components: int | None = None) -> OutputBasis:
         """``outputs``: (runs, K) on ``grid`` (K rows). Keep ``components``
         if given, else the fewest whose share of variance reaches ``variance_share``."""
         grid = np.asarray(grid, float).reshape(len(outputs[0]), -1)
@@ -57,7 +57,8 @@ class OutputBasis:
         standardised = (outputs - mean) / scale
         left, singular, right_t = np.linalg.svd(standardised, full_matrices=False)
         share = singular**2 / np.sum(singular**2)
-        count = components if components is not None else int(np.searchsorted(np.cumsum(share), variance_share - 1e-12) + 1)
+        count = (components if components is not None
+                 else int(np.searchsorted(np.cumsum(share), variance_share - 1e-12) + 1))
         # centred runs span at most runs - 1 directions: a basis that needs all of them has too few runs
         # to tell the output's variation apart from the runs' own
         if count >= runs - 1:

@@ -150,7 +150,7 @@ class VectorCalibrationData:
             sd = np.broadcast_to(np.asarray(posterior["noise_sd"]).reshape(-1, 1), zeta.shape)
         return -0.5 * np.log(2 * np.pi) - np.log(sd) - 0.5 * ((y - zeta) / sd) ** 2
 
-    def subset(self, rows: Sequence[int]) -> "VectorCalibrationData":
+    def subset(self, rows: Sequence[int]) -> VectorCalibrationData:
         """The same problem on some measured values (positions); the runs,
         and so the basis, are unchanged."""
         return VectorCalibrationData(
@@ -159,7 +159,7 @@ class VectorCalibrationData:
             self.covariates, **self._basis_options)
 
     def variant(self, inputs: Sequence[str],
-                extra_theta: Mapping[str, tuple[float, float]]) -> "VectorCalibrationData":
+                extra_theta: Mapping[str, tuple[float, float]]) -> VectorCalibrationData:
         """The problem as a simulator variant sees it: its own inputs, the
         shared theta then its extra ones (the per-experiment theta after
         them), no runs; the discrepancy keeps every input and covariate."""

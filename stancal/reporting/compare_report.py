@@ -21,7 +21,7 @@ def plot_comparison(comparison: Comparison, path: str | Path | None = None):
     names = comparison.theta_names
     fig, axes = plt.subplots(1, len(names) + 1, figsize=(3.6 * (len(names) + 1), 0.5 * len(fitted) + 2))
     rows = range(len(fitted))
-    for ax, name in zip(axes, names):
+    for ax, name in zip(axes, names, strict=False):
         for i, fit in enumerate(fitted):
             s = fit.result.theta_summary()[name]
             ax.errorbar(s["q50"], i, xerr=[[s["q50"] - s["q05"]], [s["q95"] - s["q50"]]], fmt="o", capsize=3)
@@ -58,11 +58,11 @@ def _report(table: pd.DataFrame, figure: Path) -> str:
     return "\n".join([
         "# Calibration methods compared", "",
         "- **koh**: Kennedy & O'Hagan; theta's target depends on the discrepancy prior (review 6.1).",
-        "- **l2**: each posterior draw of zeta (from the koh fit) projected onto the simulator: "
-        "theta = argmin ||zeta - f(., theta)||_L2 (Tuo & Wu 2015).",
-        "- **orthogonal**: the discrepancy GP orthogonal to df/dtheta (Plumlee 2017): theta targets "
-        "the L2 projection.",
+        ("- **l2**: each posterior draw of zeta (from the koh fit) projected onto the simulator: "
+        "theta = argmin ||zeta - f(., theta)||_L2 (Tuo & Wu 2015)."),
+        ("- **orthogonal**: the discrepancy GP orthogonal to df/dtheta (Plumlee 2017): theta targets "
+        "the L2 projection."),
         "- **scaled**: S-GaSP (Gu & Wang 2018): the discrepancy's mean square is penalised.",
-        "", "The discrepancy RMS is sqrt(mean over the input box of (zeta - f(x, theta))^2). "
-        "ELPD is PSIS-LOO on the exact conditional likelihood; l2 shares koh's predictive model.", "",
+        "", ("The discrepancy RMS is sqrt(mean over the input box of (zeta - f(x, theta))^2). "
+        "ELPD is PSIS-LOO on the exact conditional likelihood; l2 shares koh's predictive model."), "",
         table.round(4).to_markdown(), "", f"![comparison]({figure.name})", ""])

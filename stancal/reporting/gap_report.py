@@ -39,7 +39,7 @@ def plot_main_effects(location: GapLocation, path: Path | None = None):
     effects = list(location.main_effects.values())
     fig, axes = plt.subplots(1, len(effects), figsize=(3.6 * len(effects), 3.2), squeeze=False,
                              sharey=True)
-    for ax, effect in zip(axes[0], effects):
+    for ax, effect in zip(axes[0], effects, strict=False):
         band = effect.band()
         if effect.categorical:
             x = np.arange(len(band))
@@ -106,59 +106,72 @@ def _along_index(where: dict, ranked: list) -> list[str]:
     return lines
 
 
-def report_markdown(summary: dict, figures: list[Path]) -> str:
-    base, where, cands = summary["baseline"], summary["where"], summary["candidates"]
+def _where_section(summary: dict) -> list[str]:
+    """The report's opening and its answer to 'where is the simulator wrong?'."""
+    base, where = summary["baseline"], summary["where"]
     ranked = sorted(where["importance"].items(), key=lambda kv: -kv[1]["mean"])
     lines = ["# Sim-to-real gap", "",
-             f"Baseline: {base['method']} with a GP discrepancy over "
+             (f"Baseline: {base['method']} with a GP discrepancy over "
              f"{', '.join(where['importance'])}, in {base['discrepancy_scale']}. Remaining "
-             f"discrepancy (RMS over the physical points): {_fmt(base['discrepancy_rms'])}; held-out RMSE {base['holdout_rmse']:.4g} "
-             f"({base['scheme']}).", "",
+             f"discrepancy (RMS over the physical points): {_fmt(base['discrepancy_rms'])}; "
+             f"held-out RMSE {base['holdout_rmse']:.4g} "
+             f"({base['scheme']})."), "",
              "## Where is the simulator wrong?", "",
              f"The gap depends most on **{ranked[0][0]}** (total Sobol index {_fmt(ranked[0][1])})"
              + (f", then {ranked[1][0]} ({_fmt(ranked[1][1])})." if len(ranked) > 1 else "."),
-             f"At {where['observations_with_credible_gap']} physical points the discrepancy's 90 % "
+             (f"At {where['observations_with_credible_gap']} physical points the discrepancy's 90 % "
              "interval excludes zero. (Sobol indices are estimated per posterior draw by Monte "
-             "Carlo and clipped to [0, 1], the range of a Sobol index.)", ""]
+             "Carlo and clipped to [0, 1], the range of a Sobol index.)"), ""]
     local = [r for r in where["regions"] if not r["whole_range"]]
     everywhere = sorted({r["variable"] for r in where["regions"] if r["whole_range"]})
     if local:
-        lines += ["Ranges where the discrepancy, averaged over the other variables, is credibly "
-                  "non-zero:", "", "| variable | from | to | direction |", "|---|---|---|---|",
+        lines += [("Ranges where the discrepancy, averaged over the other variables, is credibly "
+                  "non-zero:"), "", "| variable | from | to | direction |", "|---|---|---|---|",
                   *(f"| {r['variable']} | {_value(r['from'])} | {_value(r['to'])} | {r['sign']} |"
                     for r in local)]
     else:
-        lines += ["No part of any variable's range where the averaged discrepancy is credibly "
-                  "non-zero while it is not elsewhere."]
+        lines += [("No part of any variable's range where the averaged discrepancy is credibly "
+                  "non-zero while it is not elsewhere.")]
     if everywhere:
-        lines += ["", f"Along {', '.join(everywhere)} the averaged discrepancy is credibly non-zero "
-                  "over the whole range: the gap is there whatever their value."]
+        lines += ["", (f"Along {', '.join(everywhere)} the averaged discrepancy is credibly non-zero "
+                  "over the whole range: the gap is there whatever their value.")]
     lines += _along_index(where, ranked)
-    lines += ["", "## Which effect explains it, and how far does the gap shrink?", ""]
-    if cands:
-        best = cands[0]
-        moved = ", ".join(f"{k} {base['theta'][k]['mean']:.4g} → {best['theta'][k]['mean']:.4g}"
-                          for k in best["theta_change"])
-        credible = best["elpd_diff"] > 2 * best["elpd_diff_se"]
-        lines += [
-            f"Best candidate: **{best['name']}** ({best['kind']}: `{best['effect']}`), ELPD "
-            f"{best['elpd_diff']:+.1f} ± {best['elpd_diff_se']:.1f} over the baseline"
-            + (" (more than 2 se: credible)." if credible else " (within 2 se: not decisive)."),
-            f"With it, the remaining discrepancy varies over the physical points by "
-            f"{_fmt(best['discrepancy_variation'])} (RMS about its mean; baseline "
-            f"{_fmt(base['discrepancy_variation'])}): shrinkage {_fmt(best['shrinkage'])}. "
-            f"θ moves: {moved}. Held-out RMSE {base['holdout_rmse']:.4g} → {best['holdout_rmse']:.4g}.", "",
-            "Shrinkage is 1 − (variation with the candidate) / (variation of the baseline). It "
-            "leaves out the discrepancy's level: every fit has a constant in the discrepancy's "
-            "mean, and a term that is nearly constant over the points trades its level with that "
-            "constant, so only the variation is identified.", "",
+    return lines
 
-            "| candidate | kind | ELPD diff ± se | shrinkage (90 %) | remaining RMS | θ | held-out RMSE |",
-            "|---|---|---|---|---|---|---|",
-            *(f"| {c['name']} | {c['kind']} | {c['elpd_diff']:+.1f} ± {c['elpd_diff_se']:.1f} | "
-              f"{_fmt(c['shrinkage'])} | {_fmt(c['discrepancy_rms'])} | "
-              + "; ".join(f"{k} {_fmt(v)}" for k, v in c["theta"].items())
-              + f" | {c['holdout_rmse']:.4g} |" for c in cands)]
+
+def _which_section(base: dict, cands: list[dict]) -> list[str]:
+    """The best candidate, its shrinkage of the gap and the table of all candidates."""
+    if not cands:
+        return []
+    best = cands[0]
+    moved = ", ".join(f"{k} {base['theta'][k]['mean']:.4g} → {best['theta'][k]['mean']:.4g}"
+                      for k in best["theta_change"])
+    credible = best["elpd_diff"] > 2 * best["elpd_diff_se"]
+    return [
+        f"Best candidate: **{best['name']}** ({best['kind']}: `{best['effect']}`), ELPD "
+        f"{best['elpd_diff']:+.1f} ± {best['elpd_diff_se']:.1f} over the baseline"
+        + (" (more than 2 se: credible)." if credible else " (within 2 se: not decisive)."),
+        (f"With it, the remaining discrepancy varies over the physical points by "
+        f"{_fmt(best['discrepancy_variation'])} (RMS about its mean; baseline "
+        f"{_fmt(base['discrepancy_variation'])}): shrinkage {_fmt(best['shrinkage'])}. "
+        f"θ moves: {moved}. Held-out RMSE {base['holdout_rmse']:.4g} → {best['holdout_rmse']:.4g}."), "",
+        ("Shrinkage is 1 − (variation with the candidate) / (variation of the baseline). It "
+        "leaves out the discrepancy's level: every fit has a constant in the discrepancy's "
+        "mean, and a term that is nearly constant over the points trades its level with that "
+        "constant, so only the variation is identified."), "",
+
+        "| candidate | kind | ELPD diff ± se | shrinkage (90 %) | remaining RMS | θ | held-out RMSE |",
+        "|---|---|---|---|---|---|---|",
+        *(f"| {c['name']} | {c['kind']} | {c['elpd_diff']:+.1f} ± {c['elpd_diff_se']:.1f} | "
+          f"{_fmt(c['shrinkage'])} | {_fmt(c['discrepancy_rms'])} | "
+          + "; ".join(f"{k} {_fmt(v)}" for k, v in c["theta"].items())
+          + f" | {c['holdout_rmse']:.4g} |" for c in cands)]
+
+
+def report_markdown(summary: dict, figures: list[Path]) -> str:
+    base, cands = summary["baseline"], summary["candidates"]
+    lines = [*_where_section(summary), "", "## Which effect explains it, and how far does the gap shrink?", "",
+             *_which_section(base, cands)]
     if summary.get("failed"):
         lines += ["", "Left out, their fit having failed twice: "
                   + "; ".join(f"{f['name']} ({f['error']})" for f in summary["failed"]) + "."]

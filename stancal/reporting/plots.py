@@ -27,7 +27,7 @@ def plot_theta(result: CalibrationResult, path: str | Path | None = None):
     fig, axes = plt.subplots(1, len(params), figsize=(4 * len(params), 3.2), squeeze=False)
     theta = np.asarray(result.idata["posterior"]["theta"])
     groups = [m.chains for m in result.modes] or [list(range(theta.shape[0]))]
-    for k, (ax, p) in enumerate(zip(axes[0], params)):
+    for k, (ax, p) in enumerate(zip(axes[0], params, strict=False)):
         for g, chains in enumerate(groups):
             label = f"mode {g + 1} (chains {chains})" if len(groups) > 1 else "posterior"
             ax.hist(theta[chains, :, k].ravel(), bins=40, range=(p.lower, p.upper),
@@ -84,7 +84,7 @@ def plot_discrepancy(result: CalibrationResult, path: str | Path | None = None):
     table = result.predict()
     columns = list(result.data.discrepancy_variables)
     fig, axes = plt.subplots(1, len(columns), figsize=(5 * len(columns), 3.5), squeeze=False)
-    for ax, column in zip(axes[0], columns):
+    for ax, column in zip(axes[0], columns, strict=False):
         order = np.argsort(table[column].to_numpy())
         x = table[column].to_numpy()[order]
         lo, hi = table["delta_q05"].to_numpy()[order], table["delta_q95"].to_numpy()[order]
@@ -133,7 +133,7 @@ def plot_theta_functions(result: CalibrationResult, path: str | Path | None = No
     for row, (name, curve) in enumerate(curves.items()):
         table = pd.DataFrame({**curve["inputs"], "mean": curve["mean"], "q05": curve["q05"],
                               "q95": curve["q95"]})
-        for ax, column in zip(axes[row], inputs):
+        for ax, column in zip(axes[row], inputs, strict=False):
             along = table.groupby(column)[["mean", "q05", "q95"]].mean()
             ax.fill_between(along.index, along["q05"], along["q95"], alpha=0.3, color="C4",
                             label=f"{name}({column}), 90 %")
@@ -185,7 +185,7 @@ def plot_vector_curves(result, path: str | Path | None = None):
     columns = min(4, len(names))
     rows = -(-len(names) // columns)
     fig, axes = plt.subplots(rows, columns, figsize=(3.6 * columns, 2.9 * rows), squeeze=False, sharey=True)
-    for e, (ax, name) in enumerate(zip(axes.ravel(), names)):
+    for e, (ax, name) in enumerate(zip(axes.ravel(), names, strict=False)):
         low, high = np.quantile(zeta[:, e], [0.05, 0.95], axis=0)
         ax.fill_between(along, low, high, color="C0", alpha=0.25, label="zeta, 90 %")
         ax.plot(along, f[:, e].mean(0), color="C1", lw=1.2, label="simulator f")

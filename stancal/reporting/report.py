@@ -31,8 +31,8 @@ def _parameters_and_sampler(summary: dict, table) -> list[str]:
           f"{v['rhat']:.3f} | {v['ess_bulk']:.0f} |" for k, v in summary["theta"].items()),
         "", "## All parameters", "", table.round(4).to_markdown(),
         "", "## Sampler", "",
-        f"- divergences: {d['divergences']}; max R-hat {d['max_rhat']:.3f}; "
-        f"min bulk ESS {d['min_ess_bulk']:.0f}; min tail ESS {d['min_ess_tail']:.0f}",
+        (f"- divergences: {d['divergences']}; max R-hat {d['max_rhat']:.3f}; "
+        f"min bulk ESS {d['min_ess_bulk']:.0f}; min tail ESS {d['min_ess_tail']:.0f}"),
         f"- compile {summary['timing']['compile_s']:.1f} s, sampling {summary['timing']['sample_s']:.1f} s",
         *(f"- **warning**: {w}" for w in summary.get("warnings", [])),
     ]
@@ -40,21 +40,21 @@ def _parameters_and_sampler(summary: dict, table) -> list[str]:
 
 def _report(summary: dict, table, plots: list[Path]) -> str:
     lines = [
-        f"# Calibration report ({summary['method']}, {summary['backend']}, "
-        f"{summary['likelihood']} likelihood)", "",
+        (f"# Calibration report ({summary['method']}, {summary['backend']}, "
+        f"{summary['likelihood']} likelihood)"), "",
         *_parameters_and_sampler(summary, table),
     ]
     if "censoring" in summary:
         counts = summary["censoring"]
         lines += ["", "## Censored observations", "",
-                  f"- exact {counts['observed']}, left-censored {counts['left']}, "
-                  f"right-censored {counts['right']}, interval-censored {counts['interval']}"]
+                  (f"- exact {counts['observed']}, left-censored {counts['left']}, "
+                  f"right-censored {counts['right']}, interval-censored {counts['interval']}")]
     for name, curve in summary.get("theta_functions", {}).items():
         column = next(iter(curve["inputs"]))
         lines += ["", f"## Functional parameter {name}({', '.join(curve['inputs'])})", "",
-                  f"- over {column} from {min(curve['inputs'][column]):.4g} to {max(curve['inputs'][column]):.4g}: "
+                  (f"- over {column} from {min(curve['inputs'][column]):.4g} to {max(curve['inputs'][column]):.4g}: "
                   f"posterior mean from {min(curve['mean']):.4g} to {max(curve['mean']):.4g}; "
-                  "the grid and its 90 % band are in summary.json (theta_functions)"]
+                  "the grid and its 90 % band are in summary.json (theta_functions)")]
     if len(summary["modes"]) > 1:
         weighed = summary["modes"][0]["weight"] is not None
         lines += ["", "## Separate theta modes", "",

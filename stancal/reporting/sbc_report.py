@@ -21,7 +21,7 @@ def write_sbc_report(result: SBCResult, folder: str | Path) -> Path:
     columns = min(4, len(names))
     rows = -(-len(names) // columns)
     fig, axes = plt.subplots(rows, columns, figsize=(3.4 * columns, 2.8 * rows), squeeze=False)
-    for ax, name in zip(axes.ravel(), names):
+    for ax, name in zip(axes.ravel(), names, strict=False):
         test = result.tests[name]
         ax.fill_between(test.grid, *test.band, color="grey", alpha=0.3, label=f"{test.level:.0%} band")
         ax.plot(test.grid, test.ecdf_difference, color="tab:red" if test.rejected else "tab:blue")

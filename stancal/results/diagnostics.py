@@ -67,6 +67,20 @@ def _as_chains(posterior: xr.Dataset, chains: list[int]) -> xr.Dataset:
     return xr.concat([one.isel(draw=slice(0, half)), one.isel(draw=slice(half, 2 * half))], dim="chain")
 
 
+def _extreme(ds: xr.Dataset, largest: bool) -> tuple[float, str]:
+    """The largest (or smallest) value over every variable, and where it is."""
+    best, where = (-np.inf if largest else np.inf), ""
+    for name, da in ds.data_vars.items():
+        values = np.nan_to_num(np.asarray(da, dtype=float).ravel(), nan=np.inf if largest else -np.inf)
+        if values.size == 0:
+            continue
+        i = int(np.argmax(values) if largest else np.argmin(values))
+        value = values[i]
+        if (value > best) if largest else (value < best):
+            best, where = float(value), name + (f"[{i}]" if values.size > 1 else "")
+    return best, where
+
+
 def check_sampler(posterior: xr.Dataset, sample_stats: xr.Dataset, max_treedepth: int,
                   parameters: list[str], modes: list[list[int]] | None = None) -> Diagnostics:
     """Check divergences, R-hat, ESS, tree depth and E-BFMI of ``parameters``.
@@ -76,70 +90,61 @@ def check_sampler(posterior: xr.Dataset, sample_stats: xr.Dataset, max_treedepth
     import arviz_stats as ast
 
     chains = posterior.sizes["chain"]
-    draws = chains * posterior.sizes["draw"]
     groups = modes if modes and len(modes) > 1 else [list(range(chains))]
     rhat = xr.concat([ast.rhat(_as_chains(posterior[parameters], group)) for group in groups],
                      dim="mode").max("mode")
     # the modes' draws are independent samples of their parts of the posterior: their ESS add up
     ess_bulk = sum(ast.ess(_as_chains(posterior[parameters], group), method="bulk") for group in groups)
     ess_tail = sum(ast.ess(_as_chains(posterior[parameters], group), method="tail") for group in groups)
-
-    def extreme(ds: xr.Dataset, largest: bool) -> tuple[float, str]:
-        best, where = (-np.inf if largest else np.inf), ""
-        for name, da in ds.data_vars.items():
-            values = np.nan_to_num(np.asarray(da, dtype=float).ravel(),
-                                   nan=np.inf if largest else -np.inf)
-            if values.size == 0:
-                continue
-            i = int(np.argmax(values) if largest else np.argmin(values))
-            value = values[i]
-            if (value > best) if largest else (value < best):
-                best, where = float(value), name + (f"[{i}]" if values.size > 1 else "")
-        return best, where
-
-    max_rhat, worst_rhat = extreme(rhat, largest=True)
-    min_bulk, worst_bulk = extreme(ess_bulk, largest=False)
-    min_tail, worst_tail = extreme(ess_tail, largest=False)
-    divergences = int(np.asarray(sample_stats["diverging"]).sum())
-    hits = int((np.asarray(sample_stats["tree_depth"]) >= max_treedepth).sum())
+    max_rhat, worst_rhat = _extreme(rhat, largest=True)
+    min_bulk, worst_bulk = _extreme(ess_bulk, largest=False)
+    min_tail, worst_tail = _extreme(ess_tail, largest=False)
     bfmi = _bfmi(np.asarray(sample_stats["energy"]))
-    low_bfmi = [int(c) for c in np.flatnonzero(bfmi < 0.3)]
+    diagnostics = Diagnostics(
+        divergences=int(np.asarray(sample_stats["diverging"]).sum()), draws=chains * posterior.sizes["draw"],
+        max_rhat=max_rhat, worst_rhat=worst_rhat, min_ess_bulk=min_bulk, min_ess_tail=min_tail,
+        worst_ess=worst_bulk if min_bulk <= min_tail else worst_tail,
+        treedepth_hits=int((np.asarray(sample_stats["tree_depth"]) >= max_treedepth).sum()),
+        low_bfmi_chains=[int(c) for c in np.flatnonzero(bfmi < 0.3)])
+    diagnostics.messages = _messages(diagnostics, chains, max_treedepth, bfmi, several_modes=len(groups) > 1)
+    return diagnostics
 
+
+def _messages(d: Diagnostics, chains: int, max_treedepth: int, bfmi: np.ndarray, several_modes: bool) -> list[str]:
+    """Each problem of the fit, with its numbers, where it is, and what to do."""
     messages = []
-    if divergences:
+    if d.divergences:
         messages.append(
-            f"{divergences} of {draws} transitions diverged ({100 * divergences / draws:.1f} %): "
+            f"{d.divergences} of {d.draws} transitions diverged ({100 * d.divergences / d.draws:.1f} %): "
             "the posterior has regions the sampler cannot follow. Raise adapt_delta "
             "(e.g. 0.95 or 0.99), or rescale the problem; do not trust the draws near them."
         )
-    if max_rhat > RHAT_LIMIT:
+    if d.max_rhat > RHAT_LIMIT:
         messages.append(
-            f"R-hat up to {max_rhat:.3f} ({worst_rhat}) > {RHAT_LIMIT}: chains "
-            + ("within a theta mode " if len(groups) > 1 else "") + "disagree. "
+            f"R-hat up to {d.max_rhat:.3f} ({d.worst_rhat}) > {RHAT_LIMIT}: chains "
+            + ("within a theta mode " if several_modes else "") + "disagree. "
             "Run longer (more warmup and draws)"
-            + ("." if len(groups) > 1 else "; if chains sit in different theta modes, see result.modes.")
+            + ("." if several_modes else "; if chains sit in different theta modes, see result.modes.")
         )
-    min_ess = min(min_bulk, min_tail)
+    min_ess = min(d.min_ess_bulk, d.min_ess_tail)
     if min_ess < ESS_PER_CHAIN * chains:
-        which = worst_bulk if min_bulk <= min_tail else worst_tail
         messages.append(
-            f"effective sample size down to {min_ess:.0f} ({which}; bulk {min_bulk:.0f}, "
-            f"tail {min_tail:.0f}) < {ESS_PER_CHAIN * chains} ({ESS_PER_CHAIN} per chain): "
-            "intervals are imprecise. "
-            "Draw more samples."
+            f"effective sample size down to {min_ess:.0f} ({d.worst_ess}; bulk {d.min_ess_bulk:.0f}, "
+            f"tail {d.min_ess_tail:.0f}) < {ESS_PER_CHAIN * chains} ({ESS_PER_CHAIN} per chain): "
+            "intervals are imprecise. Draw more samples."
         )
-    if hits:
+    if d.treedepth_hits:
         messages.append(
-            f"{hits} of {draws} transitions hit the maximum tree depth {max_treedepth}: "
+            f"{d.treedepth_hits} of {d.draws} transitions hit the maximum tree depth {max_treedepth}: "
             "sampling was slow and may be incomplete. Raise max_treedepth or rescale."
         )
-    if low_bfmi:
+    if d.low_bfmi_chains:
         messages.append(
-            f"E-BFMI below 0.3 in chains {low_bfmi} ({', '.join(f'{b:.2f}' for b in bfmi[low_bfmi])}): "
+            f"E-BFMI below 0.3 in chains {d.low_bfmi_chains} "
+            f"({', '.join(f'{b:.2f}' for b in bfmi[d.low_bfmi_chains])}): "
             "the sampler explores the energy poorly; consider reparameterising."
         )
-    return Diagnostics(divergences, draws, max_rhat, worst_rhat, min_bulk, min_tail,
-                       worst_bulk if min_bulk <= min_tail else worst_tail, hits, low_bfmi, messages)
+    return messages
 
 
 def report(diagnostics: Diagnostics) -> None:
@@ -161,5 +166,5 @@ def parametrization_advice(options: ModelOptions, diagnostics: Diagnostics) -> l
     other = "non_centred" if options.functional_parametrization == "centred" else "centred"
     when = ("suits noisy or sparse data, which leave theta(x) loosely pinned" if other == "non_centred"
             else "suits data that pin theta(x) closely")
-    return [f"theta(x)'s latent GP was sampled {options.functional_parametrization}; if the trouble "
-            f"above involves theta_function_*, try functional_parametrization = \"{other}\" ({when})."]
+    return [(f"theta(x)'s latent GP was sampled {options.functional_parametrization}; if the trouble "
+            f"above involves theta_function_*, try functional_parametrization = \"{other}\" ({when}).")]

@@ -12,16 +12,15 @@ import numpy as np
 import pandas as pd
 import xarray as xr
 
-from stancal.stan.backends.base import Draws, SampleOutput
 from stancal.problem.data import CalibrationData
-from stancal.results.diagnostics import Diagnostics
 from stancal.problem.functional import functional_grid
-from stancal.problem.codes import Likelihood
 from stancal.problem.options import ModelOptions
+from stancal.results.diagnostics import Diagnostics
 from stancal.results.modes import Mode
+from stancal.results.summaries import band, summary_by_mode, theta_function_summary, theta_summary
+from stancal.stan.backends.base import Draws, SampleOutput
 from stancal.stan.source import FlatProgram
 from stancal.stan.standata import EMULATOR_HYPERPARAMETERS, mean_terms_of
-from stancal.results.summaries import band, summary_by_mode, theta_function_summary, theta_summary
 
 # Stan program variables -> names in the posterior group (original units)
 _REPORTED = {
@@ -50,9 +49,41 @@ _REEXPRESSED = {"theta_unit", "noise_sd", "delta_sd", "delta_input_length_scale"
 def build_datatree(sample: SampleOutput, data: CalibrationData,
                    new_points: pd.DataFrame, parameter_names: list[str],
                    options: ModelOptions) -> xr.DataTree:
+    """The fit as an ArviZ DataTree: the posterior on the original scale, the
+    posterior predictive, log likelihood, sampler statistics, predictions at
+    ``new_points``, the values at the observations, the data, and the
+    program's own parameters (for reruns)."""
     import arviz_base as ab
 
     d = sample.draws
+    terms = mean_terms_of(data, options)
+    sampled = {
+        "posterior": _posterior(d, data, parameter_names, options, terms),
+        "posterior_predictive": {"y": d["y_rep"]},
+        "log_likelihood": {"y": d["log_lik"]},
+        "sample_stats": sample.sample_stats,
+        "predictions": {k: d[k] for k in (*PREDICTED, NEW_OBSERVATION) if k in d},
+        "at_observations": {k: d[k] for k in AT_OBSERVATIONS if k in d},
+    }
+    if options.functional:
+        sampled["theta_functions"] = {"theta_function": d["theta_function_grid"]}
+    if "delta_basis_weights" in d and d["delta_basis_weights"].shape[-1]:  # the Hilbert-space discrepancy's
+        sampled["discrepancy_basis"] = {"weights": d["delta_basis_weights"]}
+    grid = functional_grid(data, options.functional_inputs)
+    coords = _coords(data, new_points, options, terms, grid)
+    tree = ab.from_dict(sampled, dims=_DIMS, coords=coords, pred_dims=_DIMS, pred_coords=coords)
+    if options.functional:  # the grid's input values, for plotting theta(x)
+        tree["theta_functions"] = xr.DataTree(tree["theta_functions"].to_dataset().assign_coords(
+            {c: ("grid_point", grid[c].to_numpy()) for c in grid.columns}))
+    _add_data_groups(tree, data, new_points)
+    tree["stan_parameters"] = xr.DataTree(ab.dict_to_dataset({k: d[k] for k in parameter_names}))
+    return tree
+
+
+def _posterior(d: Draws, data: CalibrationData, parameter_names: list[str], options: ModelOptions,
+               terms) -> Draws:
+    """The posterior group: the program's parameters in original units, and
+    any parameter of a user's program as the program has it."""
     posterior: Draws = {out: d[stan] for stan, out in _REPORTED.items() if stan in d}
     for name in _OPTIONAL_SCALARS:
         if name in posterior and posterior[name].ndim == 3:
@@ -75,36 +106,29 @@ def build_datatree(sample: SampleOutput, data: CalibrationData,
     for name in EMULATOR_HYPERPARAMETERS:
         if name in d:
             posterior[name] = d[name]
-    terms = mean_terms_of(data, options)
     if terms is not None:  # coefficients per raw term, in the discrepancy's units
         posterior["beta"] = d["beta"] * data.discrepancy_units / terms.scale
     for name in parameter_names:  # a parameter of the user's own program, as the program has it
         if name not in _REEXPRESSED and name not in posterior and d[name].size:
             posterior[name] = d[name]
-    sampled = {
-        "posterior": posterior,
-        "posterior_predictive": {"y": d["y_rep"]},
-        "log_likelihood": {"y": d["log_lik"]},
-        "sample_stats": sample.sample_stats,
-        "predictions": {k: d[k] for k in (*PREDICTED, NEW_OBSERVATION) if k in d},
-        "at_observations": {k: d[k] for k in AT_OBSERVATIONS if k in d},
-    }
-    if options.functional:
-        sampled["theta_functions"] = {"theta_function": d["theta_function_grid"]}
-    if "delta_basis_weights" in d and d["delta_basis_weights"].shape[-1]:  # the Hilbert-space discrepancy's
-        sampled["discrepancy_basis"] = {"weights": d["delta_basis_weights"]}
-    dims = {
-        "theta": ["theta_name"], "delta_length_scale": ["delta_input"], "delta_relevance": ["delta_covariate"],
-        "emulator_length_scale": ["emulator_input"], "y": ["obs"], "beta": ["mean_term"],
-        **{k: ["obs"] for k in AT_OBSERVATIONS},
-        **{k: ["new_point"] for k in (*PREDICTED, NEW_OBSERVATION)},
-        "theta_function_sd": ["functional_theta"],
-        "theta_function_length_scale": ["functional_theta", "functional_input"],
-        "theta_function": ["grid_point", "functional_theta"],
-        "weights": ["basis_function"],
-    }
-    grid = functional_grid(data, options.functional_inputs)
-    coords = {
+    return posterior
+
+
+_DIMS = {
+    "theta": ["theta_name"], "delta_length_scale": ["delta_input"], "delta_relevance": ["delta_covariate"],
+    "emulator_length_scale": ["emulator_input"], "y": ["obs"], "beta": ["mean_term"],
+    **{k: ["obs"] for k in AT_OBSERVATIONS},
+    **{k: ["new_point"] for k in (*PREDICTED, NEW_OBSERVATION)},
+    "theta_function_sd": ["functional_theta"],
+    "theta_function_length_scale": ["functional_theta", "functional_input"],
+    "theta_function": ["grid_point", "functional_theta"],
+    "weights": ["basis_function"],
+}
+
+
+def _coords(data: CalibrationData, new_points: pd.DataFrame, options: ModelOptions, terms,
+            grid: pd.DataFrame) -> dict:
+    return {
         "theta_name": data.theta_names, "delta_input": data.discrepancy_inputs,
         "delta_covariate": data.discrepancy_inputs[len(data.inputs):],
         "emulator_input": [*data.inputs, *data.theta_names],
@@ -113,11 +137,11 @@ def build_datatree(sample: SampleOutput, data: CalibrationData,
         "functional_theta": list(options.functional), "functional_input": list(options.functional_inputs),
         "grid_point": np.arange(len(grid)),
     }
-    tree = ab.from_dict(sampled, dims=dims, coords=coords, pred_dims=dims, pred_coords=coords)
-    if options.functional:  # the grid's input values, for plotting theta(x)
-        tree["theta_functions"] = xr.DataTree(tree["theta_functions"].to_dataset().assign_coords(
-            {c: ("grid_point", grid[c].to_numpy()) for c in grid.columns}))
-    obs = {"obs": coords["obs"]}
+
+
+def _add_data_groups(tree: xr.DataTree, data: CalibrationData, new_points: pd.DataFrame) -> None:
+    """observed_data, constant_data (inputs, censoring, trials) and the prediction points."""
+    obs = {"obs": np.arange(len(data.physical))}
     tree["observed_data"] = xr.DataTree(xr.Dataset(
         {"y": ("obs", data.physical[data.output].to_numpy())}, coords=obs))
     observations = data.observations
@@ -129,9 +153,7 @@ def build_datatree(sample: SampleOutput, data: CalibrationData,
         coords=obs))
     tree["predictions_constant_data"] = xr.DataTree(xr.Dataset(
         {c: ("new_point", new_points[c].to_numpy()) for c in new_points},
-        coords={"new_point": coords["new_point"]}))
-    tree["stan_parameters"] = xr.DataTree(ab.dict_to_dataset({k: d[k] for k in parameter_names}))
-    return tree
+        coords={"new_point": np.arange(len(new_points))}))
 
 
 def interval_table(values: np.ndarray, prefix: str) -> dict[str, np.ndarray]:
@@ -214,7 +236,7 @@ class CalibrationResult:
         return path
 
     @classmethod
-    def load(cls, path: str | Path) -> "CalibrationResult":
+    def load(cls, path: str | Path) -> CalibrationResult:
         tree = xr.open_datatree(path).load()
         meta = json.loads(tree.attrs.pop("stancal"))
         return cls(

@@ -15,11 +15,13 @@ import xarray as xr
 
 from stancal.numerics.vector_emulator import VectorEmulator
 from stancal.problem.mean_terms import MeanTerms
+from stancal.problem.options import VectorOptions
 from stancal.problem.vector_data import VectorCalibrationData
 from stancal.results import diagnostics as sampler_checks
-from stancal.results.result import AT_OBSERVATIONS  # the scalar programs' per-value quantities; both vector programs give them
+from stancal.results.result import (
+    AT_OBSERVATIONS,  # the scalar programs' per-value quantities; both vector programs give them
+)
 from stancal.results.summaries import posterior_table, summary_by_mode, theta_summary
-from stancal.problem.options import VectorOptions
 from stancal.stan.source import FlatProgram
 
 
@@ -111,7 +113,8 @@ def vector_datatree(draws: dict[str, np.ndarray], sample_stats: dict[str, np.nda
     dims = {"theta": ["theta_name"], "theta_experiment": ["experiment", "experiment_theta_name"],
             **{f"weight_gp_{n}": ["component"] for n in ("mean", "sd", "nugget")},
             "weight_gp_length_scale": ["component", "emulator_input"],
-            "noise_sd": ["experiment"] if options.noise == "per_experiment" else [], "delta_length_scale": ["delta_input"], "beta": ["mean_term"],
+            "noise_sd": ["experiment"] if options.noise == "per_experiment" else [],
+            "delta_length_scale": ["delta_input"], "beta": ["mean_term"],
             **{k: ["experiment", "output_point"] if on_grid else ["new_point"] for k in predictions}, "y": ["obs"],
             **{k: ["obs"] for k in AT_OBSERVATIONS}}
     coords = {"theta_name": data.theta_names, "experiment": names,

@@ -16,9 +16,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from stancal.problem.options import RESTRICTED_DISCREPANCIES
 from stancal.stan import standata as sd
 from stancal.stan import vector_standata as vd
-from stancal.problem.options import RESTRICTED_DISCREPANCIES
 from stancal.stan.source import shipped_models_dir
 
 # commands a program can be used by (besides calibrate, which takes all)

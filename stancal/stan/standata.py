@@ -9,14 +9,13 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from stancal.numerics.hsgp import HALF_RANGE, HSGPBasis, first_basis
+from stancal.numerics.quadrature import input_box_quadrature
+from stancal.numerics.scalable_emulator import ScalableEmulator
 from stancal.problem.data import CalibrationData
 from stancal.problem.functional import functional_grid
 from stancal.problem.mean_terms import MeanTerms, build_mean_terms
-from stancal.numerics.hsgp import HALF_RANGE, HSGPBasis, first_basis
 from stancal.problem.options import DISCREPANCIES, ModelOptions
-from stancal.numerics.quadrature import input_box_quadrature
-from stancal.numerics.scalable_emulator import ScalableEmulator
-
 
 EMULATOR_HYPERPARAMETERS = ("emulator_mean", "emulator_sd", "emulator_length_scale", "emulator_nugget")
 
@@ -80,30 +79,30 @@ def common_data(inputs: StanInputs) -> dict[str, Any]:
     data, options, s = inputs.data, inputs.options, inputs.data.scaling
     terms = mean_terms_of(data, options)
     h_new = terms.at(inputs.raw_points) if terms else np.zeros((len(inputs.points), 0))
-    return dict(
-        N=len(data.physical),
-        D=len(data.inputs),
-        D_delta=len(data.discrepancy_inputs),
-        Q=len(data.parameters),
-        x_delta=s.to_unit(data.physical, data.discrepancy_inputs),
-        y_center=s.y_center,
-        y_scale=s.y_scale,
-        H=h_new.shape[1],
-        h=terms.h if terms else np.zeros((len(data.physical), 0)),
-        beta_prior_sd=terms.prior_sd if terms else np.zeros(0),
-        h_new=h_new,
-        theta_lower=data.theta_lower,
-        theta_upper=data.theta_upper,
-        use_discrepancy=int(options.has_discrepancy),
-        kernel_id=options.kernel_id,
-        estimate_rho=int(options.estimate_rho),
-        P=len(inputs.points),
-        x_delta_new=s.to_unit(inputs.points, data.discrepancy_inputs),
+    return {
+        "N": len(data.physical),
+        "D": len(data.inputs),
+        "D_delta": len(data.discrepancy_inputs),
+        "Q": len(data.parameters),
+        "x_delta": s.to_unit(data.physical, data.discrepancy_inputs),
+        "y_center": s.y_center,
+        "y_scale": s.y_scale,
+        "H": h_new.shape[1],
+        "h": terms.h if terms else np.zeros((len(data.physical), 0)),
+        "beta_prior_sd": terms.prior_sd if terms else np.zeros(0),
+        "h_new": h_new,
+        "theta_lower": data.theta_lower,
+        "theta_upper": data.theta_upper,
+        "use_discrepancy": int(options.has_discrepancy),
+        "kernel_id": options.kernel_id,
+        "estimate_rho": int(options.estimate_rho),
+        "P": len(inputs.points),
+        "x_delta_new": s.to_unit(inputs.points, data.discrepancy_inputs),
         # Stan's RNG draws at the prediction points; the PyStan backend gives
         # normals per draw when it reruns generated quantities (backends.base)
-        P_normals=0,
-        normals_new=np.zeros((0, 2 + len(options.functional))),
-    )
+        "P_normals": 0,
+        "normals_new": np.zeros((0, 2 + len(options.functional))),
+    }
 
 
 def gaussian_outputs(inputs: StanInputs) -> dict[str, Any]:
@@ -167,27 +166,27 @@ def latent_data(data: CalibrationData, options: ModelOptions, new_points: pd.Dat
     # theta(x) is a latent GP over the distinct values only: replicates share them
     distinct, fun_point = np.unique(data.scaling.to_unit(data.physical, fun_inputs), axis=0,
                                     return_inverse=True)
-    return dict(
-        likelihood_id=int(obs.likelihood),
-        y_real=np.where(observed, data.scaling.standardise(np.nan_to_num(obs.value)), 0.0),
-        y_int=np.where(obs.is_gaussian, 0, np.nan_to_num(obs.value)).astype(int),
-        trials=obs.trials,
-        censoring=obs.censoring,
+    return {
+        "likelihood_id": int(obs.likelihood),
+        "y_real": np.where(observed, data.scaling.standardise(np.nan_to_num(obs.value)), 0.0),
+        "y_int": np.where(obs.is_gaussian, 0, np.nan_to_num(obs.value)).astype(int),
+        "trials": obs.trials,
+        "censoring": obs.censoring,
         # infinite bounds are never read (the censoring code says which side is used)
-        lower_bound=np.nan_to_num(data.scaling.standardise(obs.lower), posinf=0.0, neginf=0.0),
-        upper_bound=np.nan_to_num(data.scaling.standardise(obs.upper), posinf=0.0, neginf=0.0),
-        F=len(options.functional),
-        functional_slot=slots,
-        D_fun=len(fun_inputs),
-        N_fun=len(distinct) if fun_inputs else 0,
-        x_fun=distinct if fun_inputs else np.zeros((0, 0)),
-        fun_point=(fun_point.ravel() + 1) if fun_inputs else np.zeros(0, dtype=int),
-        functional_centred=int(options.functional_parametrization == "centred"),
-        G=len(grid),
-        x_fun_grid=data.scaling.to_unit(grid, fun_inputs).reshape(len(grid), len(fun_inputs)),
-        x_fun_new=data.scaling.to_unit(new_points, fun_inputs),
-        trials_new=trials_new,
-    )
+        "lower_bound": np.nan_to_num(data.scaling.standardise(obs.lower), posinf=0.0, neginf=0.0),
+        "upper_bound": np.nan_to_num(data.scaling.standardise(obs.upper), posinf=0.0, neginf=0.0),
+        "F": len(options.functional),
+        "functional_slot": slots,
+        "D_fun": len(fun_inputs),
+        "N_fun": len(distinct) if fun_inputs else 0,
+        "x_fun": distinct if fun_inputs else np.zeros((0, 0)),
+        "fun_point": (fun_point.ravel() + 1) if fun_inputs else np.zeros(0, dtype=int),
+        "functional_centred": int(options.functional_parametrization == "centred"),
+        "G": len(grid),
+        "x_fun_grid": data.scaling.to_unit(grid, fun_inputs).reshape(len(grid), len(fun_inputs)),
+        "x_fun_new": data.scaling.to_unit(new_points, fun_inputs),
+        "trials_new": trials_new,
+    }
 
 
 def hsgp_data(data: CalibrationData, options: ModelOptions, x_delta_new: np.ndarray) -> dict[str, Any]:
@@ -226,17 +225,17 @@ def scalable_emulator_data(data: CalibrationData, emulator: dict[str, Any],
     error = None if theta is None else state.error_basis(x, np.asarray(theta),
                                                           emulator.get("error_threshold", np.inf))
     columns = np.zeros((len(x), 0)) if error is None else error.columns
-    return dict(
-        emulator_mean=state.hyperparameters.mean,
-        theta_degree=list(state.interpolant.degrees),
-        G=int(np.prod([p + 1 for p in state.interpolant.degrees])),
-        emulator_weights=state.mean_weights(x),
-        emulator_weights_new=state.mean_weights(s.to_unit(new_points, data.inputs)),
-        emulator_error_rank=columns.shape[1],
-        emulator_error_basis=columns,
+    return {
+        "emulator_mean": state.hyperparameters.mean,
+        "theta_degree": list(state.interpolant.degrees),
+        "G": int(np.prod([p + 1 for p in state.interpolant.degrees])),
+        "emulator_weights": state.mean_weights(x),
+        "emulator_weights_new": state.mean_weights(s.to_unit(new_points, data.inputs)),
+        "emulator_error_rank": columns.shape[1],
+        "emulator_error_basis": columns,
         # the marginal likelihood takes one independent variance; its spread is checked
-        emulator_variance=0.0 if error is None else float(error.residual_variance.mean()),
-    )
+        "emulator_variance": 0.0 if error is None else float(error.residual_variance.mean()),
+    }
 
 
 def scalable_emulator_of(data: CalibrationData, stored: dict[str, Any]) -> ScalableEmulator:
@@ -248,10 +247,10 @@ def scalable_emulator_of(data: CalibrationData, stored: dict[str, Any]) -> Scala
 def restricted_gp_data(data: CalibrationData, options: ModelOptions) -> dict[str, Any]:
     """koh.stan's data for the orthogonal and scaled GPs (restricted_gp.stan)."""
     n_inputs = len(data.inputs)
-    out: dict[str, Any] = dict(
-        discrepancy_form=DISCREPANCIES[options.discrepancy], R=0, X_quad=np.zeros((0, n_inputs)),
-        x_quad=np.zeros((0, len(data.discrepancy_inputs))), w_quad=np.zeros(0),
-        scaled_lambda=options.scaled_lambda or float(np.sqrt(len(data.physical))))
+    out: dict[str, Any] = {
+        "discrepancy_form": DISCREPANCIES[options.discrepancy], "R": 0, "X_quad": np.zeros((0, n_inputs)),
+        "x_quad": np.zeros((0, len(data.discrepancy_inputs))), "w_quad": np.zeros(0),
+        "scaled_lambda": options.scaled_lambda or float(np.sqrt(len(data.physical)))}
     if options.discrepancy == "orthogonal":
         quadrature = input_box_quadrature(data)
         out.update(R=len(quadrature.weights), X_quad=quadrature.nodes.to_numpy(),
@@ -264,12 +263,12 @@ def emulator_run_data(data: CalibrationData) -> dict[str, Any]:
     """The runs as the emulator programs take them (emulator.stan's data)."""
     assert data.runs is not None
     s = data.scaling
-    return dict(
-        M=len(data.runs),
-        x_sim=s.to_unit(data.runs, data.inputs),
-        theta_sim=s.to_unit(data.runs, data.theta_names),
-        y_sim=data.scaling.standardise(data.runs_on_link_scale()),
-    )
+    return {
+        "M": len(data.runs),
+        "x_sim": s.to_unit(data.runs, data.inputs),
+        "theta_sim": s.to_unit(data.runs, data.theta_names),
+        "y_sim": data.scaling.standardise(data.runs_on_link_scale()),
+    }
 
 
 def build_emulator_data(data: CalibrationData, options: ModelOptions) -> dict[str, Any]:

@@ -12,8 +12,8 @@ import pandas as pd
 from stancal.numerics.vector_emulator import VectorEmulator
 from stancal.problem.codes import NOISE_MODES
 from stancal.problem.mean_terms import MeanTerms, build_mean_terms
-from stancal.problem.vector_data import VectorCalibrationData
 from stancal.problem.options import VectorOptions
+from stancal.problem.vector_data import VectorCalibrationData
 
 
 @dataclass(frozen=True)
@@ -78,23 +78,23 @@ def _shared_stan_data(data: VectorCalibrationData, options: VectorOptions, new_r
         raise ValueError(f"prediction rows: experiment(s) {unknown[:5]} are not in the physical data, whose "
                          f"experiments carry the inputs and per-experiment theta the rows need")
     known = (physical[data.noise_sd].to_numpy() / output_scale) if data.noise_sd else np.zeros(len(physical))
-    return dict(
-        E=len(number), D=len(data.inputs), Q=len(data.parameters), Q_exp=len(data.per_experiment),
-        N=len(physical), experiment=physical[data.experiment].map(number).to_numpy(),
-        K_index=len(data.output_index), noise_mode=NOISE_MODES[options.noise], known_noise_sd=known,
-        use_discrepancy=int(options.has_discrepancy),
-        theta_lower=[p.lower for p in data.parameters], theta_upper=[p.upper for p in data.parameters],
-        theta_exp_lower=[p.lower for p in data.per_experiment],
-        theta_exp_upper=[p.upper for p in data.per_experiment],
-        P=len(new_rows), experiment_new=new_rows[data.experiment].astype(str).map(number).to_numpy(),
-        prior_only=0)
+    return {
+        "E": len(number), "D": len(data.inputs), "Q": len(data.parameters), "Q_exp": len(data.per_experiment),
+        "N": len(physical), "experiment": physical[data.experiment].map(number).to_numpy(),
+        "K_index": len(data.output_index), "noise_mode": NOISE_MODES[options.noise], "known_noise_sd": known,
+        "use_discrepancy": int(options.has_discrepancy),
+        "theta_lower": [p.lower for p in data.parameters], "theta_upper": [p.upper for p in data.parameters],
+        "theta_exp_lower": [p.lower for p in data.per_experiment],
+        "theta_exp_upper": [p.upper for p in data.per_experiment],
+        "P": len(new_rows), "experiment_new": new_rows[data.experiment].astype(str).map(number).to_numpy(),
+        "prior_only": 0}
 
 
 def _mean_term_data(terms: MeanTerms | None, rows: int, new_rows: pd.DataFrame) -> dict[str, Any]:
     """H, h, beta_prior_sd and h_new: no terms, or a formula's."""
     if terms is None:
-        return dict(H=0, h=np.zeros((rows, 0)), beta_prior_sd=np.zeros(0), h_new=np.zeros((len(new_rows), 0)))
-    return dict(H=len(terms.names), h=terms.h, beta_prior_sd=terms.prior_sd, h_new=terms.at(new_rows))
+        return {"H": 0, "h": np.zeros((rows, 0)), "beta_prior_sd": np.zeros(0), "h_new": np.zeros((len(new_rows), 0))}
+    return {"H": len(terms.names), "h": terms.h, "beta_prior_sd": terms.prior_sd, "h_new": terms.at(new_rows)}
 
 
 def koh_vector_data(data: VectorCalibrationData, options: VectorOptions, terms: MeanTerms | None,

@@ -12,8 +12,8 @@ from typing import Any
 
 import numpy as np
 
-from stancal.stan.source import FlatProgram, StanProgramError
 from stancal.stan.backends.base import SAMPLER_STATS, Draws, SampleOutput, StanRuntimeError, cache_root
+from stancal.stan.source import FlatProgram, StanProgramError
 
 logger = logging.getLogger("stancal")
 
@@ -182,7 +182,7 @@ def write_stan_csv(path: Path, parameters: Draws, chain: int, seed: int) -> Path
         ",".join(["lp__", "accept_stat__", "stepsize__", "treedepth__", "n_leapfrog__",
                   "divergent__", "energy__", *columns]),
     ])
-    footer = "# \n#  Elapsed Time: 0 seconds (Warm-up)\n#                0 seconds (Sampling)\n" \
-             "#                0 seconds (Total)\n# "
+    footer = ("# \n#  Elapsed Time: 0 seconds (Warm-up)\n#                0 seconds (Sampling)\n"
+              "#                0 seconds (Total)\n# ")
     np.savetxt(path, table, delimiter=",", header=header, footer=footer, comments="", fmt="%.17g")
     return path

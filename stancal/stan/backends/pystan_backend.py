@@ -16,9 +16,9 @@ from typing import Any
 
 import numpy as np
 
-from stancal.stan.source import FlatProgram, StanProgramError
 from stancal.stan.backends.base import SAMPLER_STATS, Draws, SampleOutput, StanRuntimeError, fresh_prediction_normals
-from stancal.stan.backends.pystan_compile import compile_programs, held_output, is_compiled
+from stancal.stan.backends.pystan_compile import compile_programs, held_output, is_compiled, stanc
+from stancal.stan.source import FlatProgram, StanProgramError
 
 logger = logging.getLogger("stancal")
 
@@ -39,7 +39,7 @@ def _by_variable(flat: np.ndarray, model, leading: tuple[int, ...]) -> Draws:
     Stan does) -> variable name -> (*leading, *its shape)."""
     out: Draws = {}
     offset = 0
-    for name, shape in zip(model.param_names, model.dims):
+    for name, shape in zip(model.param_names, model.dims, strict=False):
         size = int(np.prod(shape))
         block = flat[:, offset : offset + size].reshape(*leading, *reversed(shape))
         n = len(leading)
@@ -52,7 +52,7 @@ def _interior_point(model) -> dict[str, Any]:
     """0.1 for every variable: inside every constraint stancal's programs use,
     the Hilbert-space programs' upper bounds on length scales (0.19 at the
     least) among them (transform_inits reads the parameters and ignores the rest)."""
-    return {name: np.full(dims, 0.1).tolist() for name, dims in zip(model.param_names, model.dims)}
+    return {name: np.full(dims, 0.1).tolist() for name, dims in zip(model.param_names, model.dims, strict=False)}
 
 
 @contextlib.contextmanager
@@ -117,10 +117,8 @@ class PyStanBackend:
         """Run stanc alone (no C++, a fraction of a second). PyStan's build
         error keeps only 'Semantic error'; stanc gives the whole message.
         ``show_warnings``: log stanc's warnings, with the user's file and line."""
-        import httpstan.compile
-
         try:
-            _, warnings = httpstan.compile.compile(program.code, "stancal_check")
+            _, warnings = stanc(program.code, "stancal_check")
         except ValueError as err:
             raise StanProgramError(program.explain(str(err))) from None
         if show_warnings:
@@ -146,10 +144,10 @@ class PyStanBackend:
         started = time.perf_counter()
         model = self._build(program, data, seed)
         compiled = time.perf_counter()
-        kwargs: dict[str, Any] = dict(
-            num_chains=chains, num_warmup=warmup, num_samples=draws,
-            delta=adapt_delta, max_depth=max_treedepth,
-        )
+        kwargs: dict[str, Any] = {
+            "num_chains": chains, "num_warmup": warmup, "num_samples": draws,
+            "delta": adapt_delta, "max_depth": max_treedepth,
+        }
         if inits is not None:
             kwargs["init"] = inits
         try:
@@ -159,7 +157,7 @@ class PyStanBackend:
             raise StanRuntimeError(self._explain_failure(model, program, inits, err)) from None
         finished = time.perf_counter()
         logger.info("sampled in %.0f s", finished - compiled)
-        names = [n for n in fit.param_names]
+        names = list(fit.param_names)
         draws_out = {
             n: _by_chain(np.asarray(fit[n]), list(fit.dims[i]), chains)
             for i, n in enumerate(names)

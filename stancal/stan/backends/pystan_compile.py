@@ -27,8 +27,8 @@ from concurrent.futures import ThreadPoolExecutor
 from importlib.machinery import EXTENSION_SUFFIXES
 from pathlib import Path
 
-from stancal.stan.source import FlatProgram
 from stancal.stan.backends.base import StanRuntimeError, cache_root
+from stancal.stan.source import FlatProgram
 
 logger = logging.getLogger("stancal")
 
@@ -38,6 +38,33 @@ STAN_MACROS = (
     ("BOOST_DISABLE_ASSERTS", None), ("BOOST_PHOENIX_NO_VARIADIC_EXPRESSION", None),
     ("STAN_THREADS", None), ("_REENTRANT", None), ("_GLIBCXX_USE_CXX11_ABI", "0"),
 )
+
+
+# httpstan.compile.compile gives stanc one second, which a busy machine exceeds
+# (a stanc of koh_latent.stan took longer while two compiles ran beside it)
+STANC_TIMEOUT_S = 300
+
+
+def stanc_binary() -> Path:
+    """The stanc that ships with httpstan (the Stan version PyStan runs)."""
+    import httpstan
+
+    return Path(httpstan.__file__).parent / "stanc"
+
+
+def stanc(code: str, name: str) -> tuple[str, str]:
+    """httpstan's stanc on ``code``: (C++ code, warnings), as
+    httpstan.compile.compile gives them, with a timeout a loaded machine meets.
+    Raises ValueError with stanc's message for a program with an error."""
+    with tempfile.TemporaryDirectory(prefix="stancal_stanc_") as folder:
+        path = Path(folder) / f"{name}.stan"
+        path.write_text(code)
+        done = subprocess.run([stanc_binary(), "--name", name, "--warn-pedantic", "--print-cpp", str(path)],
+                              capture_output=True, timeout=STANC_TIMEOUT_S)
+    stderr = done.stderr.decode().strip()
+    if done.returncode != 0:
+        raise ValueError(stderr)
+    return done.stdout.decode().strip(), stderr
 
 
 def store_directory() -> Path:
@@ -91,12 +118,11 @@ def _build_module(code: str, folder: Path) -> Path:
     build, as httpstan does) and return its path."""
     import httpstan
     import httpstan.build_ext
-    import httpstan.compile
     import setuptools
 
     package = Path(httpstan.__file__).parent
     stan_name = f"model_{model_name(code).split('/')[1]}"
-    cpp, _ = httpstan.compile.compile(code, stan_name)
+    cpp, _ = stanc(code, stan_name)
     source = folder / f"{stan_name}.cpp"
     source.write_text(cpp)
     libraries = ["sundials_cvodes", "sundials_idas", "sundials_nvecserial", "tbb"]
@@ -185,7 +211,7 @@ def held_output():
                 os.dup2(held.fileno(), fd)
             yield
         except Exception:
-            for fd, copy in zip((1, 2), saved):
+            for fd, copy in zip((1, 2), saved, strict=False):
                 os.dup2(copy, fd)
             held.seek(0)
             tail = (printed.getvalue() + held.read().decode(errors="replace")).strip().splitlines()[-20:]
@@ -193,7 +219,7 @@ def held_output():
                 logger.warning("before failing, it printed:\n%s", "\n".join(tail))
             raise
         finally:
-            for fd, copy in zip((1, 2), saved):
+            for fd, copy in zip((1, 2), saved, strict=False):
                 os.dup2(copy, fd)
                 os.close(copy)
 
