@@ -9,7 +9,7 @@ from __future__ import annotations
 import importlib.util
 
 import numpy as np
-from conftest import ROOT
+from conftest import ROOT, assert_healthy
 
 BALL_DROP = ROOT / "case_studies" / "ball_drop"
 
@@ -34,7 +34,7 @@ def test_ball_drop_predicts_the_quadratic_drag_reality_from_a_linear_drag_simula
     problem = load_config(BALL_DROP / "config.toml")
     data = problem.data
     result = calibrate_vector(data, chains=4, warmup=500, draws=500, seed=1, **problem.model)
-    assert result.diagnostics.max_rhat <= 1.01, result.diagnostics.messages
+    assert_healthy(result)
     zeta = result.idata["predictions"]["zeta"]
     heights = np.asarray(zeta["h"])
     inside, worst = [], 0.0

@@ -55,13 +55,16 @@ def brute_force_projection(result, quadrature, simulator, lower, upper, grid_poi
     zeta = np.asarray(result.idata["predictions"]["zeta_new"])[..., -r:].reshape(-1, r)
     grid = np.linspace(lower, upper, grid_points)
     f = simulator(quadrature.nodes, grid)  # (grid, nodes)
-    losses = (zeta**2) @ quadrature.weights - 2 * (zeta * quadrature.weights) @ f.T \
+    losses = ((zeta**2) @ quadrature.weights)[:, None] - 2 * (zeta * quadrature.weights) @ f.T \
         + ((f**2) @ quadrature.weights)[None, :]
     step = grid[1] - grid[0]
     theta, rms = np.empty(len(zeta)), np.empty(len(zeta))
     for d, row in enumerate(zeta):
         best = grid[np.argmin(losses[d])]
-        search = minimize_scalar(lambda t: quadrature.mean_square(row - simulator(quadrature.nodes, [t])[0]),
+        def loss(t, row=row):
+            return quadrature.mean_square(row - simulator(quadrature.nodes, [t])[0])
+
+        search = minimize_scalar(loss,
                                  bounds=(max(lower, best - step), min(upper, best + step)), method="bounded",
                                  options={"xatol": 1e-10})
         theta[d], rms[d] = search.x, np.sqrt(search.fun)

@@ -23,6 +23,7 @@ def stored_points(result) -> pd.DataFrame:
 @pytest.mark.parametrize("name", ["koh_fit", "koh_emulator_fit", "modular_fit"])
 def test_bands_at_the_fitted_points_match_those_stored_at_fit_time(name, request):
     result = request.getfixturevalue(name)
+    assert_healthy(result)
     stored = result.predict()  # drawn by the sampler's own RNG
     again = result.predict(stored_points(result), seed=2)
     for quantity in ("zeta", "delta"):
@@ -33,6 +34,7 @@ def test_bands_at_the_fitted_points_match_those_stored_at_fit_time(name, request
 @pytest.mark.parametrize("name", ["koh_fit", "modular_fit"])
 def test_delta_far_from_the_data_has_its_prior_band(name, request):
     result = request.getfixturevalue(name)
+    assert_healthy(result)
     # 40 input ranges away from every physical point: the data say nothing there
     far = pd.DataFrame({"t": [2400.0], "T0": [60.0]})
     table = result.predict(far, seed=3)

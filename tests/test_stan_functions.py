@@ -8,7 +8,7 @@ from scipy import stats
 
 from stancal.stan.backends.pystan_compile import compile_programs
 from stancal.numerics.kernels import ard_cross_cov
-from stancal.stan.registry import Kernel
+from stancal.problem.codes import Kernel
 from stancal.stan.source import flatten
 
 HARNESS = Path(__file__).parent / "stan" / "function_harness.stan"

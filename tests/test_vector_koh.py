@@ -217,7 +217,7 @@ def test_vector_gap_from_runs_finds_the_draught_too(tmp_path):
 
 
 def test_prediction_rows_of_an_unknown_experiment_are_named():
-    from stancal.stan.options import VectorOptions
+    from stancal.problem.options import VectorOptions
     from stancal.stan.vector_standata import koh_vector_data
 
     data = VectorCalibrationData(long_experiments(1), "exp", ["T0"], "T", "t", THETA, noise_sd="sd")

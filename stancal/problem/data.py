@@ -28,7 +28,7 @@ class Parameter:
     upper: float
 
 
-def _require_columns(frame: pd.DataFrame, columns: Sequence[str], what: str) -> None:
+def require_columns(frame: pd.DataFrame, columns: Sequence[str], what: str) -> None:
     if frame.columns.duplicated().any():
         dup = sorted(set(frame.columns[frame.columns.duplicated()]))
         raise DataError(f"{what}: duplicate column(s) {dup}")
@@ -39,9 +39,9 @@ def _require_columns(frame: pd.DataFrame, columns: Sequence[str], what: str) -> 
         )
 
 
-def _numeric_columns(frame: pd.DataFrame, columns: Sequence[str], what: str) -> pd.DataFrame:
+def numeric_columns(frame: pd.DataFrame, columns: Sequence[str], what: str) -> pd.DataFrame:
     """The named columns as floats, or a DataError naming the column and rows."""
-    _require_columns(frame, columns, what)
+    require_columns(frame, columns, what)
     out = {}
     for column in columns:
         values = numeric_values(frame, column, what)
@@ -193,11 +193,11 @@ class CalibrationData:
         self.source = physical.copy()  # every column, for formulas over the physical data
         self.levels = self._levels(physical, levels or {})
         numeric = [c for c in self.covariates if c not in self.levels]
-        _require_columns(physical, [output], "physical data")
+        require_columns(physical, [output], "physical data")
         self.observations = read_observations(physical, output, likelihood, trials, lower, upper)
         self.observation_columns = {"likelihood": likelihood, "trials": trials, "lower": lower, "upper": upper}
         self.physical = pd.concat([
-            _numeric_columns(physical, [*self.inputs, *numeric], "physical data"),
+            numeric_columns(physical, [*self.inputs, *numeric], "physical data"),
             pd.DataFrame({output: self.observations.value}, index=physical.index),
             self.one_hot(physical)], axis=1)
         if len(self.physical) < 3:
@@ -236,7 +236,7 @@ class CalibrationData:
         return [col for cols in self.discrepancy_variables.values() for col in cols]
 
     def _levels(self, physical: pd.DataFrame, given: Mapping[str, Sequence[str]]) -> dict[str, list[str]]:
-        _require_columns(physical, self.covariates, "physical data")
+        require_columns(physical, self.covariates, "physical data")
         out = {}
         for column in self.covariates:
             found = _category_levels(physical, column, "physical data")
@@ -362,7 +362,7 @@ class CalibrationData:
             raise DataError(f"theta name(s) {clash} clash with data column names")
 
     def _check_runs(self, runs: pd.DataFrame) -> pd.DataFrame:
-        table = _numeric_columns(runs, [*self.inputs, *self.theta_names, self.output], "simulator runs")
+        table = numeric_columns(runs, [*self.inputs, *self.theta_names, self.output], "simulator runs")
         if len(table) < 3:
             raise DataError(f"simulator runs: {len(table)} rows; an emulator needs at least 3")
         if np.ptp(table[self.output].to_numpy()) == 0:
@@ -411,7 +411,7 @@ class CalibrationData:
         physical data, returned with categorical covariates one-hot."""
         table = pd.concat([new.drop(columns=list(self.levels), errors="ignore"),
                            self.one_hot(new, "prediction points")], axis=1)
-        return _numeric_columns(table, self.discrepancy_inputs, "prediction points")
+        return numeric_columns(table, self.discrepancy_inputs, "prediction points")
 
     def to_dict(self) -> dict:
         return {

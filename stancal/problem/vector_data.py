@@ -13,8 +13,8 @@ import pandas as pd
 from stancal.problem.data import (
     Parameter,
     Scaling,
-    _numeric_columns,
-    _require_columns,
+    numeric_columns,
+    require_columns,
     bounds_of,
     parameters_from_bounds,
     require_runs_within_bounds,
@@ -203,10 +203,10 @@ class VectorCalibrationData:
 
     def _check_physical(self, physical: pd.DataFrame) -> pd.DataFrame:
         what = "physical data"
-        _require_columns(physical, [self.experiment], what)
+        require_columns(physical, [self.experiment], what)
         values = [*self.inputs, *self.covariates, *self.output_index, self.output,
                   *([self.noise_sd] if self.noise_sd else [])]
-        table = _numeric_columns(physical, values, what)
+        table = numeric_columns(physical, values, what)
         empty = physical[self.experiment].isna().to_numpy()
         if empty.any():
             raise DataError(f"{what}: column '{self.experiment}' is empty in rows {_rows(empty, physical.index)}")
@@ -224,9 +224,9 @@ class VectorCalibrationData:
         """The runs' table, one row of settings per run (inputs, every theta), their
         outputs (runs, K) on the shared grid (K, index columns)."""
         what = "simulator runs"
-        _require_columns(runs, [self.run], what)
+        require_columns(runs, [self.run], what)
         every_theta = [p.name for p in self.all_parameters]
-        table = _numeric_columns(runs, [*self.inputs, *every_theta, *self.output_index, self.output], what)
+        table = numeric_columns(runs, [*self.inputs, *every_theta, *self.output_index, self.output], what)
         table.insert(0, self.run, runs[self.run].astype(str))
         require_runs_within_bounds(table, self.all_parameters)
         warn_outside_runs(self.physical, table, self.inputs)
