@@ -17,6 +17,7 @@ functions {
 #include priors.stan
 #include scaling.stan
 #include restricted_gp.stan
+#include given_normals.stan
 }
 data {
   int<lower=1> N;                       // number of physical observations
@@ -47,8 +48,7 @@ data {
   matrix[P, D] X_new;                   // simulator inputs of the prediction points, original units
   array[P] vector[D_delta] x_delta_new; // discrepancy inputs of the prediction points, scaled to [0, 1]
   matrix[P, H] h_new;                   // mean terms at the prediction points, scaled like h
-  int<lower=0> P_normals;               // P = the draws at the prediction points use normals_new, 0 = Stan's RNG
-  matrix[P_normals, 2] normals_new;     // standard normals for those draws; column 2: discrepancy (1 unused here)
+#include prediction_normals_data.stan
 }
 transformed data {
   int orthogonal = use_discrepancy && discrepancy_form == 2;
@@ -58,7 +58,7 @@ transformed data {
   int n_functionals = orthogonal ? Q : U;
   // R = 0 unless the GP is orthogonal
   array[U] vector[D_delta] x_U = scaled ? x_delta : x_quad;
-  if (P_normals != 0 && P_normals != P) reject("P_normals must be 0 or P = ", P, "; got ", P_normals);
+  check_given_normals(P_normals, P);
 }
 parameters {
   vector<lower=0, upper=1>[Q] theta_unit;                // theta rescaled to [0, 1]

@@ -14,6 +14,7 @@ functions {
 #include loo.stan
 #include priors.stan
 #include scaling.stan
+#include given_normals.stan
 }
 data {
   int<lower=1> N;                       // number of physical observations
@@ -42,14 +43,13 @@ data {
   array[P] vector[D] x_new;             // simulator inputs of the prediction points, scaled to [0, 1]
   array[P] vector[D_delta] x_delta_new; // discrepancy inputs of the prediction points, scaled to [0, 1]
   matrix[P, H] h_new;                   // mean terms at the prediction points, scaled like h
-  int<lower=0> P_normals;               // P = the draws at the prediction points use normals_new, 0 = Stan's RNG
-  matrix[P_normals, 2] normals_new;     // standard normals for those draws; column 1: simulator, 2: discrepancy
+#include prediction_normals_data.stan
 }
 transformed data {
   array[M] vector[D + Q] xt_sim;
   for (j in 1:M) xt_sim[j] = append_row(x_sim[j], theta_sim[j]);
   vector[M + N] y_joint = append_row(y_sim, y);
-  if (P_normals != 0 && P_normals != P) reject("P_normals must be 0 or P = ", P, "; got ", P_normals);
+  check_given_normals(P_normals, P);
 }
 parameters {
   vector<lower=0, upper=1>[Q] theta_unit;                // theta rescaled to [0, 1]

@@ -24,6 +24,7 @@ functions {
 #include functional_theta.stan
 #include priors.stan
 #include scaling.stan
+#include given_normals.stan
 }
 data {
   int<lower=1> N;                       // number of physical observations
@@ -64,14 +65,12 @@ data {
   array[P] vector[D_fun] x_fun_new;     // functional inputs of the prediction points, scaled like x_fun
   matrix[P, H] h_new;                   // mean terms at the prediction points, scaled like h
   array[P] int<lower=0> trials_new;     // binomial: trials of a new observation at each prediction point
-  int<lower=0> P_normals;               // P = the draws at the prediction points use normals_new, 0 = Stan's RNG
-  matrix[P_normals, 2 + F] normals_new; // standard normals for those draws; column 1: simulator (emulator),
-                                        // 2: discrepancy, 2 + k: the k-th functional theta
+#include functional_prediction_normals_data.stan
 }
 transformed data {
   // for the leave-one-out densities with the left-out discrepancy integrated out
   tuple(vector[20], vector[20]) loo_rule = normal_quadrature(20);
-  if (P_normals != 0 && P_normals != P) reject("P_normals must be 0 or P = ", P, "; got ", P_normals);
+  check_given_normals(P_normals, P);
 }
 parameters {
   vector<lower=0, upper=1>[Q] theta_unit;   // theta on [0, 1]; a functional theta's level
