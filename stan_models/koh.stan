@@ -78,12 +78,12 @@ transformed parameters {
 }
 model {
   // theta_unit is uniform on [0, 1]: the bounds are the prior support.
-  noise_sd ~ normal(0, 1);
-  delta_sd ~ normal(0, 0.5);
-  delta_input_length_scale ~ discrepancy_length_scale();
-  delta_relevance ~ covariate_relevance();
-  rho_free ~ normal(1, 0.25);
-  beta ~ normal(0, beta_prior_sd);
+  noise_sd ~ observation_noise_sd();                 // half-normal(0, 1)
+  delta_sd ~ discrepancy_sd();                       // half-normal(0, 0.5)
+  delta_input_length_scale ~ discrepancy_length_scale();  // inverse gamma(3, 1)
+  delta_relevance ~ covariate_relevance();           // half-normal(0, 2)
+  rho_free ~ koh_scale();                            // normal(1, 0.25), rho > 0
+  beta ~ mean_term_coefficients(beta_prior_sd);      // normal(0, beta_prior_sd)
   if (!prior_only) {
     vector[N] resid = y - rho * standardized_simulator(X, theta, y_center, y_scale) - h * beta;
     if (use_discrepancy) {

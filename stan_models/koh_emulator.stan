@@ -72,16 +72,16 @@ transformed parameters {
   real rho = estimate_rho ? rho_free[1] : 1.0;
 }
 model {
-  noise_sd ~ normal(0, 1);
-  delta_sd ~ normal(0, 0.5);
-  delta_input_length_scale ~ discrepancy_length_scale();
-  delta_relevance ~ covariate_relevance();
-  rho_free ~ normal(1, 0.25);
-  beta ~ normal(0, beta_prior_sd);
-  emulator_mean ~ normal(0, 1);
-  emulator_sd ~ normal(0, 1);
-  emulator_length_scale ~ emulator_length_scale();
-  emulator_nugget ~ normal(0, 0.05);
+  noise_sd ~ observation_noise_sd();                 // half-normal(0, 1)
+  delta_sd ~ discrepancy_sd();                       // half-normal(0, 0.5)
+  delta_input_length_scale ~ discrepancy_length_scale();  // inverse gamma(3, 1)
+  delta_relevance ~ covariate_relevance();           // half-normal(0, 2)
+  rho_free ~ koh_scale();                            // normal(1, 0.25), rho > 0
+  beta ~ mean_term_coefficients(beta_prior_sd);      // normal(0, beta_prior_sd)
+  emulator_mean ~ emulator_mean();                   // normal(0, 1)
+  emulator_sd ~ emulator_sd();                       // half-normal(0, 1)
+  emulator_length_scale ~ emulator_length_scale();   // inverse gamma(2, 1)
+  emulator_nugget ~ emulator_nugget();               // half-normal(0, 0.05)
   if (prior_only) {
     matrix[M, M] K_sim = emulator_run_cov(xt_sim, kernel_id, emulator_sd, emulator_length_scale,
                                           emulator_nugget);

@@ -124,15 +124,15 @@ transformed parameters {
   }
 }
 model {
-  noise_sd ~ normal(0, 1);
-  inv_sqrt_phi ~ normal(0, 1);
-  delta_sd ~ normal(0, 0.5);
-  delta_input_length_scale ~ discrepancy_length_scale();
-  delta_relevance ~ covariate_relevance();
+  noise_sd ~ observation_noise_sd();                 // half-normal(0, 1)
+  inv_sqrt_phi ~ overdispersion();                   // half-normal(0, 1)
+  delta_sd ~ discrepancy_sd();                       // half-normal(0, 0.5)
+  delta_input_length_scale ~ discrepancy_length_scale();  // inverse gamma(3, 1)
+  delta_relevance ~ covariate_relevance();           // half-normal(0, 2)
   delta_z ~ std_normal();
-  beta ~ normal(0, beta_prior_sd);
-  theta_function_sd ~ normal(0, 1.5);
-  for (k in 1:F) theta_function_length_scale[k] ~ functional_length_scale();
+  beta ~ mean_term_coefficients(beta_prior_sd);      // normal(0, beta_prior_sd)
+  theta_function_sd ~ functional_sd();              // half-normal(0, 1.5)
+  for (k in 1:F) theta_function_length_scale[k] ~ functional_length_scale();  // inverse gamma(3, 1)
   if (functional_centred) {
     theta_function_logit ~ functional_theta(theta_unit, functional_slot, x_fun, kernel_id, theta_function_sd,
                                             theta_function_length_scale);
