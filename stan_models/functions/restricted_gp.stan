@@ -16,6 +16,9 @@
  * Cholesky factor of T = A' K_UU A + ridge * I.
  * @param ridge 0 for the orthogonal GP, sd^2 N / lambda for the scaled GP;
  *   the jitter (add_jitter) covers a theta without influence, which makes T singular
+ * @param K_UU prior covariance of the nodes U
+ * @param A U x functionals map of the restriction
+ * @return lower Cholesky factor L_T, functionals x functionals
  */
 matrix restriction_cholesky(matrix K_UU, matrix A, real ridge) {
   matrix[cols(A), cols(A)] T = quad_form_sym(K_UU, A);
@@ -25,6 +28,9 @@ matrix restriction_cholesky(matrix K_UU, matrix A, real ridge) {
 /**
  * V_a = L_T \ (A' K_Ua): the restricted covariance is K_ab - V_a' V_b.
  * @param K_Ua prior covariance of the nodes U with the points a (U x a)
+ * @param A U x functionals map of the restriction
+ * @param L_T Cholesky factor of T (restriction_cholesky)
+ * @return V_a, functionals x a
  */
 matrix restriction_factor(matrix K_Ua, matrix A, matrix L_T) {
   return mdivide_left_tri_low(L_T, A' * K_Ua);
