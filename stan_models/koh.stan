@@ -84,7 +84,7 @@ model {
   delta_input_length_scale ~ discrepancy_length_scale();  // inverse gamma(3, 1)
   delta_relevance ~ covariate_relevance();           // half-normal(0, 2)
   rho_free ~ koh_scale();                            // normal(1, 0.25), rho > 0
-  beta ~ mean_term_coefficients(beta_prior_sd);      // normal(0, beta_prior_sd)
+  beta ~ normal(0, beta_prior_sd);
   if (!prior_only) {
     vector[N] resid = y - rho * standardized_simulator(X, theta, y_center, y_scale) - h * beta;
     if (use_discrepancy) {

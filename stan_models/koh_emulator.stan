@@ -77,7 +77,7 @@ model {
   delta_input_length_scale ~ discrepancy_length_scale();  // inverse gamma(3, 1)
   delta_relevance ~ covariate_relevance();           // half-normal(0, 2)
   rho_free ~ koh_scale();                            // normal(1, 0.25), rho > 0
-  beta ~ mean_term_coefficients(beta_prior_sd);      // normal(0, beta_prior_sd)
+  beta ~ normal(0, beta_prior_sd);
   emulator_mean ~ emulator_mean();                   // normal(0, 1)
   emulator_sd ~ emulator_sd();                       // half-normal(0, 1)
   emulator_length_scale ~ emulator_length_scale();   // inverse gamma(2, 1)

@@ -113,7 +113,7 @@ model {
   delta_input_length_scale ~ discrepancy_length_scale();  // inverse gamma(3, 1)
   delta_relevance ~ covariate_relevance();           // half-normal(0, 2)
   delta_z ~ std_normal();
-  beta ~ mean_term_coefficients(beta_prior_sd);      // normal(0, beta_prior_sd)
+  beta ~ normal(0, beta_prior_sd);
   theta_function_sd ~ functional_sd();              // half-normal(0, 1.5)
   for (k in 1:F) theta_function_length_scale[k] ~ functional_length_scale();  // inverse gamma(3, 1)
   // the functional theta's GP (centred) or its standard normals (non-centred)

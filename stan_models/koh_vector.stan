@@ -77,7 +77,7 @@ model {
   delta_sd ~ discrepancy_sd();                       // half-normal(0, 0.5)
   delta_input_length_scale ~ discrepancy_length_scale();  // inverse gamma(3, 1)
   delta_relevance ~ covariate_relevance();           // half-normal(0, 2)
-  beta ~ mean_term_coefficients(beta_prior_sd);      // normal(0, beta_prior_sd)
+  beta ~ normal(0, beta_prior_sd);
   if (!prior_only) {
     vector[N] resid = y - experiment_simulator(X, experiment, theta, theta_experiment, y_center, y_scale)
                       - h * beta;

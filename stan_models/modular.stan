@@ -84,7 +84,7 @@ model {
   delta_input_length_scale ~ discrepancy_length_scale();  // inverse gamma(3, 1)
   delta_relevance ~ covariate_relevance();           // half-normal(0, 2)
   rho_free ~ koh_scale();                            // normal(1, 0.25), rho > 0
-  beta ~ mean_term_coefficients(beta_prior_sd);      // normal(0, beta_prior_sd)
+  beta ~ normal(0, beta_prior_sd);
   if (!prior_only) {
     matrix[N, M] K_obs_sim = kernel_id == 1
       ? diag_post_multiply(K_obs_sim_x, theta_factor(theta_unit, theta_sim,

@@ -100,7 +100,7 @@ model {
   delta_input_length_scale ~ discrepancy_length_scale();  // inverse gamma(3, 1)
   delta_relevance ~ covariate_relevance();           // half-normal(0, 2)
   rho_free ~ koh_scale();                            // normal(1, 0.25), rho > 0
-  beta ~ mean_term_coefficients(beta_prior_sd);      // normal(0, beta_prior_sd)
+  beta ~ normal(0, beta_prior_sd);
   if (!prior_only) {
     vector[1 + G + H] coefficients
       = append_row(rho * append_row(emulator_mean, chebyshev_tensor_basis(theta_unit, theta_degree)), beta);

@@ -119,7 +119,7 @@ model {
   delta_sd ~ discrepancy_sd();                       // half-normal(0, 0.5)
   delta_input_length_scale ~ discrepancy_length_scale();  // inverse gamma(3, 1)
   delta_relevance ~ covariate_relevance();           // half-normal(0, 2)
-  beta ~ mean_term_coefficients(beta_prior_sd);      // normal(0, beta_prior_sd)
+  beta ~ normal(0, beta_prior_sd);
   // emulator.stan's priors; the weights have unit variance
   weight_gp_mean_free ~ emulator_mean();             // normal(0, 1)
   weight_gp_sd_free ~ emulator_sd();                 // half-normal(0, 1)

@@ -100,18 +100,6 @@ real koh_scale_lpdf(array[] real rho) {
 }
 
 /**
- * Prior for the coefficients of the discrepancy's mean terms:
- * normal(0, prior_sd), the sds given by the data.
- *
- * @param beta the coefficients
- * @param prior_sd their prior sds
- * @return log density
- */
-real mean_term_coefficients_lpdf(vector beta, vector prior_sd) {
-  return normal_lupdf(beta | 0, prior_sd);
-}
-
-/**
  * Prior for the negative binomial overdispersion 1 / sqrt(phi):
  * half-normal(0, 1), which keeps mass at 0, the Poisson limit (an empty array
  * for another likelihood).

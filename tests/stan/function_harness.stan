@@ -152,11 +152,11 @@ generated quantities {
   // unrestricted: A without rows
   matrix[n2, n1] unrestricted_K_cross = restricted_gp_cov(x1, x2, x1[1:0], rep_matrix(0, 0, 2), 1, sd_, ls, 0).2;
   // every prior of priors.stan at given values (full densities: called as _lpdf)
-  vector[17] priors = [discrepancy_length_scale_lpdf({0.3, 0.7}), covariate_relevance_lpdf({0.5, 2.0}),
+  vector[16] priors = [discrepancy_length_scale_lpdf({0.3, 0.7}), covariate_relevance_lpdf({0.5, 2.0}),
                        emulator_length_scale_lpdf({0.3, 0.7}), functional_length_scale_lpdf([0.3, 0.7]'),
                        observation_noise_sd_lpdf(0.4), observation_noise_sd_lpdf({0.4, 0.9}),
                        discrepancy_sd_lpdf({0.3}), koh_scale_lpdf({1.1}),
-                       mean_term_coefficients_lpdf([0.2, -0.5]' | [1.0, 2.0]'), overdispersion_lpdf({0.6}),
+                       overdispersion_lpdf({0.6}),
                        functional_sd_lpdf([0.8, 2.0]'), emulator_mean_lpdf(0.3), emulator_mean_lpdf([0.3, -1.2]'),
                        emulator_sd_lpdf(0.5), emulator_sd_lpdf([0.5, 1.5]'), emulator_nugget_lpdf(0.01),
                        emulator_nugget_lpdf([0.01, 0.1]')]';
