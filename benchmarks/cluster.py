@@ -28,11 +28,11 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from stancal.cluster import IN_PROCESS, FitRunner, FitTask  # noqa: E402
-from stancal.config import load_config  # noqa: E402
-from stancal.gap import diagnose_gap  # noqa: E402
+from stancal.diagnosing.gap import diagnose_gap  # noqa: E402
+from stancal.fitting.cluster import IN_PROCESS, FitRunner, FitTask  # noqa: E402
+from stancal.problem.config import load_config  # noqa: E402
 
-SAMPLING = dict(chains=2, warmup=400, draws=700, seed=3)
+SAMPLING = {"chains": 2, "warmup": 400, "draws": 700, "seed": 3}
 
 
 def nothing(i: int) -> int:
@@ -69,12 +69,13 @@ def sbc_seconds(scheduler: str | None, simulations: int = 40) -> float:
     sys.path.insert(0, str(ROOT / "tests"))
     from conftest import cooling_data
 
-    from stancal.sbc import simulation_based_calibration
+    from stancal.diagnosing.sbc import simulation_based_calibration
 
     started = time.perf_counter()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        simulation_based_calibration(cooling_data(seed=7), simulator=ROOT / "case_studies" / "cooling" / "simulator.stan",
+        simulation_based_calibration(cooling_data(seed=7),
+                                     simulator=ROOT / "case_studies" / "cooling" / "simulator.stan",
                                      method="koh", discrepancy="gp", simulations=simulations, draws_per_fit=100,
                                      chains=1, seed=1, scheduler=scheduler)
     return time.perf_counter() - started

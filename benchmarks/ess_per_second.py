@@ -25,7 +25,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 import stancal  # noqa: E402
-from stancal.config import load_config  # noqa: E402
+from stancal.problem.config import load_config  # noqa: E402
 
 
 def sampling_arguments() -> argparse.Namespace:
@@ -48,14 +48,15 @@ def plain_baseline(data, args: argparse.Namespace) -> dict:
     import numpy as np
     import xarray as xr
 
-    from stancal.backends.pystan_backend import PyStanBackend
-    from stancal.models import ModelOptions
-    from stancal.stan_source import flatten
-    from stancal.standata import build_stan_data, default_new_points, to_stan_json
+    from stancal.problem.options import ModelOptions
+    from stancal.stan.backends.pystan_backend import PyStanBackend
+    from stancal.stan.registry import PROGRAMS
+    from stancal.stan.source import flatten
+    from stancal.stan.standata import build_stan_data, default_new_points, to_stan_json
 
     program = flatten(Path(__file__).with_name("plain_koh_joint.stan"))
     # the same standardised data koh_emulator gets, the variables the plain program declares
-    full = to_stan_json(build_stan_data(data, "koh_emulator", ModelOptions(), default_new_points(data)))
+    full = to_stan_json(build_stan_data(data, PROGRAMS["koh_emulator"].data, ModelOptions(), default_new_points(data)))
     stan_data = {k: full[k] for k in ("N", "M", "D", "Q", "x", "y", "x_sim", "theta_sim", "y_sim")}
     sample = PyStanBackend().sample(program, stan_data, chains=args.chains, warmup=args.warmup,
                                     draws=args.draws, seed=1, inits=None, adapt_delta=0.8, max_treedepth=10)

@@ -20,8 +20,8 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 import stancal  # noqa: E402
-from stancal.config import load_config  # noqa: E402
-from stancal.gap_location import locate_gap  # noqa: E402
+from stancal.diagnosing.gap_location import locate_gap  # noqa: E402
+from stancal.problem.config import load_config  # noqa: E402
 
 
 def main() -> None:

@@ -61,19 +61,19 @@ def censoring(seeds: int) -> dict:
     decay = case_study("detection_limit")
     errors = {"censored": [], "drop": [], "impute": []}
     inside = []
-    options = dict(simulator=STUDIES / "detection_limit" / "simulator.stan", method="koh_latent",
-                   discrepancy="none")
+    options = {"simulator": STUDIES / "detection_limit" / "simulator.stan", "method": "koh_latent",
+                   "discrepancy": "none"}
     for seed in range(seeds):
         frame = decay.measurements(seed=2000 + seed)
         frames = {"censored": frame, **decay.naive_frames(frame)}
         for name, table in frames.items():
-            bounds = dict(lower="lower", upper="upper") if name == "censored" else {}
+            bounds = {"lower": "lower", "upper": "upper"} if name == "censored" else {}
             data = stancal.CalibrationData(table, ["t", "c0"], "concentration", {"k": (0.01, 0.5)}, **bounds)
             k = fit(data, seed=seed, **options).theta_summary()["k"]
             errors[name].append(abs(k["q50"] - decay.K_TRUE))
             if name == "censored":
                 inside.append(k["q05"] < decay.K_TRUE < k["q95"])
-    best = np.mean([c < d and c < i for c, d, i in zip(*errors.values())])
+    best = np.mean([c < d and c < i for c, d, i in zip(*errors.values(), strict=False)])
     return {"study": "censored decay (37 % censored)", "fits": 3 * seeds,
             "truth in 90 % interval": f"{np.mean(inside):.0%}",
             "mean abs error: censored / drop / impute": " / ".join(f"{np.mean(e):.4f}" for e in errors.values()),

@@ -21,7 +21,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 import stancal  # noqa: E402
-from stancal.config import load_config  # noqa: E402
+from stancal.problem.config import load_config  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from ess_per_second import sampling_arguments  # noqa: E402

@@ -34,7 +34,7 @@ from conftest import COOLING, cooling_data  # noqa: E402
 from test_latent import BEAM, CENSORED, COUNTS, beam_data, censored_data, exact_counts  # noqa: E402
 
 import stancal  # noqa: E402
-from stancal.sbc import simulation_based_calibration  # noqa: E402
+from stancal.diagnosing.sbc import simulation_based_calibration  # noqa: E402
 
 SIMULATOR = COOLING / "simulator.stan"
 
@@ -53,21 +53,21 @@ def censored_design() -> stancal.CalibrationData:
 DESIGNS = {"counts": lambda: exact_counts("poisson", seed=1), "binomial": binomial_design,
            "censored": censored_design, "beam": beam_data}
 LATENT = {
-    "koh_latent_poisson": ("counts", dict(simulator=COUNTS / "simulator.stan", method="koh", discrepancy="gp")),
-    "koh_latent_binomial": ("binomial", dict(simulator=CENSORED / "simulator.stan", method="koh",
-                                             discrepancy="gp")),
-    "koh_latent_censored": ("censored", dict(simulator=CENSORED / "simulator.stan", method="koh",
-                                             discrepancy="none")),
-    "koh_latent_functional": ("beam", dict(simulator=BEAM / "simulator.stan", method="koh", discrepancy="none",
-                                           functional=["E"], functional_inputs=["temperature"])),
+    "koh_latent_poisson": ("counts", {"simulator": COUNTS / "simulator.stan", "method": "koh", "discrepancy": "gp"}),
+    "koh_latent_binomial": ("binomial", {"simulator": CENSORED / "simulator.stan", "method": "koh",
+                                             "discrepancy": "gp"}),
+    "koh_latent_censored": ("censored", {"simulator": CENSORED / "simulator.stan", "method": "koh",
+                                             "discrepancy": "none"}),
+    "koh_latent_functional": ("beam", {"simulator": BEAM / "simulator.stan", "method": "koh", "discrepancy": "none",
+                                           "functional": ["E"], "functional_inputs": ["temperature"]}),
 }
 FAMILIES = {
-    "koh": dict(simulator=SIMULATOR, method="koh", discrepancy="gp"),
-    "koh_none": dict(simulator=SIMULATOR, method="koh", discrepancy="none"),
-    "koh_orthogonal": dict(simulator=SIMULATOR, method="koh", discrepancy="orthogonal"),
-    "koh_scaled": dict(simulator=SIMULATOR, method="koh", discrepancy="scaled"),
-    "modular": dict(method="modular", discrepancy="gp"),
-    "koh_emulator": dict(method="koh_emulator", discrepancy="gp"),
+    "koh": {"simulator": SIMULATOR, "method": "koh", "discrepancy": "gp"},
+    "koh_none": {"simulator": SIMULATOR, "method": "koh", "discrepancy": "none"},
+    "koh_orthogonal": {"simulator": SIMULATOR, "method": "koh", "discrepancy": "orthogonal"},
+    "koh_scaled": {"simulator": SIMULATOR, "method": "koh", "discrepancy": "scaled"},
+    "modular": {"method": "modular", "discrepancy": "gp"},
+    "koh_emulator": {"method": "koh_emulator", "discrepancy": "gp"},
     **{name: options for name, (_, options) in LATENT.items()},
 }
 

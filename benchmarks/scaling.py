@@ -30,10 +30,10 @@ from pathlib import Path
 import numpy as np
 
 import stancal
-from stancal.backends import get_backend
-from stancal.calibrate import choose_method, stan_programs
-from stancal.config import load_config
-from stancal.models import ModelOptions
+from stancal.fitting.plan import plan_scalar
+from stancal.problem.config import load_config
+from stancal.problem.options import ModelOptions
+from stancal.stan.backends import get_backend
 
 ROOT = Path(__file__).resolve().parent.parent
 EXACT_LIMIT_S = 600.0
@@ -75,7 +75,7 @@ class PeakMemory:
             self.peak = max(self.peak, self._tree_rss(os.getpid()))
             time.sleep(0.2)
 
-    def __enter__(self) -> "PeakMemory":
+    def __enter__(self) -> PeakMemory:
         self._thread.start()
         return self
 
@@ -97,7 +97,7 @@ def problem(size: int, seed: int = 0) -> stancal.CalibrationData:
 
 def time_fit(data: stancal.CalibrationData, approximation: str) -> dict:
     options = ModelOptions(approximation=approximation)
-    get_backend(None).compile(stan_programs(choose_method(data, None, "modular", options)))
+    get_backend(None).compile(plan_scalar(data, None, "modular", options).stan_programs())
     with PeakMemory() as memory:
         started = time.perf_counter()
         result = stancal.calibrate(data, method="modular", approximation=approximation, chains=4,
@@ -179,7 +179,8 @@ def report(results: dict[str, list[dict]], out: Path) -> None:
         scalable = next((r for r in finished["hsgp"] if r["size"] == exact["size"]), None)
         for name, reference in exact["theta"].items() if scalable else ():
             approx = scalable["theta"][name]
-            print(f"n = N = {exact['size']}, {name}: hsgp mean {(approx['mean'] - reference['mean']) / reference['sd']:+.2f} "
+            shift = (approx['mean'] - reference['mean']) / reference['sd']
+            print(f"n = N = {exact['size']}, {name}: hsgp mean {shift:+.2f} "
                   f"exact sd from the exact one, sd {approx['sd'] / reference['sd'] - 1:+.0%}")
     slopes = {k: slope(v) for k, v in results.items()}
     for k, v in slopes.items():
@@ -192,11 +193,11 @@ def report(results: dict[str, list[dict]], out: Path) -> None:
 
 
 def plot(results: dict[str, list[dict]], slopes: dict[str, dict], path: Path) -> None:
-    from stancal.plots import finish, pyplot
+    from stancal.reporting.plots import finish, pyplot
 
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(6, 4.2))
-    for (name, rows), colour in zip(results.items(), ("C0", "C1")):
+    for (name, rows), colour in zip(results.items(), ("C0", "C1"), strict=False):
         done = [r for r in rows if not r.get("timed_out")]
         fitted, at_least = slopes[name]["fitted"], slopes[name]["at_least"]
         label = name + (f" (slope {fitted:.2f})" if fitted is not None else "")

@@ -30,8 +30,8 @@ import pandas as pd
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from stancal.vector_calibrate import calibrate_vector  # noqa: E402
-from stancal.vector_data import VectorCalibrationData  # noqa: E402
+from stancal.fitting.vector_calibrate import calibrate_vector  # noqa: E402
+from stancal.problem.vector_data import VectorCalibrationData  # noqa: E402
 
 THETA = {"k": (0.01, 0.1), "Ta": (15.0, 25.0)}
 
@@ -102,7 +102,7 @@ def large_problem(runs: int = 1000, seed: int = 0) -> VectorCalibrationData:
     physical = pd.DataFrame({"shot": np.repeat(["s1", "s2", "s3"], FEATURES), "x": np.repeat(x, FEATURES),
                              "feature": np.tile(np.arange(1, FEATURES + 1), 3), "y": measured.ravel(),
                              "sd": 0.02})
-    return VectorCalibrationData(physical, "shot", ["x"], "y", "feature", {n: (0.0, 1.0) for n in names},
+    return VectorCalibrationData(physical, "shot", ["x"], "y", "feature", dict.fromkeys(names, (0.0, 1.0)),
                                  runs=long, run="run", noise_sd="sd")
 
 

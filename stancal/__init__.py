@@ -2,18 +2,20 @@
 
 import logging
 
-from .calibrate import calibrate
-from .compare import Comparison, compare_methods, write_comparison
-from .data import CalibrationData, DataError, InputRangeWarning
-from .diagnostics import SamplerWarning
-from .gap import Candidate, CandidateError, GapWarning, diagnose_gap
-from .gap_report import write_gap_report
-from .mean_terms import FormulaError
-from .models import MODELS, Kernel, Method
-from .modes import MultimodalWarning
-from .report import write_calibration
-from .result import CalibrationResult
-from .stan_source import StanProgramError
+from stancal.diagnosing.compare import Comparison, compare_methods
+from stancal.diagnosing.gap import Candidate, CandidateError, GapWarning, diagnose_gap
+from stancal.fitting.calibrate import calibrate
+from stancal.problem.codes import Kernel
+from stancal.problem.data import CalibrationData, DataError, InputRangeWarning
+from stancal.problem.mean_terms import FormulaError
+from stancal.reporting.compare_report import write_comparison
+from stancal.reporting.gap_report import write_gap_report
+from stancal.reporting.report import write_calibration
+from stancal.results.diagnostics import SamplerWarning
+from stancal.results.modes import MultimodalWarning
+from stancal.results.result import CalibrationResult
+from stancal.stan.registry import MODELS, PROGRAMS, Program, register
+from stancal.stan.source import StanProgramError
 
 logging.getLogger("stancal").addHandler(logging.NullHandler())
 
@@ -21,8 +23,8 @@ load_result = CalibrationResult.load
 
 __all__ = [
     "CalibrationData", "CalibrationResult", "Candidate", "CandidateError", "Comparison", "DataError",
-    "FormulaError", "GapWarning", "InputRangeWarning", "Kernel", "MODELS", "Method",
+    "FormulaError", "GapWarning", "InputRangeWarning", "Kernel", "MODELS", "PROGRAMS", "Program",
     "MultimodalWarning", "SamplerWarning", "StanProgramError", "calibrate", "diagnose_gap",
-    "compare_methods", "load_result", "write_calibration", "write_comparison", "write_gap_report",
+    "compare_methods", "load_result", "register", "write_calibration", "write_comparison", "write_gap_report",
 ]
 __version__ = "0.1.0"

@@ -10,23 +10,18 @@ import sys
 import warnings
 from pathlib import Path
 
-from .backends import BACKENDS, StanRuntimeError, get_backend
-from .calibrate import L2, calibrate, choose_method, stan_programs
-from .cluster import IN_PROCESS
-from .compare import METHODS
-from .config import ConfigError, load_config
-from .data import DataError
-from .models import (
-    APPROXIMATIONS,
-    DISCREPANCIES,
-    EXACT_SIZE_LIMIT,
-    Method,
-    ModelOptions,
-    model_spec,
-)
-from .report import write_calibration, write_vector_calibration
-from .stan_source import FlatProgram, StanProgramError
-from .vector_data import VectorCalibrationData
+from stancal.diagnosing.compare import METHODS
+from stancal.fitting.calibrate import calibrate
+from stancal.fitting.cluster import IN_PROCESS
+from stancal.fitting.plan import make_plan, model_keywords
+from stancal.problem.config import ConfigError, load_config
+from stancal.problem.data import DataError
+from stancal.problem.options import APPROXIMATIONS, DISCREPANCIES, EXACT_SIZE_LIMIT
+from stancal.problem.vector_data import VectorCalibrationData
+from stancal.reporting.report import write_calibration, write_vector_calibration
+from stancal.stan.backends import BACKENDS, StanRuntimeError, get_backend
+from stancal.stan.registry import L2, entry_methods, method_names
+from stancal.stan.source import FlatProgram, StanProgramError
 
 logger = logging.getLogger("stancal")
 
@@ -60,7 +55,8 @@ def _parser() -> argparse.ArgumentParser:
                              help="exact (dense GPs), hsgp (scalable) or auto (hsgp above "
                                   f"{EXACT_SIZE_LIMIT} points plus runs)")
     for command in (cal, gap):
-        command.add_argument("--method", choices=[*(m.value for m in Method), *([L2] if command is cal else [])])
+        command.add_argument("--method", choices=list(dict.fromkeys([*method_names("scalar"), *method_names("vector"),
+                                                                      *([L2] if command is cal else [])])))
     cal.add_argument("--adapt-delta", type=float, default=0.9,
                      help="the sampler's target acceptance; raise it (0.95, 0.99) when transitions diverge")
     cal.add_argument("--discrepancy", choices=list(DISCREPANCIES),
@@ -85,8 +81,8 @@ def _stancal_warnings(caught) -> list[str]:
 
 
 def run_gap(args: argparse.Namespace) -> dict:
-    from .gap import diagnose_gap
-    from .gap_report import write_gap_report
+    from stancal.diagnosing.gap import diagnose_gap
+    from stancal.reporting.gap_report import write_gap_report
 
     problem = load_config(args.config)
     vector = isinstance(problem.data, VectorCalibrationData)
@@ -137,13 +133,13 @@ def run_calibrate(args: argparse.Namespace) -> dict:
         model["discrepancy"] = args.discrepancy
     if args.approximation:
         model["approximation"] = args.approximation
-    sampler = dict(chains=args.chains, warmup=args.warmup, draws=args.draws, seed=args.seed,
-                   backend=args.backend, adapt_delta=args.adapt_delta, out_dir=args.out)
+    sampler = {"chains": args.chains, "warmup": args.warmup, "draws": args.draws, "seed": args.seed,
+                   "backend": args.backend, "adapt_delta": args.adapt_delta, "out_dir": args.out}
     args.out.mkdir(parents=True, exist_ok=True)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         if vector:
-            from .vector_calibrate import calibrate_vector
+            from stancal.fitting.vector_calibrate import calibrate_vector
 
             result = calibrate_vector(problem.data, simulator=problem.simulator,
                                       method=args.method or configured_method, **sampler, **model)
@@ -158,7 +154,8 @@ def run_calibrate(args: argparse.Namespace) -> dict:
 
 
 def run_compare(args: argparse.Namespace) -> dict:
-    from .compare import compare_methods, write_comparison
+    from stancal.diagnosing.compare import compare_methods
+    from stancal.reporting.compare_report import write_comparison
 
     problem = load_config(args.config)
     _scalar_only(problem, "compare")
@@ -184,7 +181,8 @@ def run_compare(args: argparse.Namespace) -> dict:
 
 
 def run_sbc(args: argparse.Namespace) -> dict:
-    from .sbc import simulation_based_calibration
+    from stancal.diagnosing.sbc import simulation_based_calibration
+    from stancal.reporting.sbc_report import write_sbc_report
 
     problem = load_config(args.config)
     _scalar_only(problem, "sbc")
@@ -193,45 +191,30 @@ def run_sbc(args: argparse.Namespace) -> dict:
         problem.data, simulator=problem.simulator, simulations=args.sims, draws_per_fit=args.draws_per_fit,
         level=args.level, seed=args.seed, out_dir=args.out, chains=args.chains, warmup=args.warmup,
         backend=args.backend, scheduler=args.scheduler, **model)
+    write_sbc_report(result, args.out)
     return result.to_json()
 
 
 def config_programs(problem, all_methods: bool) -> list[FlatProgram]:
     """The programs that calibrate and gap run on a config: its method (or
     every method the problem admits) and its candidates' simulator variants."""
-    from .gap import variant_program
+    from stancal.diagnosing.gap import variant_program
 
-    if isinstance(problem.data, VectorCalibrationData):
-        from .vector_calibrate import choose_vector_method, vector_program
-
-        configured = problem.model.get("method")
-        methods = [configured] + (["koh", "modular"] if all_methods else [])
-        programs = []
-        for method in dict.fromkeys(methods):
-            try:
-                chosen = choose_vector_method(problem.data, problem.simulator, method)
-            except ValueError:  # a method this problem cannot run
-                continue
-            programs.append(vector_program(chosen, problem.simulator,
-                                           problem.model.get("program") if method == configured else None))
-        return programs + [variant_program(problem.data, c) for c in problem.candidates if c.kind == "variant"]
-
+    vector = isinstance(problem.data, VectorCalibrationData)
     model = dict(problem.model)
-    configured = model.pop("method", None)
-    options = ModelOptions(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in model.items()
-                              if k in ModelOptions.__dataclass_fields__})
-    methods = [configured]
-    if all_methods:
-        methods += [*([Method.KOH] if problem.simulator else []),
-                    *([Method.KOH_EMULATOR, Method.MODULAR] if problem.data.has_runs else [])]
-    programs = []
-    for method in methods:
+    configured, program = model.pop("method", None), model.pop("program", None)
+    model = {k: tuple(v) if isinstance(v, list) else v for k, v in model_keywords(model, vector).items()}
+    methods = [configured, *(entry_methods("vector" if vector else "scalar") if all_methods else [])]
+    programs, plans = [], []
+    for method in dict.fromkeys(methods):
         try:
-            chosen = choose_method(problem.data, problem.simulator, method, options)
+            plans.append(make_plan(problem.data, problem.simulator, method,
+                                   program if method == configured else None, **model))
         except ValueError:  # a method this problem cannot run
             continue
-        programs += stan_programs(chosen, problem.simulator if model_spec(chosen).needs_simulator else None)
-    return programs + [variant_program(problem.data, c) for c in problem.candidates if c.kind == "variant"]
+        programs += plans[-1].stan_programs()
+    return programs + [variant_program(problem.data, c, plans[0] if plans else None)
+                       for c in problem.candidates if c.kind == "variant"]
 
 
 def run_compile(args: argparse.Namespace) -> dict:
@@ -275,7 +258,7 @@ def main(argv: list[str] | None = None) -> int:
               f"report in {args.out / 'report.md'}")
         return 0
     if args.command == "sbc":
-        for name, row in summary["parameters"].items():
+        for _name, row in summary["parameters"].items():
             print(row["verdict"])
         print(f"sbc: {summary['simulations']} simulations, {summary['draws_per_fit']} draws each; "
               f"results in {args.out / 'sbc.json'}")

@@ -1,4 +1,4 @@
-"""Many fits on Dask (stancal.cluster): retries and named failures, the
+"""Many fits on Dask (stancal.fitting.cluster): retries and named failures, the
 same results whatever runs the fits, one build per program per machine,
 and a real cluster (a scheduler and two worker processes on 127.0.0.1)
 that loses a worker in the middle of a gap diagnosis."""
@@ -18,8 +18,8 @@ import numpy as np
 import pytest
 from conftest import COOLING, COOLING_SAMPLING, ROOT
 
-from stancal.cluster import IN_PROCESS, FitFailure, FitRunner, FitTask
-from stancal.seeds import MAX_SEED, fit_seed
+from stancal.fitting.cluster import IN_PROCESS, FitFailure, FitRunner, FitTask
+from stancal.fitting.seeds import MAX_SEED, fit_seed
 
 VENV_BIN = Path(sys.executable).parent
 
@@ -69,9 +69,9 @@ def test_concurrent_builds_of_one_program_build_it_once(tmp_path):
 import logging, sys
 from pathlib import Path
 logging.basicConfig(level=logging.INFO, format="%(message)s")
-from stancal.backends.pystan_compile import build_into_store, use_private_httpstan_cache
-from stancal.backends import get_backend
-from stancal.stan_source import FlatProgram
+from stancal.stan.backends.pystan_compile import build_into_store, use_private_httpstan_cache
+from stancal.stan.backends import get_backend
+from stancal.stan.source import FlatProgram
 use_private_httpstan_cache(Path(sys.argv[1]))
 print(build_into_store(sys.stdin.read()))
 program = FlatProgram(code={code!r}, origin=())

@@ -172,7 +172,7 @@ def test_subset_keeps_every_level():
 
 
 def test_mean_terms_scaled_and_checked():
-    from stancal.mean_terms import FormulaError, build_mean_terms
+    from stancal.problem.mean_terms import FormulaError, build_mean_terms
 
     frame = with_batch()
     terms = build_mean_terms("I(x**2) + C(batch)", frame)
@@ -186,7 +186,7 @@ def test_mean_terms_scaled_and_checked():
 
 
 def test_intercept_only_mean_terms():
-    from stancal.mean_terms import build_mean_terms
+    from stancal.problem.mean_terms import build_mean_terms
 
     terms = build_mean_terms(None, with_batch(), intercept=True)
     assert terms.names == ["Intercept"] and np.all(terms.h == 1)
@@ -197,7 +197,7 @@ def test_terms_beside_a_constant_are_centred():
     """A nearly constant term (pressure, 1016 +- 5 hPa) must not be collinear
     with the constant: centred at the physical points' mean, it is orthogonal
     to it, and new points are centred the same way."""
-    from stancal.mean_terms import FormulaError, build_mean_terms
+    from stancal.problem.mean_terms import FormulaError, build_mean_terms
 
     frame = with_batch().assign(pressure=lambda f: 1016 + 5 * np.sin(np.arange(len(f))))
     terms = build_mean_terms("pressure", frame, intercept=True)

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from stancal.design import latin_hypercube_with_corners
+from stancal.problem.design import latin_hypercube_with_corners
 
 
 def test_design_spans_the_box_and_stratifies_the_rest():

@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 import xarray as xr
 
-from stancal.diagnostics import check_sampler
-from stancal.inits import spread_theta_inits
-from stancal.modes import find_modes
+from stancal.results.diagnostics import check_sampler
+from stancal.fitting.inits import spread_theta_inits
+from stancal.results.modes import find_modes
 
 rng = np.random.default_rng(0)
 

@@ -14,11 +14,11 @@ import pytest
 from conftest import COOLING, ROOT, assert_healthy
 
 import stancal
-from stancal.backends import get_backend
-from stancal.config import ConfigError, load_config
-from stancal.gap import Candidate, CandidateError, check_candidates, diagnose_gap, variant_data
-from stancal.models import Likelihood
-from stancal.gap_report import write_gap_report
+from stancal.stan.backends import get_backend
+from stancal.problem.config import ConfigError, load_config
+from stancal.diagnosing.gap import Candidate, CandidateError, check_candidates, diagnose_gap, variant_data
+from stancal.stan.registry import Likelihood
+from stancal.reporting.gap_report import write_gap_report
 
 PIPE = ROOT / "case_studies" / "pipe_flow"
 SHIELD = ROOT / "case_studies" / "shield_buildup"
@@ -330,7 +330,7 @@ def test_kfold_comparison_and_a_failed_candidate(exact_cooling_data, monkeypatch
     are ranked (in-process, so that the failure can be planted)."""
     frame = exact_cooling_data.source.assign(half=np.where(np.arange(24) % 2, "odd", "even"))
     data = stancal.CalibrationData(frame, ["t", "T0"], "temperature", {"k": (0.01, 0.2)})
-    real_calibrate = stancal.gap.calibrate
+    real_calibrate = stancal.diagnosing.gap.calibrate
     attempts = []
 
     def calibrate(data, **options):
@@ -339,7 +339,7 @@ def test_kfold_comparison_and_a_failed_candidate(exact_cooling_data, monkeypatch
             raise RuntimeError("Stan failed while sampling: planted")
         return real_calibrate(data, **options)
 
-    monkeypatch.setattr(stancal.gap, "calibrate", calibrate)
+    monkeypatch.setattr(stancal.diagnosing.gap, "calibrate", calibrate)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         analysis = diagnose_gap(data, [Candidate("half", formula="C(half)"), Candidate("slope", formula="t")],

@@ -3,19 +3,19 @@ scaled GP and `stancal compare`."""
 
 import json
 import sys
-import warnings
 
 import numpy as np
 import pandas as pd
 import pytest
-from conftest import COOLING, K_TRUE, ROOT, fit, newton
+from conftest import COOLING, K_TRUE, ROOT, assert_healthy, fit, newton, no_stancal_warnings
 from scipy import optimize
 
 import stancal
 from stancal.cli import main
-from stancal.compare import compare_methods, discrepancy_rms, write_comparison
-from stancal.l2 import project
-from stancal.quadrature import input_box_quadrature
+from stancal.diagnosing.compare import compare_methods, discrepancy_rms
+from stancal.reporting.compare_report import write_comparison
+from stancal.fitting.l2 import project
+from stancal.numerics.quadrature import input_box_quadrature
 
 sys.path.insert(0, str(ROOT / "case_studies" / "tuo_wu"))
 import tuo_wu  # noqa: E402
@@ -31,10 +31,50 @@ def theta_star():
 
 
 def compare_on_tuo_wu(seed):
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
+    # the orthogonal GP holds at every stationary point of the L2 loss: its
+    # posterior is multimodal by design, and the fit must say so
+    with pytest.warns(stancal.MultimodalWarning, match="weighted by its posterior mass"):
         return compare_methods(tuo_wu.problem(seed), simulator=tuo_wu.SIMULATOR,
                                methods=("koh", "l2", "orthogonal"), seed=seed, **SETTINGS)
+
+
+def assert_comparison_healthy(comparison):
+    """Every method that sampled (l2 projects koh's draws: its diagnostics are koh's)."""
+    for method in comparison.fits:
+        if method.result is not None:
+            assert_healthy(method.result)
+
+
+def brute_force_projection(result, quadrature, simulator, lower, upper, grid_points=2001):
+    """The L2 projection of each zeta draw, by brute force: the loss on a
+    grid over the theta box (a numpy simulator, not the fit's), then a
+    bounded scalar search in the best cell. Returns (theta, rms) per draw."""
+    from scipy.optimize import minimize_scalar
+
+    r = len(quadrature.weights)
+    zeta = np.asarray(result.idata["predictions"]["zeta_new"])[..., -r:].reshape(-1, r)
+    grid = np.linspace(lower, upper, grid_points)
+    f = simulator(quadrature.nodes, grid)  # (grid, nodes)
+    losses = (zeta**2) @ quadrature.weights - 2 * (zeta * quadrature.weights) @ f.T \
+        + ((f**2) @ quadrature.weights)[None, :]
+    step = grid[1] - grid[0]
+    theta, rms = np.empty(len(zeta)), np.empty(len(zeta))
+    for d, row in enumerate(zeta):
+        best = grid[np.argmin(losses[d])]
+        search = minimize_scalar(lambda t: quadrature.mean_square(row - simulator(quadrature.nodes, [t])[0]),
+                                 bounds=(max(lower, best - step), min(upper, best + step)), method="bounded",
+                                 options={"xatol": 1e-10})
+        theta[d], rms[d] = search.x, np.sqrt(search.fun)
+    return theta, rms
+
+
+def tuo_wu_at(nodes, theta):
+    return tuo_wu.simulator(nodes["x"].to_numpy()[None, :], np.asarray(theta, float)[:, None])
+
+
+def cooling_at(nodes, theta):
+    t, T0 = nodes["t"].to_numpy(), nodes["T0"].to_numpy()
+    return np.array([newton(t, T0, k) for k in np.asarray(theta, float)])
 
 
 @pytest.fixture(scope="module")
@@ -64,6 +104,7 @@ def test_tuo_wu_one_seed(tuo_wu_seed_1, theta_star):
     slow): L2 within 0.12 of theta* (the estimator's own noise over seeds is
     about 0.04), and theta* among the orthogonal GP's modes with a real share
     of the mass."""
+    assert_comparison_healthy(tuo_wu_seed_1)
     l2 = tuo_wu_seed_1.table().loc["l2", "theta_q50"]
     assert abs(l2 - theta_star) < 0.12
     theta, weight = _mode_nearest(tuo_wu_seed_1, theta_star)
@@ -74,6 +115,8 @@ def test_tuo_wu_one_seed(tuo_wu_seed_1, theta_star):
 def test_tuo_wu_l2_finds_the_l2_projection(tuo_wu_comparisons, theta_star):
     """The issue's bar: the mean over 5 seeds within 0.03 of theta*, each seed
     within 0.12 (the estimator's own noise is about 0.04)."""
+    for comparison in tuo_wu_comparisons.values():
+        assert_comparison_healthy(comparison)
     estimates = _estimates(tuo_wu_comparisons, "l2")
     koh = _estimates(tuo_wu_comparisons, "koh")
     print("\nl2: " + ", ".join(f"seed {s}: {v:.4f}" for s, v in estimates.items())
@@ -90,6 +133,8 @@ def test_tuo_wu_orthogonal_has_a_mode_at_the_l2_projection(tuo_wu_comparisons, t
     posterior is multimodal and weighed by mass (issue 12, item 6); theta* is
     one of its modes in every seed, with a real share of the mass, and that
     mode's mean over seeds is within 0.03 of theta*."""
+    for comparison in tuo_wu_comparisons.values():
+        assert_comparison_healthy(comparison)
     nearest = {seed: _mode_nearest(c, theta_star) for seed, c in tuo_wu_comparisons.items()}
     print("\northogonal, mode nearest theta* (theta, weight): "
           + ", ".join(f"seed {s}: {t:.4f}, {w:.2f}" for s, (t, w) in nearest.items()))
@@ -99,20 +144,36 @@ def test_tuo_wu_orthogonal_has_a_mode_at_the_l2_projection(tuo_wu_comparisons, t
 
 @pytest.mark.slow  # shares the 15 fits above
 def test_tuo_wu_l2_interval_and_discrepancy(tuo_wu_comparisons, theta_star):
-    """The projected draws give an interval around theta*, and the projection
-    leaves a smaller discrepancy than KOH's theta (it minimises that norm)."""
+    """The projected draws give an interval around theta*, and each draw's
+    projection is the brute-force minimiser of the discrepancy norm (numpy
+    simulator on a 2,001-point grid over [-2, 2], then a bounded search:
+    the global minimum, not a local one), and the table's ELPD is ArviZ's
+    PSIS-LOO of the fit's own log-likelihood."""
+    import arviz_stats
+
     covered = 0
     for comparison in tuo_wu_comparisons.values():
+        assert_comparison_healthy(comparison)
         table = comparison.table()
         covered += table.loc["l2", "theta_q05"] < theta_star < table.loc["l2", "theta_q95"]
-        assert table.loc["l2", "discrepancy_rms_q50"] <= table.loc["koh", "discrepancy_rms_q50"] + 1e-9
-        # same zeta model; PSIS relative efficiency is estimated from each posterior
-        assert table.loc["l2", "elpd"] == pytest.approx(table.loc["koh", "elpd"], abs=0.05)
+        l2 = next(f.result for f in comparison.fits if f.name == "l2")
+        _, rms = brute_force_projection(l2, comparison.quadrature, tuo_wu_at, -2.0, 2.0)
+        # the norm at the reported theta equals the global minimum (the loss is multimodal, so
+        # two basins may tie within the tolerance: theta itself is compared on the unimodal
+        # cooling problem below); 1e-6 relative: Gauss-Newton stops at steps of 1e-7 of the box
+        np.testing.assert_allclose(discrepancy_rms(l2, comparison.quadrature), rms, rtol=1e-6, atol=1e-9)
+        for method in ("koh", "l2"):
+            result = next(f.result for f in comparison.fits if f.name == method)
+            reference = arviz_stats.loo(result.idata)
+            # 0.05: the bar the old l2-against-koh check used for differing PSIS relative
+            # efficiency estimates (not re-measured)
+            assert table.loc[method, "elpd"] == pytest.approx(float(reference.elpd), abs=0.05), method
     assert covered >= 4
 
 
 def test_l2_predictions_use_the_projected_theta(tuo_wu_seed_1):
     result = next(f.result for f in tuo_wu_seed_1.fits if f.name == "l2")
+    assert_healthy(result)
     points = pd.DataFrame({"x": [0.5, 3.0, 6.0]})
     table = result.predict(points)
     theta = result.theta_draws()["theta"].to_numpy()
@@ -147,8 +208,7 @@ def exact_comparison(exact_cooling_data, tmp_path_factory):
     data = stancal.CalibrationData(exact_cooling_data.physical, ["t", "T0"], "temperature",
                                    {"k": (0.01, 0.2)})
     out = tmp_path_factory.mktemp("compare")
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
+    with no_stancal_warnings():
         comparison = compare_methods(data, simulator=COOLING / "simulator.stan", seed=3,
                                      out_dir=out, chains=2, warmup=300, draws=300)
     return comparison, out
@@ -160,6 +220,7 @@ def test_every_method_recovers_an_exact_simulator(exact_comparison):
     estimate, its median be within 1 % of the truth, and the discrepancy
     be far below the noise (sd 0.3)."""
     comparison, out = exact_comparison
+    assert_comparison_healthy(comparison)
     table = comparison.table()
     print("\n" + table[["k_q05", "k_q50", "k_q95", "discrepancy_rms_q50", "elpd"]].to_string())
     physical = comparison.fits[0].result.data.physical
@@ -179,6 +240,7 @@ def test_every_method_recovers_an_exact_simulator(exact_comparison):
 def test_l2_from_simulator_runs_uses_the_emulator(exact_cooling_data):
     """Without a Stan simulator, L2 projects koh_emulator's zeta onto the emulator's mean."""
     result = fit(exact_cooling_data, method="l2", chains=2, warmup=300, draws=150)
+    assert_healthy(result)
     assert result.l2["base_method"] == "koh_emulator"
     s = result.theta_summary()["k"]
     assert s["q05"] < K_TRUE < s["q95"]
@@ -186,16 +248,22 @@ def test_l2_from_simulator_runs_uses_the_emulator(exact_cooling_data):
 
 
 def test_l2_projection_minimises_the_discrepancy_norm(exact_comparison):
-    """Per draw, the projected theta leaves no larger a discrepancy norm than
-    KOH's theta on the same zeta draw."""
+    """Per draw, the projected theta is the brute-force minimiser of the
+    discrepancy norm over the k box (Newton's law in numpy on a 2,001-point
+    grid over [0.01, 0.2], then a bounded search in the best cell), and the
+    norm reported for it is that minimum."""
     comparison, _ = exact_comparison
-    koh, l2 = (next(f.result for f in comparison.fits if f.name == n) for n in ("koh", "l2"))
-    rms_koh = discrepancy_rms(koh, comparison.quadrature)
-    rms_l2 = discrepancy_rms(l2, comparison.quadrature)
-    assert np.all(rms_l2 <= rms_koh + 1e-6)
+    assert_comparison_healthy(comparison)
+    l2 = next(f.result for f in comparison.fits if f.name == "l2")
+    theta, rms = brute_force_projection(l2, comparison.quadrature, cooling_at, 0.01, 0.2)
+    # 1e-6 in k, against a posterior sd of 1.5e-4: Gauss-Newton stops at steps below 1e-7 of the
+    # box (1.9e-8), the bounded search at 1e-10
+    np.testing.assert_allclose(l2.theta_draws()["k"].to_numpy(), theta, atol=1e-6)
+    np.testing.assert_allclose(discrepancy_rms(l2, comparison.quadrature), rms, rtol=1e-6, atol=1e-9)
 
 
 def test_cli_compare_and_l2(tmp_path, capsys):
+    # health not asserted: 2 x 100 draws check the command's files and fields, no statistical claim
     code = main(["compare", str(TUO_WU / "config.toml"), "--out", str(tmp_path / "cmp"), "--chains", "2",
                  "--warmup", "200", "--draws", "100", "--seed", "1", "--methods", "koh", "l2", "scaled"])
     assert code == 0, capsys.readouterr().err

@@ -13,9 +13,9 @@ import pytest
 from conftest import ROOT, assert_healthy, fit
 
 import stancal
-from stancal.design import latin_hypercube_with_corners
-from stancal.models import Censoring, Likelihood
-from stancal.stan_source import shipped_models_dir
+from stancal.problem.design import latin_hypercube_with_corners
+from stancal.stan.registry import Censoring, Likelihood
+from stancal.stan.source import shipped_models_dir
 
 COUNTS = ROOT / "case_studies" / "detector_counts"
 CENSORED = ROOT / "case_studies" / "detection_limit"
@@ -198,7 +198,7 @@ def test_binomial_with_a_cheap_simulator():
     low, high = interval(result, "k")
     assert low < decay.K_TRUE < high
     # a probability above 1 anywhere is an error that names the row
-    with pytest.raises(stancal.backends.StanRuntimeError, match=r"success probability 1\.1.* at row 1 .* logit link"):
+    with pytest.raises(stancal.stan.backends.StanRuntimeError, match=r"success probability 1\.1.* at row 1 .* logit link"):
         fit(stancal.CalibrationData(physical.assign(c0=[1.2] + [0.9] * 15), ["t", "c0"], "alive",
                                     {"k": (0.01, 0.02)}, likelihood="binomial", trials="n"),
             simulator=CENSORED / "simulator.stan", chains=1, warmup=20, draws=20)
@@ -365,9 +365,9 @@ def test_both_parametrizations_of_functional_theta_give_one_posterior(non_centre
 
 
 def test_a_struggling_functional_fit_is_told_the_other_parametrization():
-    from stancal.diagnostics import Diagnostics
-    from stancal.functional import parametrization_advice
-    from stancal.models import ModelOptions
+    from stancal.results.diagnostics import Diagnostics
+    from stancal.problem.functional import parametrization_advice
+    from stancal.stan.registry import ModelOptions
 
     healthy = Diagnostics(0, 2000, 1.004, "theta", 800.0, 800.0, "theta", 0, [])
     funnel = Diagnostics(4, 2000, 1.03, "theta_function_sd", 115.0, 300.0, "theta_function_sd", 1409, [])
@@ -459,7 +459,7 @@ def test_simulator_mean_not_positive_under_log_link():
     data = stancal.CalibrationData(pd.DataFrame({"t": [1.0, 2.0, 3.0, 4.0], "c0": [5.0, 0.0, 5.0, 5.0],
                                                  "n": [4, 0, 3, 2]}),
                                    ["t", "c0"], "n", {"k": (0.01, 0.5)}, likelihood="poisson")
-    with pytest.raises(stancal.backends.StanRuntimeError, match=r"returned the mean 0 at row 2 .* log link"):
+    with pytest.raises(stancal.stan.backends.StanRuntimeError, match=r"returned the mean 0 at row 2 .* log link"):
         fit(data, simulator=CENSORED / "simulator.stan", chains=1, warmup=20, draws=20)
 
 
@@ -500,7 +500,7 @@ def test_codes_agree_with_stan():
 
 
 def test_config_reaches_the_new_model_keys(tmp_path):
-    from stancal.config import ConfigError, load_config
+    from stancal.problem.config import ConfigError, load_config
 
     problem = load_config(CENSORED / "config.toml")
     assert problem.data.observations.any_censored

@@ -6,7 +6,7 @@ import pytest
 from conftest import ROOT, fit
 
 import stancal
-from stancal.mode_mass import bridge_log_mass, mode_weights
+from stancal.numerics.mode_mass import bridge_log_mass, mode_weights
 
 TWO_BRANCH = ROOT / "tests" / "stan" / "two_branch_simulator.stan"
 

@@ -7,7 +7,7 @@ from scipy import stats
 from scipy.stats import norm
 
 import stancal
-from stancal.scoring import Score, refit_rows, rescored, unreliable_tests
+from stancal.diagnosing.scoring import Score, refit_rows, rescored, unreliable_tests
 
 
 class Refit:

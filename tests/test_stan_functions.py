@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from stancal.backends.pystan_compile import compile_programs
-from stancal.kernels import ard_cross_cov
-from stancal.models import Kernel
-from stancal.stan_source import flatten
+from stancal.stan.backends.pystan_compile import compile_programs
+from stancal.numerics.kernels import ard_cross_cov
+from stancal.stan.registry import Kernel
+from stancal.stan.source import flatten
 
 HARNESS = Path(__file__).parent / "stan" / "function_harness.stan"
 rng = np.random.default_rng(3)
@@ -39,7 +39,7 @@ def matern52(a, b):
 
 
 def test_python_kernels_mirror_the_references():
-    # stancal.kernels is checked here against the same references as Stan's
+    # stancal.numerics.kernels is checked here against the same references as Stan's
     assert np.allclose(ard_cross_cov(X1, X2, Kernel.SE, SD, LS), se(X1, X2), rtol=1e-12)
     assert np.allclose(ard_cross_cov(X1, X2, Kernel.MATERN52, SD, LS), matern52(X1, X2), rtol=1e-12)
 

@@ -2,8 +2,9 @@ import re
 
 import pytest
 
-from stancal.models import MODELS, Kernel
-from stancal.stan_source import StanProgramError, flatten, shipped_models_dir
+from stancal.problem.codes import Kernel
+from stancal.stan.registry import MODELS
+from stancal.stan.source import StanProgramError, flatten, shipped_models_dir
 
 
 def test_every_registered_program_flattens(tmp_path):
@@ -12,7 +13,7 @@ def test_every_registered_program_flattens(tmp_path):
     for spec in MODELS.values():
         flat = flatten(spec.path, aliases={"simulator.stan": simulator})
         assert "#include" not in flat.code
-        assert ("simulator(matrix X" in flat.code) == spec.needs_simulator
+        assert ("simulator(matrix X" in flat.code) == spec.simulator
 
 
 def test_includes_resolve_next_to_the_file_first(tmp_path):

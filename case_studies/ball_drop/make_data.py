@@ -64,7 +64,7 @@ def main(folder: Path = Path(__file__).parent) -> None:
     R_runs, C_runs = 0.05 + 0.4 * DESIGN[:, 0], 0.05 + 0.2 * DESIGN[:, 1]
     runs = [pd.DataFrame({"run": r, "R": R, "C": C, "h": SIM_HEIGHTS,
                           "time": [time_to_fall(h, fallen_simulated, C, R) for h in SIM_HEIGHTS]})
-            for r, (R, C) in enumerate(zip(R_runs, C_runs))]
+            for r, (R, C) in enumerate(zip(R_runs, C_runs, strict=False))]
     pd.concat(runs).round(6).to_csv(folder / "runs.csv", index=False)
 
 

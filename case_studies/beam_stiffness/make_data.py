@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from stancal.design import latin_hypercube_with_corners
+from stancal.problem.design import latin_hypercube_with_corners
 
 NOISE_SD = 0.1  # mm
 E_BOUNDS = (0.5, 5.0)  # GPa

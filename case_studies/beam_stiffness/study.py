@@ -13,8 +13,8 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 import stancal  # noqa: E402
-from stancal.report import write_calibration  # noqa: E402
-from stancal.config import load_config  # noqa: E402
+from stancal.problem.config import load_config  # noqa: E402
+from stancal.reporting.report import write_calibration  # noqa: E402
 
 HERE = Path(__file__).parent
 sys.path.insert(0, str(HERE))
@@ -23,7 +23,7 @@ from make_data import modulus  # noqa: E402
 
 def main(out: Path = HERE / "out", draws: int = 1000) -> None:
     problem = load_config(HERE / "config.toml")
-    settings = dict(simulator=problem.simulator, chains=4, warmup=draws, draws=draws, seed=1)
+    settings = {"simulator": problem.simulator, "chains": 4, "warmup": draws, "draws": draws, "seed": 1}
     functional = stancal.calibrate(problem.data, functional=["E"], functional_inputs=["temperature"],
                                    out_dir=out, **settings)
     write_calibration(functional, out, functional.diagnostics.messages)

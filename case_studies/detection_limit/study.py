@@ -9,11 +9,10 @@ import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
 
 import stancal  # noqa: E402
-from stancal.report import write_calibration  # noqa: E402
-from stancal.config import load_config  # noqa: E402
+from stancal.problem.config import load_config  # noqa: E402
+from stancal.reporting.report import write_calibration  # noqa: E402
 
 HERE = Path(__file__).parent
 sys.path.insert(0, str(HERE))
@@ -22,8 +21,8 @@ from make_data import K_TRUE, naive_frames  # noqa: E402
 
 def main(out: Path = HERE / "out", draws: int = 1000) -> None:
     problem = load_config(HERE / "config.toml")
-    settings = dict(simulator=problem.simulator, method="koh_latent", discrepancy="none", chains=4,
-                    warmup=draws, draws=draws, seed=1)
+    settings = {"simulator": problem.simulator, "method": "koh_latent", "discrepancy": "none", "chains": 4,
+                    "warmup": draws, "draws": draws, "seed": 1}
     censored = stancal.calibrate(problem.data, out_dir=out, **settings)
     write_calibration(censored, out, censored.diagnostics.messages)
     fits = {"censored likelihood": censored}
@@ -32,7 +31,7 @@ def main(out: Path = HERE / "out", draws: int = 1000) -> None:
         fits[{"drop": "censored rows dropped", "impute": "imputed at the limit"}[name]] = \
             stancal.calibrate(data, **settings)
     fig, ax = plt.subplots(figsize=(6.5, 3.2))
-    for row, (name, result) in enumerate(fits.items()):
+    for row, result in enumerate(fits.values()):
         k = result.theta_summary()["k"]
         ax.errorbar([k["q50"]], [row], xerr=[[k["q50"] - k["q05"]], [k["q95"] - k["q50"]]], fmt="o", capsize=4)
     ax.axvline(K_TRUE, color="k", ls="--", label="true k")

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from stancal.design import latin_hypercube_with_corners
+from stancal.problem.design import latin_hypercube_with_corners
 
 MU_TRUE = 0.35  # 1/cm
 DETECTOR_RADIUS = 0.3  # m

@@ -14,8 +14,8 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 import stancal  # noqa: E402
-from stancal.report import write_calibration  # noqa: E402
-from stancal.config import load_config  # noqa: E402
+from stancal.problem.config import load_config  # noqa: E402
+from stancal.reporting.report import write_calibration  # noqa: E402
 
 HERE = Path(__file__).parent
 sys.path.insert(0, str(HERE))
@@ -31,7 +31,7 @@ def main(out: Path = HERE / "out", draws: int = 1000) -> None:
         write_calibration(fits[method], out / method, fits[method].diagnostics.messages)
     d = problem.data.physical["d"].to_numpy()
     fig, axes = plt.subplots(1, 2, figsize=(11, 4))
-    for ax, (method, result) in zip(axes, fits.items()):
+    for ax, (method, result) in zip(axes, fits.items(), strict=False):
         delta = np.asarray(result.idata["at_observations"]["delta_gp"]).reshape(-1, len(d))
         order = np.argsort(d)
         low, mid, high = np.quantile(delta, [0.05, 0.5, 0.95], axis=0)

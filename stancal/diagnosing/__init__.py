@@ -1,0 +1,2 @@
+"""Questions asked of fits: the gap diagnosis, method comparison, scoring
+and simulation-based calibration."""

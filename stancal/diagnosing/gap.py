@@ -1,0 +1,351 @@
+"""Diagnose the sim-to-real gap: where the discrepancy lies, which candidate
+unmodelled effect explains it, and how far it shrinks once that effect is
+added.
+
+A candidate is either a formula over the physical data's columns, entering
+the discrepancy mean as h(x, z)' beta beside the GP, or a simulator variant:
+another Stan ``simulator`` with extra parameters and possibly covariates as
+inputs. Every fit keeps the baseline's discrepancy inputs and a constant
+discrepancy mean, so the remaining discrepancies (GP plus constant) are
+comparable. Candidates are ranked by the ELPD difference to the baseline
+(PSIS-LOO on the exact conditional, with exact refits where Pareto k is
+high, or K-fold).
+
+A vector output (stancal.problem.vector_data) is diagnosed the same way
+(koh_vector.stan, or modular_vector.stan from runs; variants run
+koh_vector): its values are the observations, and *where* covers the
+output index beside the inputs and covariates.
+
+Counts, binomial and censored outputs are diagnosed the same way on the
+link scale: their latent discrepancy is integrated out at each left-out
+point for PSIS-LOO (functions/latent_loo.stan).
+
+Shrinkage is measured on the remaining discrepancy's variation over the
+physical points (its RMS about its mean there), not on its RMS: a term that
+is nearly constant over the points (air pressure, 1016 +- 5 hPa) trades its
+level with the discrepancy's constant, so the level of the remaining
+discrepancy is not identified, while its variation is.
+"""
+
+from __future__ import annotations
+
+import functools
+import logging
+import re
+import warnings
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from stancal.diagnosing.gap_location import GapLocation, interval, locate_gap
+from stancal.diagnosing.scoring import (
+    PARETO_K_LIMIT,
+    Score,
+    kfold_tests,
+    psis_score,
+    refit_rows,
+    rescored,
+    unreliable_tests,
+)
+from stancal.fitting.calibrate import calibrate
+from stancal.fitting.cluster import FitFailure, FitRunner, FitTask, fit_runner
+from stancal.fitting.plan import Plan, make_plan, model_keywords
+from stancal.fitting.seeds import command_seed, fit_seed
+from stancal.fitting.stopwatch import Stopwatch
+from stancal.fitting.vector_calibrate import calibrate_vector
+from stancal.problem.candidates import Candidate, CandidateError
+from stancal.problem.data import CalibrationData, DataError
+from stancal.problem.mean_terms import FormulaError, build_mean_terms
+from stancal.problem.vector_data import VectorCalibrationData
+from stancal.results.result import CalibrationResult
+from stancal.results.vector_result import VectorCalibrationResult
+from stancal.stan.backends import get_backend
+from stancal.stan.source import FlatProgram, StanProgramError
+
+logger = logging.getLogger("stancal")
+
+# more observations with a high Pareto k than this in one fit: K-fold with
+# this many folds costs less than refitting each of them
+FALLBACK_FOLDS = 5
+
+
+
+class GapWarning(UserWarning):
+    """Something that weakens the gap diagnosis (e.g. high Pareto k)."""
+
+
+@dataclass
+class CandidateFit:
+    candidate: Candidate
+    result: CalibrationResult | VectorCalibrationResult
+    score: Score
+
+
+@dataclass
+class GapAnalysis:
+    baseline: CalibrationResult | VectorCalibrationResult
+    baseline_score: Score
+    location: GapLocation
+    candidates: list[CandidateFit]  # best first
+    # wall-clock seconds of each stage: compile, fits, refits (K-fold or exact LOO), locate
+    timing: dict[str, float] = field(default_factory=dict)
+    failed: list[FitFailure] = field(default_factory=list)  # candidates left out: a fit failed twice
+
+    def to_json(self) -> dict[str, Any]:
+        y = self.baseline.data.physical[self.baseline.data.output].to_numpy()
+        base = self.baseline_score
+        base_theta = self.baseline.theta_summary()
+        rng = np.random.default_rng(0)
+        out = {
+            "baseline": {
+                "method": self.baseline.method,
+                "discrepancy_scale": self.baseline.data.discrepancy_scale,
+                "theta": base_theta,
+                "discrepancy_rms": interval(base.discrepancy_rms),
+                "discrepancy_variation": interval(base.discrepancy_variation),
+                "elpd_loo": base.elpd,
+                "elpd_se": base.elpd_se,
+                "holdout_rmse": base.holdout_rmse(y),
+                "scheme": base.scheme,
+                "refits": base.refits,
+                "diagnostics": _sampler(self.baseline),
+            },
+            "where": self.location.to_json(),
+            "candidates": [],
+            "failed": [{"name": f.name, "error": f.error} for f in self.failed],
+            "timing": {k: round(v, 1) for k, v in self.timing.items()},
+        }
+        for fit in self.candidates:
+            s = fit.score
+            diff = s.elpd_i - base.elpd_i
+            # the fits are independent: pair their draws at random
+            after = rng.permutation(s.discrepancy_variation)[:len(base.discrepancy_variation)]
+            before = rng.permutation(base.discrepancy_variation)[:len(after)]
+            theta = fit.result.theta_summary()
+            out["candidates"].append({
+                "name": fit.candidate.name, "kind": fit.candidate.kind,
+                "effect": fit.candidate.formula or str(fit.candidate.stan),
+                "elpd_diff": float(diff.sum()),
+                "elpd_diff_se": float(np.sqrt(len(y) * np.var(diff))),
+                "discrepancy_rms": interval(s.discrepancy_rms),
+                "discrepancy_variation": interval(s.discrepancy_variation),
+                "shrinkage": interval(1 - after / before),
+                "theta": theta,
+                "theta_change": {k: theta[k]["mean"] - base_theta[k]["mean"]
+                                 for k in theta if k in base_theta},
+                "holdout_rmse": s.holdout_rmse(y),
+                "scheme": s.scheme,
+                "max_pareto_k": None if np.isnan(s.max_pareto_k) else s.max_pareto_k,
+                "refits": s.refits,
+                "diagnostics": _sampler(fit.result),
+            })
+        return out
+
+
+def _sampler(result: CalibrationResult | VectorCalibrationResult) -> dict[str, Any]:
+    return result.diagnostics.summary() if result.diagnostics else {}
+
+
+def label_name(candidate: Candidate | None) -> str:
+    return "the baseline" if candidate is None else f"candidate '{candidate.name}'"
+
+
+def _counts(unreliable: dict[str, int]) -> str:
+    return ", ".join(f"{n} observation{'s' if n > 1 else ''} of {name}" for name, n in unreliable.items())
+
+
+def _slug(name: str) -> str:
+    return re.sub(r"[^A-Za-z0-9_.-]+", "_", name)
+
+
+# ---- checking candidates before any fit -------------------------------------
+def variant_data(data: CalibrationData | VectorCalibrationData,
+                 candidate: Candidate) -> CalibrationData | VectorCalibrationData:
+    """The physical data as the variant sees it (each container's variant())."""
+    missing = [c for c in candidate.inputs if c not in data.source.columns]
+    if missing:
+        raise CandidateError(f"candidate '{candidate.name}': unknown input column(s) {missing}; "
+                             f"physical columns: {list(data.source.columns)}")
+    try:
+        return data.variant(candidate.inputs, candidate.theta)
+    except DataError as err:
+        raise CandidateError(f"candidate '{candidate.name}': {err}") from None
+
+
+def variant_program(data: CalibrationData | VectorCalibrationData, candidate: Candidate,
+                    plan: Plan | None = None) -> FlatProgram:
+    """The program a simulator variant runs: the baseline plan's model on
+    the variant (koh, or its latent or scalable version; koh_vector for a
+    vector output)."""
+    plan = plan or make_plan(data, candidate.stan)
+    return plan.with_simulator(candidate.stan).main_program()
+
+
+def check_candidates(data: CalibrationData | VectorCalibrationData, candidates: list[Candidate], backend,
+                     plan: Plan | None = None) -> None:
+    """Fail before sampling: formulas must evaluate, variants must pass stanc."""
+    names = [c.name for c in candidates]
+    repeated = sorted({n for n in names if names.count(n) > 1})
+    if repeated:
+        raise CandidateError(f"candidate name(s) {repeated} used twice")
+    if not candidates:
+        raise CandidateError("give at least one candidate effect")
+    for c in candidates:
+        if c.kind == "formula":
+            try:
+                build_mean_terms(c.formula, data.source)
+            except FormulaError as err:
+                raise CandidateError(f"candidate '{c.name}': {err}") from None
+            continue
+        if not Path(c.stan).is_file():
+            raise CandidateError(f"candidate '{c.name}': Stan file not found: {c.stan}")
+        variant_data(data, c)
+        try:
+            backend.check(variant_program(data, c, plan))
+        except StanProgramError as err:
+            raise CandidateError(f"candidate '{c.name}': the variant does not compile: {err}") from None
+
+
+# ---- the analysis --------------------------------------------------------------
+def _fit_task(name: str, candidate: Candidate | None, data, new_points: pd.DataFrame | None,
+              folder: Path | None, *, vector: bool, plan: Plan, seed: int, sampling: dict[str, Any]) -> FitTask:
+    """The baseline's or a candidate's fit to ``data`` (all of it, or a
+    training set), with its own seed, as a task for the runner: the baseline
+    plan, with the candidate's mean terms or on its simulator variant."""
+    if candidate is not None and candidate.kind == "variant":
+        plan = plan.with_simulator(candidate.stan)
+    elif candidate is not None:
+        plan = replace(plan, options=replace(plan.options, mean_formula=candidate.formula))
+    options = dict(data=data, plan=plan, seed=fit_seed(seed, name), out_dir=folder, **sampling)
+    if vector:
+        return FitTask(name, calibrate_vector, {**options, "new_rows": new_points})
+    return FitTask(name, calibrate, {**options, "new_points": new_points})
+
+
+def diagnose_gap(
+    data: CalibrationData | VectorCalibrationData,
+    candidates: list[Candidate],
+    *,
+    simulator: str | Path | None = None,
+    method: str | None = None,
+    seed: int | None = None,
+    out_dir: str | Path | None = None,
+    kfold: int | None = None,
+    scheduler: str | FitRunner | None = None,
+    **calibrate_options: Any,
+) -> GapAnalysis:
+    """Fit the baseline (KOH with a GP discrepancy over the inputs and
+    covariates) and every candidate, then locate, rank and measure the gap.
+
+    ``kfold``: use K-fold cross-validation with this many folds instead of
+    PSIS-LOO; by default K-fold (5 folds) is used only when a Pareto k
+    exceeds 0.7. The fits run side by side on Dask (``scheduler``: None for
+    a local cluster, an address, "in-process", or a FitRunner; see
+    stancal.fitting.cluster); each is written under ``out_dir`` as it finishes. A
+    candidate whose fit fails twice is left out of the ranking and named in
+    ``failed``. ``calibrate_options`` (kernel, chains, warmup, draws,
+    backend, adapt_delta, ...) go to every fit.
+    """
+    vector = isinstance(data, VectorCalibrationData)
+    if vector:
+        calibrate_options.pop("approximation", None)
+    # one plan for every fit: K-fold's smaller training sets keep the baseline's program and
+    # approximation, and every fit has a constant in the discrepancy mean, so that no
+    # candidate term wins by standing in for the discrepancy's overall level
+    plan = make_plan(data, simulator, method, **model_keywords(calibrate_options, vector))
+    plan = replace(plan, options=replace(plan.options, mean_formula=None, mean_intercept=True))
+    stan_backend = get_backend(calibrate_options.get("backend"))
+    check_candidates(data, candidates, stan_backend, plan)
+    clock = Stopwatch()
+    seed = command_seed(seed)
+    out = Path(out_dir) if out_dir is not None else None
+    task = functools.partial(_fit_task, vector=vector, plan=plan, seed=seed, sampling=calibrate_options)
+
+    def data_for(candidate: Candidate | None):
+        return variant_data(data, candidate) if candidate and candidate.kind == "variant" else data
+
+    labels = [None, *candidates]
+    failed: list[FitFailure] = []
+    with fit_runner(scheduler) as runner:
+        # every program up front, side by side on the machine's cores, then on every worker
+        runner.prepare([*plan.stan_programs(), *(variant_program(data, c, plan) for c in candidates
+                                                 if c.kind == "variant")],
+                       calibrate_options.get("backend"))
+        clock.lap("compile")
+        fits = runner.map([task(label_name(c), c, data_for(c),
+                                None if vector else data_for(c).source.reset_index(drop=True),
+                                None if out is None else (out / "baseline" if c is None
+                                                          else out / "candidates" / _slug(c.name)))
+                           for c in labels])
+        for c, fit in zip(labels, fits, strict=False):
+            if isinstance(fit, FitFailure):
+                _record_failure(c, fit, failed)
+        labels, fits = zip(*((c, fit) for c, fit in zip(labels, fits, strict=True) if not isinstance(fit, FitFailure)),
+                           strict=True)
+        clock.lap("fits")
+        scores = [psis_score(r) for r in fits]
+        kfold = _scheme(labels, scores, kfold)
+        tests = [kfold_tests(len(data_for(c).physical), kfold, seed) if kfold is not None else unreliable_tests(s)
+                 for c, s in zip(labels, scores, strict=True)]
+        # every refit of every fit in one batch
+        jobs = [(i, test) for i, label_tests in enumerate(tests) for test in label_tests]
+        refits = runner.map([task(f"{label_name(labels[i])} without {_rows(test)}", labels[i],
+                                  *refit_rows(data_for(labels[i]), test), None) for i, test in jobs])
+    labels, fits, scores = _rescored(labels, fits, scores, tests, jobs, refits, data_for, kfold, failed)
+    clock.lap("refits")
+    location = locate_gap(fits[0], seed=seed, along=tuple(data.output_index) if vector else ())
+    clock.lap("locate")
+    ranked = sorted(
+        (CandidateFit(c, r, s) for c, r, s in zip(labels[1:], fits[1:], scores[1:], strict=False)),
+        key=lambda f: -(f.score.elpd_i - scores[0].elpd_i).sum())
+    return GapAnalysis(fits[0], scores[0], location, ranked, clock.laps, failed)
+
+
+def _scheme(labels: list, scores: list[Score], kfold: int | None) -> int | None:
+    """K-fold's fold count, or None for PSIS-LOO with exact refits of the
+    observations whose Pareto k is too high; said as a warning."""
+    unreliable = {label_name(c): s.unreliable.size for c, s in zip(labels, scores, strict=True)
+                  if s.unreliable.size}
+    if kfold is None and max(unreliable.values(), default=0) > FALLBACK_FOLDS:
+        warnings.warn(f"Pareto k above {PARETO_K_LIMIT} at more than {FALLBACK_FOLDS} observations "
+                      f"({_counts(unreliable)}): PSIS-LOO is unreliable, so every fit is compared by "
+                      f"{FALLBACK_FOLDS}-fold cross-validation instead", GapWarning, stacklevel=3)
+        return FALLBACK_FOLDS
+    if kfold is None and unreliable:
+        warnings.warn(f"Pareto k above {PARETO_K_LIMIT} at {_counts(unreliable)}: each of those "
+                      "observations is scored by an exact refit without it", GapWarning, stacklevel=3)
+    return kfold
+
+
+def _rescored(labels, fits, scores, tests, jobs, refits, data_for, kfold, failed) -> tuple[list, list, list]:
+    """Each fit's score with its refits' held-out densities; a fit whose
+    refit failed is left out (and recorded)."""
+    grouped: list[list] = [[] for _ in labels]
+    for (i, _), refit in zip(jobs, refits, strict=True):
+        grouped[i].append(refit)
+    kept = []
+    for c, fit, score, label_tests, results in zip(labels, fits, scores, tests, grouped, strict=True):
+        failure = next((r for r in results if isinstance(r, FitFailure)), None)
+        if failure is not None:
+            _record_failure(c, failure, failed)
+        else:
+            kept.append((c, fit, rescored(score, data_for(c), label_tests, results, kfold=kfold is not None)))
+    labels, fits, scores = (list(column) for column in zip(*kept, strict=True))
+    return labels, fits, scores
+
+
+def _rows(test: np.ndarray) -> str:
+    if len(test) == 1:
+        return f"row {test[0]}"
+    return f"{len(test)} rows ({', '.join(map(str, test[:4]))}{', ...' if len(test) > 4 else ''})"
+
+
+def _record_failure(label: Candidate | None, failure: FitFailure, failed: list[FitFailure]) -> None:
+    """A candidate's failure goes to ``failed``; without the baseline nothing can be compared."""
+    if label is None:
+        raise RuntimeError(f"the gap diagnosis needs the baseline, and {failure}"
+                           + (f"; also {'; '.join(map(str, failed))}" if failed else ""))
+    failed.append(failure)

@@ -1,0 +1,193 @@
+"""Simulation-based calibration of a program with its sampler (Talts et
+al. 2018; Modrák et al. 2023): draw parameters from the program's prior,
+simulate data at the problem's design from the program itself, fit each
+simulated data set, and test that the rank of every true value among its
+posterior draws is uniform (stancal.diagnosing.sbc_ranks). The log-likelihood, a
+function of the parameters and the data, is ranked too (Modrák et al.
+2023): it reacts to a wrong likelihood that leaves each parameter's
+marginal ranks nearly uniform.
+
+The prior and the prior predictive come from the same program run with
+``prior_only = 1`` (its y_rep), thinned so the draws are nearly
+independent; censored outputs are censored as the data were
+(CalibrationData.with_output). Every fit keeps the original data's
+standardisation: the programs' priors live on the standardised scale, so
+re-standardising each simulated data set would fit a different prior from
+the one simulated.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from stancal.diagnosing.sbc_ranks import Uniformity, fractional_ranks, rank_of, uniformity
+from stancal.fitting.calibrate import calibrate
+from stancal.fitting.cluster import FitFailure, FitRunner, FitTask, fit_runner
+from stancal.fitting.seeds import command_seed, fit_seed
+from stancal.problem.data import CalibrationData
+from stancal.results.result import CalibrationResult
+from stancal.stan.backends import get_backend
+from stancal.stan.registry import program
+from stancal.stan.standata import build_stan_data, to_stan_json
+
+PRIOR_THINNING = 5  # prior draws kept: every 5th of one long chain
+LOG_LIKELIHOOD = "log_likelihood"  # ranked beside the parameters (Modrák et al. 2023)
+
+
+@dataclass
+class SBCResult:
+    simulations: int
+    draws_per_fit: int
+    ranks: dict[str, list[int]]  # parameter -> one rank per simulation
+    tests: dict[str, Uniformity]
+    seconds: float
+    failed: list[int] = field(default_factory=list)  # simulations whose fit raised
+
+    def verdict(self, name: str) -> str:
+        test = self.tests[name]
+        return (f"{name}: ranks not uniform (p = {test.p_value:.3g} < {1 - test.level:.2g}): the program or the "
+                f"sampler does not recover what it simulates" if test.rejected
+                else f"{name}: ranks uniform at the {test.level:.0%} level (p = {test.p_value:.3g})")
+
+    def to_json(self) -> dict[str, Any]:
+        return {"simulations": self.simulations, "draws_per_fit": self.draws_per_fit,
+                "parameters": {name: {"ranks": ranks, "p_value": self.tests[name].p_value,
+                                      "rejected": self.tests[name].rejected, "verdict": self.verdict(name)}
+                               for name, ranks in self.ranks.items()},
+                "failed_simulations": self.failed, "seconds": round(self.seconds, 1)}
+
+
+def _scalars(group, draw: int | None = None) -> dict[str, np.ndarray]:
+    """Every scalar component of every variable: name[i, j] -> draws (or one draw)."""
+    out = {}
+    for name, variable in group.data_vars.items():
+        values = np.asarray(variable).reshape(-1, *variable.shape[2:])
+        extra = variable.dims[2:]
+        for index in np.ndindex(*values.shape[1:]):
+            labels = [str(variable.coords[d].values[i]) if d in variable.coords else str(i)
+                      for d, i in zip(extra, index, strict=False)]
+            key = f"{name}[{', '.join(labels)}]" if labels else name
+            column = values[(slice(None), *index)]
+            out[key] = column if draw is None else column[draw]
+    return out
+
+
+def _thinned(values: np.ndarray, count: int) -> np.ndarray:
+    return values[np.linspace(0, len(values) - 1, count).round().astype(int)]
+
+
+def log_likelihood_draws(fit: CalibrationResult) -> np.ndarray:
+    """The fit program's log-likelihood (its log_lik summed over the
+    observations) at every posterior draw."""
+    return np.asarray(fit.idata["log_likelihood"]["y"]).reshape(-1, len(fit.data.physical)).sum(1)
+
+
+def log_likelihood_at(fit: CalibrationResult, parameters: dict[str, np.ndarray],
+                       functional_parametrization: str | None = None) -> float:
+    """The same log-likelihood on the fit's data at the program's own
+    ``parameters`` (one draw, in ``functional_parametrization`` if given),
+    through its generated quantities."""
+    points = fit.idata["predictions_constant_data"].to_dataset().to_dataframe().reset_index(drop=True)
+    options = replace(fit.options, functional_parametrization=functional_parametrization
+                      or fit.options.functional_parametrization)
+    stan_data = build_stan_data(fit.data, program(fit.method).data, options, points,
+                                emulator_hyperparameters=fit.emulator.get("hyperparameters"))
+    draws = get_backend(fit.backend).generate_quantities(
+        fit.program, to_stan_json(stan_data), {k: np.asarray(v)[None, None] for k, v in parameters.items()}, seed=1)
+    return float(draws["log_lik"].sum())
+
+
+def functional_parametrizations(calibrate_options: dict[str, Any]) -> tuple[str | None, str | None]:
+    """How a functional theta(x)'s GP is sampled for the prior and for the
+    fits (None: no functional theta). Without data the hierarchical GP is a
+    funnel that the centred form samples badly, and data drawn from the
+    prior seldom pin theta(x), so both are non-centred unless the caller
+    asks for another form of the fits."""
+    if not calibrate_options.get("functional"):
+        return None, None
+    return "non_centred", calibrate_options.get("functional_parametrization", "non_centred")
+
+
+def simulated_ranks(data: CalibrationData, truth: dict[str, float], truth_parameters: dict[str, np.ndarray],
+                    draws_per_fit: int, prior_parametrization: str | None = None,
+                    **calibrate_options: Any) -> dict[str, int]:
+    """Fit one simulated data set and rank each true value among L evenly
+    thinned posterior draws, and the log-likelihood at the truth among its
+    values at those draws (run where the fit runs: only ranks travel back)."""
+    fit = calibrate(data, **calibrate_options)
+    posterior = _scalars(fit.idata["posterior"].to_dataset())
+    ranks = {name: rank_of(value, _thinned(posterior[name], draws_per_fit))
+             for name, value in truth.items() if name in posterior}
+    ranks[LOG_LIKELIHOOD] = rank_of(log_likelihood_at(fit, truth_parameters, prior_parametrization),
+                                    _thinned(log_likelihood_draws(fit), draws_per_fit))
+    return ranks
+
+
+def simulation_based_calibration(
+    data: CalibrationData,
+    *,
+    simulator: str | Path | None = None,
+    method: str | None = None,
+    program: str | Path | None = None,
+    simulations: int = 200,
+    draws_per_fit: int = 100,
+    level: float = 0.95,
+    seed: int | None = None,
+    out_dir: str | Path | None = None,
+    scheduler: str | FitRunner | None = None,
+    **calibrate_options: Any,
+) -> SBCResult:
+    """SBC of the program ``calibrate`` runs on ``data`` (the design: its
+    inputs and covariates; its outputs are replaced by simulated ones).
+    ``program``: fit with this program instead (e.g. a deliberately wrong
+    copy) while simulating from the method's own. Each fit keeps
+    ``draws_per_fit`` draws, evenly thinned from 2 x draws_per_fit per chain.
+    The fits run side by side on Dask (``scheduler``, see stancal.fitting.cluster).
+    ``calibrate_options`` (chains, warmup, discrepancy, ...) go to every fit."""
+    seed = command_seed(seed)
+    started = time.perf_counter()
+    chains = calibrate_options.pop("chains", 2)
+    warmup = calibrate_options.pop("warmup", 300)
+    per_chain = -(-2 * draws_per_fit // chains)
+    prior_parametrization, fit_parametrization = functional_parametrizations(calibrate_options)
+    prior_options = dict(calibrate_options)
+    if fit_parametrization:
+        calibrate_options["functional_parametrization"] = fit_parametrization
+        prior_options["functional_parametrization"] = prior_parametrization
+    prior_fit = calibrate(data, simulator=simulator, method=method, prior=True, chains=1, warmup=warmup,
+                          draws=PRIOR_THINNING * simulations, seed=seed, **prior_options)
+    prior = {k: _thinned(v, simulations) for k, v in _scalars(prior_fit.idata["prior"].to_dataset()).items()}
+    prior_parameters = {k: _thinned(np.asarray(v).reshape(v.shape[0] * v.shape[1], *v.shape[2:]), simulations)
+                        for k, v in prior_fit.idata["prior_stan_parameters"].data_vars.items()}
+    replicated = np.asarray(prior_fit.idata["prior_predictive"]["y"]).reshape(-1, len(data.physical))
+    replicated = _thinned(replicated, simulations)
+    tasks = [FitTask(f"simulation {s}", simulated_ranks, dict(
+        data=data.with_output(replicated[s]), truth={name: float(v[s]) for name, v in prior.items()},
+        truth_parameters={name: v[s] for name, v in prior_parameters.items()},
+        prior_parametrization=prior_parametrization,
+        draws_per_fit=draws_per_fit, simulator=simulator, method=method, program=program, chains=chains,
+        warmup=warmup, draws=per_chain, seed=fit_seed(seed, f"simulation {s}"),
+        out_dir=None if out_dir is None else Path(out_dir) / "fits" / f"{s:04d}", **calibrate_options))
+        for s in range(simulations)]
+    with fit_runner(scheduler) as runner:
+        runner.prepare([], calibrate_options.get("backend"))  # the prior's fit compiled the programs here
+        outcomes = runner.map(tasks)
+    ranks: dict[str, list[int]] = {}
+    failed = [s for s, outcome in enumerate(outcomes) if isinstance(outcome, FitFailure)]
+    for outcome in outcomes:
+        if not isinstance(outcome, FitFailure):
+            for name, rank in outcome.items():
+                ranks.setdefault(name, []).append(rank)
+    rng = np.random.default_rng(seed)
+    tests = {name: uniformity(fractional_ranks(r, draws_per_fit, rng), level, seed) for name, r in ranks.items()}
+    result = SBCResult(simulations, draws_per_fit, ranks, tests, time.perf_counter() - started, failed)
+    if out_dir is not None:
+        Path(out_dir).mkdir(parents=True, exist_ok=True)
+        (Path(out_dir) / "sbc.json").write_text(json.dumps(result.to_json(), indent=2))
+    return result

@@ -1,0 +1,125 @@
+"""Held-out predictive scores of a fit: PSIS-LOO on the exact conditional
+log p(y_i | y_-i, parameters), with exact refits for the points where PSIS is
+unreliable, or K-fold cross-validation by refitting. The gap diagnosis ranks
+candidates with them, and compare reports them."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+from scipy.special import logsumexp
+
+from stancal.diagnosing.gap_location import discrepancy_parts
+from stancal.problem.data import CalibrationData
+from stancal.results.result import CalibrationResult
+
+PARETO_K_LIMIT = 0.7  # above it PSIS-LOO is unreliable (Vehtari et al. 2024)
+
+
+@dataclass
+class Score:
+    """Predictive performance and remaining discrepancy of one fit."""
+
+    elpd_i: np.ndarray  # pointwise held-out log predictive density
+    heldout_mean: np.ndarray  # held-out predictive mean of each observation
+    pareto_k: np.ndarray  # PSIS's Pareto k per observation; NaN under K-fold
+    scheme: str  # "psis-loo", "psis-loo+refits" or "kfold"
+    remaining: np.ndarray  # draws (draws, N): the discrepancy GP plus its constant at the physical points
+    refits: int = 0  # fits beyond the main one: one per refitted observation, or K under K-fold
+
+    @property
+    def discrepancy_rms(self) -> np.ndarray:
+        """Draws of the remaining discrepancy's root mean square over the physical points."""
+        return np.sqrt(np.mean(self.remaining**2, axis=1))
+
+    @property
+    def discrepancy_variation(self) -> np.ndarray:
+        """Draws of its root mean square about its mean over the physical points:
+        the part of the discrepancy that a term constant over the points cannot
+        trade with its level, and so the part that shrinkage is measured on."""
+        return np.std(self.remaining, axis=1)
+
+    @property
+    def max_pareto_k(self) -> float:
+        return float(np.max(self.pareto_k))
+
+    @property
+    def unreliable(self) -> np.ndarray:
+        """Observations where PSIS is unreliable (Pareto k above 0.7)."""
+        return np.flatnonzero(self.pareto_k > PARETO_K_LIMIT)
+
+    @property
+    def elpd(self) -> float:
+        return float(self.elpd_i.sum())
+
+    @property
+    def elpd_se(self) -> float:
+        return float(np.sqrt(len(self.elpd_i) * np.var(self.elpd_i)))
+
+    def holdout_rmse(self, y: np.ndarray) -> float:
+        """Over the exact observations (a censored one has no value)."""
+        return float(np.sqrt(np.nanmean((y - self.heldout_mean) ** 2)))
+
+
+
+def _remaining_discrepancy(result: CalibrationResult) -> np.ndarray:
+    gp, constant = discrepancy_parts(result)
+    return gp + constant[:, None]
+
+
+def psis_score(result: CalibrationResult) -> Score:
+    """PSIS-LOO on the exact conditional log p(y_i | y_-i, params), and the
+    held-out mean as the importance-weighted E(y_i | y_-i, params)."""
+    import arviz_stats as ast
+
+    loo = ast.loo(result.idata, pointwise=True, var_name="y")
+    log_w = np.asarray(loo.log_weights.transpose("chain", "draw", "obs")).reshape(-1, loo.n_data_points)
+    weights = np.exp(log_w - logsumexp(log_w, axis=0))
+    loo_mean = np.asarray(result.idata["at_observations"]["y_loo_mean"])
+    loo_mean = loo_mean.reshape(-1, loo_mean.shape[-1])
+    return Score(np.asarray(loo.elpd_i), (weights * loo_mean).sum(0),
+                 np.asarray(loo.pareto_k), "psis-loo", _remaining_discrepancy(result))
+
+
+def kfold_tests(n: int, k: int, seed: int) -> list[np.ndarray]:
+    """The held-out rows of each of K folds, assigned at random."""
+    folds = np.random.default_rng(seed).permutation(n) % k
+    return [np.flatnonzero(folds == fold) for fold in range(k)]
+
+
+def unreliable_tests(score: Score) -> list[np.ndarray]:
+    """One refit per observation whose Pareto k exceeds 0.7, holding out that
+    observation alone (Vehtari, Gelman & Gabry 2017, section 2.1; the loo
+    package's reloo): a few refits instead of K-fold's K per fit."""
+    return [np.array([i]) for i in score.unreliable]
+
+
+def refit_rows(data: CalibrationData, test: np.ndarray) -> tuple[CalibrationData, pd.DataFrame]:
+    """The training data without the ``test`` rows, and those rows as the new points to predict."""
+    train = np.setdiff1d(np.arange(len(data.physical)), test)
+    return data.subset(train), data.source.iloc[test].reset_index(drop=True)
+
+
+def held_out(data: CalibrationData, test: np.ndarray, result) -> tuple[np.ndarray, np.ndarray]:
+    """log p(y_test | y_train) and the predictive mean at the ``test`` rows,
+    from a fit to the other rows whose predictions are at the test rows."""
+    predictions = result.idata["predictions"]
+    zeta = np.asarray(predictions["zeta_new" if "zeta_new" in predictions else "zeta"]).reshape(-1, len(test))
+    log_density = data.heldout_log_density(test, zeta, result.idata["posterior"])
+    return logsumexp(log_density, axis=0) - np.log(len(zeta)), zeta.mean(0)
+
+
+def rescored(score: Score, data: CalibrationData, tests: list[np.ndarray], refits: list, *,
+             kfold: bool) -> Score:
+    """``score`` with the held-out values of the refits (one per test set)
+    in place of PSIS's: at every observation under K-fold, else at the
+    observations with high Pareto k."""
+    elpd, mean = score.elpd_i.copy(), score.heldout_mean.copy()
+    for test, result in zip(tests, refits, strict=True):
+        elpd[test], mean[test] = held_out(data, test, result)
+    if kfold:
+        return Score(elpd, mean, np.full(len(elpd), np.nan), "kfold", score.remaining, refits=len(tests))
+    return Score(elpd, mean, score.pareto_k, "psis-loo+refits" if tests else score.scheme,
+                 score.remaining, refits=len(tests))

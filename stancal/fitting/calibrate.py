@@ -1,0 +1,197 @@
+"""calibrate(): from a CalibrationData to a CalibrationResult, as
+plan -> stage 1 -> sample -> post-fit checks (Kennedy & O'Hagan 2001)."""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from stancal.fitting.approximation_checks import check_basis, check_emulator_variance
+from stancal.fitting.inits import spread_theta_inits
+from stancal.fitting.l2 import l2_result
+from stancal.fitting.plan import Plan, model_options, plan_scalar
+from stancal.fitting.postfit import check_fit, save_draws
+from stancal.fitting.seeds import command_seed
+from stancal.fitting.stage_one import run_stage_one
+from stancal.numerics.quadrature import Quadrature, input_box_quadrature
+from stancal.problem.data import CalibrationData
+from stancal.problem.options import ModelOptions
+from stancal.results.diagnostics import parametrization_advice
+from stancal.results.result import CalibrationResult, build_datatree
+from stancal.stan.backends import get_backend
+from stancal.stan.source import FlatProgram
+from stancal.stan.standata import EMULATOR_HYPERPARAMETERS, build_stan_data, default_new_points, to_stan_json
+
+logger = logging.getLogger("stancal")
+
+_DIAGNOSED = ["theta", "noise_sd", "delta_sd", "delta_length_scale", "delta_relevance", "rho", "beta", "phi",
+              "theta_function_sd", *EMULATOR_HYPERPARAMETERS]
+
+
+@dataclass
+class _Fit:
+    """One sampling of the plan's program: its Stan data and DataTree."""
+
+    sample: Any
+    stan_json: dict[str, Any]
+    tree: Any
+    parameter_names: list[str]
+
+
+def _sample(stan_backend, flat: FlatProgram, data: CalibrationData, plan: Plan, options: ModelOptions,
+            fit_points: pd.DataFrame, emulator: dict[str, Any], prior: bool, sampler: dict[str, Any]) -> _Fit:
+    """One fit of the program, with the prior's draws too when asked."""
+    stan_json = to_stan_json(build_stan_data(data, plan.program.data, options, fit_points,
+                                             emulator_hyperparameters=emulator.get("hyperparameters")))
+    inits = spread_theta_inits(sampler["chains"], len(data.parameters), np.random.default_rng(sampler["seed"]))
+    logger.info("sampling %s: %d chains x (%d warmup + %d draws) with %s",
+                plan.name, sampler["chains"], sampler["warmup"], sampler["draws"], stan_backend.name)
+    sample = stan_backend.sample(flat, stan_json, inits=inits, **sampler)
+    parameter_names = stan_backend.parameter_names(flat)  # the program's own, edited or not
+    tree = build_datatree(sample, data, fit_points, parameter_names, options)
+    if prior:
+        prior_sample = stan_backend.sample(flat, {**stan_json, "prior_only": 1}, inits=inits,
+                                           **{**sampler, "seed": sampler["seed"] + 1})
+        prior_tree = build_datatree(prior_sample, data, fit_points, parameter_names, options)
+        tree["prior"] = prior_tree["posterior"]
+        tree["prior_predictive"] = prior_tree["posterior_predictive"]
+        tree["prior_stan_parameters"] = prior_tree["stan_parameters"]  # the program's own, for SBC
+    return _Fit(sample, stan_json, tree, parameter_names)
+
+
+def _sample_checked(sample_once, data: CalibrationData, plan: Plan, emulator: dict[str, Any],
+                    chosen_by_user: bool) -> tuple[_Fit, ModelOptions, list[str]]:
+    """Sample, then check the approximation the program makes, if it makes
+    one: a Hilbert-space basis stancal chose is rebuilt once from the fitted
+    length scales; the scalable emulator's covariance is checked at the draws."""
+    options = plan.options
+    fit = sample_once(options)
+    messages: list[str] = []
+    if plan.program.approximation == "hsgp" and options.has_discrepancy:
+        options, refit, messages = check_basis(fit.tree, data, options, chosen_by_user=chosen_by_user)
+        if refit:
+            fit = sample_once(options)
+            _, _, messages = check_basis(fit.tree, data, options, chosen_by_user=True)
+    if "variance_theta" in emulator.get("hyperparameters", {}):  # the scalable emulator's plug-in covariance
+        messages += check_emulator_variance(fit.tree, data, emulator, fit.stan_json)
+    return fit, options, messages
+
+
+def _prediction_points(data: CalibrationData, new_points: pd.DataFrame | None,
+                       l2: bool) -> tuple[pd.DataFrame, pd.DataFrame, Quadrature | None]:
+    """Where f, delta and zeta are drawn: the user's points (or a default
+    grid), plus the quadrature nodes over the input box for L2."""
+    new_points = default_new_points(data) if new_points is None else new_points.reset_index(drop=True)
+    if not l2:
+        return new_points, new_points, None
+    quadrature = input_box_quadrature(data)  # zeta is drawn at its nodes too, with the sampler's own RNG
+    new_points = new_points[data.inputs]
+    return new_points, pd.concat([new_points, quadrature.nodes], ignore_index=True), quadrature
+
+
+def calibrate(
+    data: CalibrationData,
+    *,
+    simulator: str | Path | None = None,
+    method: str | None = None,
+    program: str | Path | None = None,
+    discrepancy: str | None = None,
+    kernel: str = "se",
+    estimate_rho: bool = False,
+    mean_formula: str | None = None,
+    mean_intercept: bool = False,
+    scaled_lambda: float | None = None,
+    functional: tuple[str, ...] | list[str] = (),
+    functional_inputs: tuple[str, ...] | list[str] = (),
+    functional_parametrization: str = "centred",
+    approximation: str = "auto",
+    basis_functions: tuple[int, ...] | list[int] = (),
+    boundary_factor: tuple[float, ...] | list[float] = (),
+    new_points: pd.DataFrame | None = None,
+    chains: int = 4,
+    warmup: int = 1000,
+    draws: int = 1000,
+    seed: int | None = None,
+    backend: str | None = None,
+    adapt_delta: float = 0.9,
+    max_treedepth: int = 10,
+    out_dir: str | Path | None = None,
+    prior: bool = False,
+    plan: Plan | None = None,
+) -> CalibrationResult:
+    """Calibrate theta (Kennedy & O'Hagan 2001) and return the posterior.
+
+    ``simulator``: a Stan file defining ``vector simulator(matrix X, vector theta)``.
+    ``method``: koh (cheap simulator), koh_emulator (joint, from runs),
+    modular (two-stage, from runs) or l2 (L2 calibration, Tuo & Wu 2015: each
+    posterior draw of the real process zeta, from koh with a simulator or
+    koh_emulator from runs, projected onto the simulator over the input box);
+    by default koh with a simulator, else koh_emulator.
+    ``program``: your own copy of the method's .stan file.
+    ``discrepancy``: gp (KOH), orthogonal (orthogonal to df/dtheta: theta
+    targets the L2 projection; Plumlee 2017), scaled (S-GaSP, Gu & Wang 2018,
+    penalty ``scaled_lambda``, default sqrt(N)) or none. orthogonal and scaled
+    need method koh. Default: gp, or none with functional theta.
+    ``functional``, ``functional_inputs``: theta that vary over inputs,
+    theta_j(x) = lo + (hi - lo) logistic(GP_j(x)) (review section 8.2);
+    ``functional_parametrization`` of that GP: centred (data that pin theta(x)
+    closely) or non_centred (noisy or sparse data); a fit whose sampler
+    struggles is told to try the other.
+    Non-Gaussian (``CalibrationData(likelihood=...)``) or censored outputs and
+    functional theta run on the latent-GP programs koh_latent (simulator) and
+    koh_latent_emulator (runs).
+    ``mean_formula``: terms h(x, z) of a discrepancy mean h' beta, a formula
+    over the physical data's columns such as ``"I(v**2) + C(batch)"``;
+    ``mean_intercept`` adds a constant term ``Intercept``.
+    ``approximation``: exact (dense GPs), hsgp (for thousands of points and
+    runs: a Hilbert-space discrepancy, Riutort-Mayol et al. 2023, and with
+    runs a modular emulator of precomputed weights; programs koh_hsgp and
+    modular_hsgp) or auto (hsgp above models.EXACT_SIZE_LIMIT points plus
+    runs). ``basis_functions`` and ``boundary_factor``: the Hilbert-space
+    basis per discrepancy input (default: chosen from the length scales,
+    checked after the fit and refitted once if it cannot represent them).
+    ``out_dir``: the posterior is written there as soon as sampling ends.
+    ``prior``: also draw from the prior (same program, ``prior_only = 1``) into
+    the ``prior`` and ``prior_predictive`` groups.
+    ``plan``: a plan made earlier (stancal.fitting.plan), which then replaces
+    ``simulator``, ``method``, ``program`` and the model's options.
+    """
+    if plan is None:
+        options = model_options(discrepancy, kernel, estimate_rho, mean_formula, mean_intercept, scaled_lambda,
+                                functional, functional_inputs, functional_parametrization, approximation,
+                                basis_functions, boundary_factor)
+        plan = plan_scalar(data, simulator, method, options, program)
+    programs = plan.stan_programs()
+    stan_backend = get_backend(backend)
+    stan_backend.compile(programs)
+    seed = command_seed(seed)
+    new_points, fit_points, quadrature = _prediction_points(data, new_points, plan.l2)
+    emulator = run_stage_one(plan.program.stage_one, data, plan.options, programs, backend=stan_backend,
+                             seed=seed) or {}
+    sampler = {"chains": chains, "warmup": warmup, "draws": draws, "seed": seed, "adapt_delta": adapt_delta,
+                   "max_treedepth": max_treedepth}
+    flat = programs[-1]
+    fit, options, messages = _sample_checked(
+        lambda options: _sample(stan_backend, flat, data, plan, options, fit_points, emulator, prior, sampler),
+        data, plan, emulator, chosen_by_user=bool(basis_functions))
+    result = CalibrationResult(
+        idata=fit.tree, data=data, method=plan.name, backend=stan_backend.name, options=options, program=flat,
+        timing={"compile_s": fit.sample.compile_seconds,
+                "sample_s": fit.sample.sample_seconds + emulator.get("fit_s", 0.0)}, emulator=emulator)
+    save_draws(result, out_dir)
+    if quadrature is not None:
+        logger.info("L2 calibration: projecting the draws of zeta onto the simulator")
+        result = l2_result(result, quadrature, len(new_points))
+    return check_fit(
+        result, theta_names=data.theta_names, theta_widths=data.theta_upper - data.theta_lower,
+        # L2's theta is a projection, not a density's
+        log_density_functions=None if quadrature is not None else (
+            lambda: stan_backend.log_density_functions(flat, fit.stan_json)),
+        max_treedepth=max_treedepth, seed=seed,
+        diagnosed=lambda names: [v for v in names if v in _DIAGNOSED or v in fit.parameter_names],
+        advice=lambda d: parametrization_advice(options, d) + messages, out_dir=out_dir)

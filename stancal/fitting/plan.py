@@ -1,0 +1,215 @@
+"""The plan of a calibration: the program, its options and the user's files,
+chosen once from the registry (stancal.stan.registry) and passed to every
+later step, so that no step asks which program it runs."""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, fields, replace
+from pathlib import Path
+
+from stancal.numerics.hsgp import first_basis
+from stancal.problem.data import CalibrationData
+from stancal.problem.functional import check_functional
+from stancal.problem.options import EXACT_SIZE_LIMIT, RESTRICTED_DISCREPANCIES, ModelOptions, VectorOptions
+from stancal.problem.vector_data import VectorCalibrationData
+from stancal.stan.registry import L2, PROGRAMS, STAGE_ONE_PROGRAM, Program, default_program, for_method
+from stancal.stan.source import FlatProgram, flatten
+
+logger = logging.getLogger("stancal")
+
+
+@dataclass(frozen=True)
+class Plan:
+    """What runs: the registry's program, the model's options, the user's
+    simulator and copy of the program, and whether theta is L2-projected."""
+
+    program: Program
+    options: ModelOptions | VectorOptions
+    simulator: Path | None = None
+    user_program: Path | None = None
+    l2: bool = False
+
+    @property
+    def name(self) -> str:
+        return self.program.name
+
+    def stan_programs(self) -> list[FlatProgram]:
+        """The flat programs to compile: stage 1's, if it runs one, then the main one."""
+        aliases = {"simulator.stan": self.simulator} if self.simulator and self.program.simulator else {}
+        main = flatten(self.user_program or self.program.path, aliases=aliases)
+        helper = STAGE_ONE_PROGRAM.get(self.program.stage_one or "")
+        return [flatten(PROGRAMS[helper].path), main] if helper else [main]
+
+    def main_program(self) -> FlatProgram:
+        return self.stan_programs()[-1]
+
+    def with_simulator(self, simulator: Path) -> Plan:
+        """The same model on a variant simulator written in Stan (the gap's candidates)."""
+        base = default_program(self.program.output, simulator=True)
+        version = base.latent_version if self.program.latent else (
+            base.scalable_version if self.program.approximation == "hsgp" else None)
+        chosen = PROGRAMS[version] if version else base
+        return replace(self, program=chosen, simulator=Path(simulator), user_program=None)
+
+
+def model_options(discrepancy: str | None = None, kernel: str = "se", estimate_rho: bool = False,
+                  mean_formula: str | None = None, mean_intercept: bool = False,
+                  scaled_lambda: float | None = None, functional=(), functional_inputs=(),
+                  functional_parametrization: str = "centred", approximation: str = "auto",
+                  basis_functions=(), boundary_factor=()) -> ModelOptions:
+    """calibrate()'s model keywords as ModelOptions; the discrepancy defaults
+    to gp, or none with functional theta (flexible enough without one,
+    review section 8.2)."""
+    return ModelOptions("none" if discrepancy is None and functional else discrepancy or "gp", kernel,
+                        estimate_rho, mean_formula, mean_intercept, scaled_lambda, tuple(functional),
+                        tuple(functional_inputs), functional_parametrization, approximation,
+                        tuple(basis_functions), tuple(boundary_factor))
+
+
+def make_plan(data: CalibrationData | VectorCalibrationData, simulator: str | Path | None = None,
+              method: str | None = None, program: str | Path | None = None, **model) -> Plan:
+    """The plan of a scalar or vector problem from calibrate()'s model keywords."""
+    if isinstance(data, VectorCalibrationData):
+        model.setdefault("noise", "known" if data.noise_sd else "one")
+        return plan_vector(data, simulator, method, VectorOptions(**model), program)
+    return plan_scalar(data, simulator, method, model_options(**model), program)
+
+
+def model_keywords(options: dict, vector: bool) -> dict:
+    """The keywords among ``options`` that describe the model (removed from it)."""
+    names = [f.name for f in fields(VectorOptions if vector else ModelOptions)]
+    return {k: options.pop(k) for k in names if k in options}
+
+
+def latent_reason(data: CalibrationData, options: ModelOptions) -> str | None:
+    """Why the latent-GP programs are needed (the outputs, or functional theta), or None."""
+    return data.latent_reason or ("functional theta" if options.functional else None)
+
+
+def require_gaussian(what: str, data: CalibrationData, options: ModelOptions | None = None) -> None:
+    """The one guard of what works on the Gaussian programs only (their GP is
+    integrated out): raise a ValueError that names ``what`` and the reason."""
+    reason = latent_reason(data, options or ModelOptions())
+    if reason:
+        raise ValueError(f"{what} needs Gaussian, uncensored outputs and scalar theta; this problem "
+                         f"has {reason}. Calibrate it with stancal calibrate")
+
+
+def plan_scalar(data: CalibrationData, simulator: str | Path | None = None, method: str | None = None,
+                options: ModelOptions | None = None, program: str | Path | None = None) -> Plan:
+    """The user's method (or koh with a simulator, koh_emulator from runs),
+    handed to its latent version when the outputs or theta need it, or to its
+    scalable version above the exact programs' size; ``method = 'l2'``
+    projects the zeta draws of that fit (Tuo & Wu 2015)."""
+    options = options or ModelOptions()
+    check_functional(data, options.functional, options.functional_inputs)
+    l2 = method == L2
+    if l2:
+        require_gaussian("method 'l2'", data, options)
+    base = _requested(data, simulator, None if l2 else method, "scalar")
+    chosen = _latent_version(base, latent_reason(data, options), options) or _scalable_version(data, base, options)
+    _check_options(chosen, options)
+    if chosen.approximation == "hsgp":
+        options = replace(options, approximation="hsgp")
+        if not options.basis_functions:
+            basis = first_basis(options.kernel, data.discrepancy_inputs)
+            options = replace(options, basis_functions=basis.counts, boundary_factor=basis.boundary_factors)
+    return Plan(chosen, options, _path(simulator), _path(program), l2)
+
+
+def plan_vector(data: VectorCalibrationData, simulator: str | Path | None = None, method: str | None = None,
+                options: VectorOptions | None = None, program: str | Path | None = None) -> Plan:
+    """koh with a Stan simulator, modular with runs only; a method that
+    lacks what it needs is named."""
+    options = options or VectorOptions(noise="known" if data.noise_sd else "one")
+    chosen = _requested(data, simulator, method, "vector")
+    _check_options(chosen, options)
+    return Plan(chosen, options, _path(simulator), _path(program))
+
+
+def _path(value: str | Path | None) -> Path | None:
+    return None if value is None else Path(value)
+
+
+def _requested(data, simulator, method: str | None, output: str) -> Program:
+    """The program a method names, checked for what it needs."""
+    if method is None:
+        if simulator is None and not data.has_runs:
+            raise ValueError("give a Stan simulator, simulator runs, or both")
+        return default_program(output, simulator=simulator is not None)
+    chosen = for_method(method, output)
+    if chosen.simulator and simulator is None:
+        raise ValueError(f"method '{method}' needs a Stan simulator file" +
+                         (" (simulator.stan)" if output == "vector" else ""))
+    if chosen.runs and not data.has_runs:
+        raise ValueError(f"method '{method}' needs simulator runs" + (" (runs = ...)" if output == "vector" else ""))
+    return chosen
+
+
+def _latent_version(base: Program, reason: str | None, options: ModelOptions) -> Program | None:
+    """The latent-GP program that takes over, with what it cannot do named."""
+    if reason is None:
+        return None
+    latent = base if base.latent else PROGRAMS[base.latent_version or ""] if base.latent_version else None
+    if latent is None:
+        raise ValueError(f"{reason} needs a latent-GP program, and method '{base.name}' has none")
+    unsupported = [name for name, used in (
+        (f"discrepancy '{options.discrepancy}'", options.discrepancy not in latent.discrepancies),
+        ("estimate_rho", options.estimate_rho and not latent.estimate_rho),
+        ("approximation 'hsgp'", options.approximation == "hsgp" and latent.approximation != "hsgp")) if used]
+    if unsupported:
+        raise ValueError(f"{reason} runs on the latent-GP programs, which do not support {', '.join(unsupported)}")
+    return latent
+
+
+def dense_size(data: CalibrationData, program: Program) -> int:
+    """The size of the dense matrix the exact program factorises at every
+    gradient: the points, plus the runs for an emulator."""
+    runs = len(data.runs) if data.runs is not None and program.runs else 0
+    return len(data.physical) + runs
+
+
+def _scalable_version(data: CalibrationData, base: Program, options: ModelOptions) -> Program:
+    """The scalable (hsgp) program when asked for, or under auto above
+    EXACT_SIZE_LIMIT, said in one line. What it cannot do is an error, under
+    auto too when the problem is above the limit: never a silent dense
+    matrix of thousands of rows."""
+    if base.approximation == "hsgp" or options.approximation == "exact" or base.scalable_version is None:
+        return base
+    scalable = PROGRAMS[base.scalable_version]
+    size = dense_size(data, base)
+    obstacles = [why for why, present in (
+        (f"discrepancy '{options.discrepancy}' (needs the dense GP)",
+         options.discrepancy not in scalable.discrepancies),
+        (("covariates in the discrepancy (a Hilbert-space basis vanishes at its boundary, so it cannot "
+         "switch a covariate off)"), options.has_discrepancy and len(data.discrepancy_inputs) > len(data.inputs)),
+    ) if present]
+    if options.approximation == "hsgp":
+        if obstacles:
+            raise ValueError(f"approximation 'hsgp' does not support {'; '.join(obstacles)}. Use "
+                             f"approximation = 'exact', or leave them out")
+        return scalable
+    if size <= EXACT_SIZE_LIMIT:
+        return base
+    runs = f" and {size - len(data.physical)} runs" if size > len(data.physical) else ""
+    if obstacles:
+        raise ValueError(f"{len(data.physical)} points{runs} exceed the exact programs' limit of "
+                         f"{EXACT_SIZE_LIMIT}, but the scalable programs do not support {'; '.join(obstacles)}. "
+                         f"Leave them out, or set approximation = 'exact' to run the dense GP anyway (slow)")
+    logger.info("%d points%s: above %d, so %s runs (%s); approximation = 'exact' keeps the dense GP",
+                len(data.physical), runs, EXACT_SIZE_LIMIT, scalable.name, scalable.description)
+    return scalable
+
+
+def _check_options(chosen: Program, options: ModelOptions | VectorOptions) -> None:
+    """Options the chosen program cannot take, named before anything compiles."""
+    if options.discrepancy not in chosen.discrepancies:
+        needs = "method 'koh' (a simulator written in Stan)" if options.discrepancy in RESTRICTED_DISCREPANCIES \
+            else f"one of {', '.join(chosen.discrepancies)}"
+        raise ValueError(f"discrepancy '{options.discrepancy}' needs {needs}; got method '{chosen.name}'")
+    if options.kernel not in chosen.kernels:
+        raise ValueError(f"the program {chosen.stan_file} has the {' / '.join(chosen.kernels)} kernel only; "
+                         f"got kernel '{options.kernel}'")
+    if getattr(options, "estimate_rho", False) and not chosen.estimate_rho:
+        raise ValueError(f"estimate_rho: {chosen.stan_file} has no rho")

@@ -1,0 +1,60 @@
+"""Predictions of a calibration at new points: the program's generated
+quantities rerun at the posterior draws (zeta, f(x, theta), delta), and new
+observations drawn from the likelihood."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from stancal.fitting.l2 import reproject
+from stancal.problem.codes import Likelihood
+from stancal.results.result import NEW_OBSERVATION, PREDICTED, interval_table
+from stancal.stan.backends import get_backend
+from stancal.stan.registry import program
+from stancal.stan.standata import build_stan_data, to_stan_json
+
+
+def predict(result, new_points: pd.DataFrame | None = None, *, backend: str | None = None,
+            seed: int = 1) -> pd.DataFrame:
+    """zeta (the real process), f(x, theta) and delta at ``new_points``
+    (columns: simulator inputs and covariates), with 5/50/95 % quantiles,
+    plus ``y`` with measurement noise. Without ``new_points``, the points
+    stored with the fit."""
+    if new_points is None:
+        draws = {k: np.asarray(v) for k, v in result.idata["predictions"].data_vars.items()}
+        points = result.idata["predictions_constant_data"].to_dataset().to_dataframe()
+        points = points.reset_index(drop=True)
+    else:
+        points = new_points.reset_index(drop=True)
+        stan_data = build_stan_data(result.data, program(result.method).data, result.options, points,
+                                    emulator_hyperparameters=result.emulator.get("hyperparameters"))
+        params = {k: np.asarray(v) for k, v in result.idata["stan_parameters"].data_vars.items()}
+        draws = get_backend(backend or result.backend).generate_quantities(
+            result.program, to_stan_json(stan_data), params, seed)
+        if result.l2:
+            draws = reproject(result, points, draws)
+    table = points.copy()
+    for name in PREDICTED:
+        values = draws[name].reshape(-1, len(points))
+        table = table.assign(**interval_table(values, name.removesuffix("_new")))
+    if new_points is None and NEW_OBSERVATION in draws:  # drawn by the sampler's own RNG
+        new_y = draws[NEW_OBSERVATION].reshape(-1, len(points))
+    else:  # PyStan reruns generated quantities with one fixed RNG seed: draw the noise here
+        new_y = _observe(result, draws["zeta_new"].reshape(-1, len(points)), points, seed)
+    return table.assign(**interval_table(new_y, "y"))
+
+def _observe(result, zeta: np.ndarray, points: pd.DataFrame, seed: int) -> np.ndarray:
+    """New observations given draws (samples, points) of the mean response."""
+    rng = np.random.default_rng(seed)
+    likelihood = result.data.observations.likelihood
+    posterior = result.idata["posterior"]
+    if likelihood is Likelihood.POISSON:
+        return rng.poisson(zeta).astype(float)
+    if likelihood is Likelihood.NEGBINOMIAL:
+        phi = np.asarray(posterior["phi"]).reshape(-1, 1)
+        return rng.negative_binomial(phi, phi / (phi + zeta)).astype(float)
+    if likelihood is Likelihood.BINOMIAL:
+        return rng.binomial(result.data.trials_at(points), zeta).astype(float)
+    noise = np.asarray(posterior["noise_sd"]).reshape(-1, 1)
+    return zeta + noise * rng.standard_normal(zeta.shape)

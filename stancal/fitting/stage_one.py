@@ -1,0 +1,111 @@
+"""Stage 1: the emulator fitted to the simulator runs before sampling, for
+the programs whose registry row names a stage 1 (modular, Liu et al. 2009;
+Bayarri et al. 2007): emulator.stan's hyperparameters by optimisation, the
+scalable emulator of precomputed weights, or one GP per basis component of
+a vector output (Higdon et al. 2008)."""
+
+from __future__ import annotations
+
+import logging
+import time
+from typing import Any
+
+import numpy as np
+
+from stancal.numerics.scalable_emulator import (
+    ERROR_RANK_SHARE,
+    NEIGHBOURS,
+    ScalableEmulator,
+    chebyshev_basis,
+    least_squares_theta,
+)
+from stancal.numerics.vector_emulator import VectorEmulator
+from stancal.problem.data import CalibrationData
+from stancal.problem.options import ModelOptions
+from stancal.problem.vector_data import VectorCalibrationData
+from stancal.stan.registry import STAGE_ONE_BASIS, STAGE_ONE_GP, STAGE_ONE_SCALABLE
+from stancal.stan.source import FlatProgram
+from stancal.stan.standata import EMULATOR_HYPERPARAMETERS, build_emulator_data, emulator_run_data, to_stan_json
+
+logger = logging.getLogger("stancal")
+
+EMULATOR_STARTS = 4  # L-BFGS runs from random inits: the runs' likelihood can have more than one mode
+
+
+def run_stage_one(kind: str | None, data, options, programs: list[FlatProgram], *, backend, seed: int):
+    """Stage 1 of the given kind (the registry row's ``stage_one``): a dict
+    of the emulator's results for the scalar programs, the basis emulator for
+    the vector ones, or None where the program has no stage 1."""
+    if kind is None:
+        return None
+    if kind == STAGE_ONE_GP:
+        logger.info("stage 1: fitting the emulator to %d runs", len(data.runs))
+        return fit_emulator(data, options, programs[0], backend=backend, seed=seed)
+    if kind == STAGE_ONE_SCALABLE:
+        return fit_scalable_emulator(data, seed)
+    if kind == STAGE_ONE_BASIS:
+        return fit_vector_emulator(data, seed)
+    raise ValueError(f"unknown stage 1 {kind!r}")
+
+
+def fit_emulator(data: CalibrationData, options: ModelOptions, program: FlatProgram, *, backend,
+                 seed: int) -> dict[str, Any]:
+    """Stage 1 of modular calibration: the emulator's hyperparameters at the
+    posterior mode on the unconstrained (log) scale, which for a positive
+    parameter with a near log-normal posterior is its median; found by
+    optimisation, a fraction of a sampler's cost (and the only affordable route
+    for many runs). Also the emulator's leave-one-out accuracy on the runs."""
+    started = time.perf_counter()
+    mode, _ = backend.posterior_mode(program, to_stan_json(build_emulator_data(data, options)),
+                                     starts=EMULATOR_STARTS, seed=seed)
+    seconds = time.perf_counter() - started
+    logger.info("stage 1: emulator hyperparameters by optimisation in %.1f s", seconds)
+    loo_error = mode["loo_error"].reshape(-1)  # generated quantities at the mode
+    return {
+        "hyperparameters": {name: mode[name][0, 0].tolist() for name in EMULATOR_HYPERPARAMETERS},
+        "loo_rmse": float(np.sqrt(np.mean(loo_error**2))),
+        "runs_sd": float(data.runs_on_link_scale().std(ddof=1)),  # the scale the emulator works on
+        "fit_s": seconds,
+    }
+
+
+def fit_scalable_emulator(data: CalibrationData, seed: int) -> dict[str, Any]:
+    """Stage 1 of modular_hsgp (stancal.numerics.scalable_emulator): hyperparameters,
+    weights and theta interpolant; then the theta whose emulator mean fits
+    the data best, where the emulator's variance is taken."""
+    started = time.perf_counter()
+    runs = emulator_run_data(data)
+    x_points = data.scaling.to_unit(data.physical, data.inputs)
+    state, emulator = ScalableEmulator.fit(runs["x_sim"], runs["theta_sim"], runs["y_sim"], x_points, seed)
+    logger.info("stage 1: emulator hyperparameters at their posterior mode (scipy L-BFGS) on %d of %d "
+                "runs; its mean from all runs, interpolated in theta through %d Chebyshev nodes "
+                "(error %.1g sd of the output)", emulator["hyperparameter_runs"], len(data.runs),
+                emulator["theta_interpolation_points"], emulator["theta_interpolation_error"])
+    y = data.scaling.standardise(data.physical[data.output].to_numpy())
+    weights = state.mean_weights(x_points)
+    theta_unit = least_squares_theta(weights, state.interpolant.degrees, state.hyperparameters.mean, y)
+    residual = y - state.hyperparameters.mean - weights @ chebyshev_basis(theta_unit[None, :],
+                                                                           state.interpolant.degrees)[0]
+    emulator["hyperparameters"]["variance_theta"] = theta_unit.tolist()
+    # the error's eigenvalues worth a basis function: noise plus discrepancy bound the noise from above
+    emulator["hyperparameters"]["error_threshold"] = ERROR_RANK_SHARE * float(np.mean(residual**2))
+    emulator["stage1"] = (f"hyperparameters at their posterior mode by scipy L-BFGS on "
+                          f"{emulator['hyperparameter_runs']} of {len(data.runs)} runs; mean from all runs; "
+                          f"covariance at theta's least-squares fit: its leading eigenvectors by Nystroem, "
+                          f"the rest of each point's variance by local GPs of {NEIGHBOURS} runs")
+    emulator["runs_sd"] = float(data.runs_on_link_scale().std(ddof=1))
+    emulator["fit_s"] = time.perf_counter() - started
+    logger.info("stage 1 in %.1f s in all", emulator["fit_s"])
+    return emulator
+
+
+def fit_vector_emulator(data: VectorCalibrationData, seed: int) -> VectorEmulator:
+    """One GP per basis component of the runs' outputs (stancal.numerics.vector_emulator)."""
+    columns = [*data.inputs, *(p.name for p in data.all_parameters)]
+    xt = data.scaling.to_unit(data.run_settings, columns)
+    started = time.perf_counter()
+    emulator = VectorEmulator.fit(data.basis, xt, data.run_outputs, seed)
+    logger.info("stage 1: %s; one GP per component, hyperparameters at their posterior mode (scipy L-BFGS "
+                "on %d of %d runs) in %.1f s", data.basis.describe(), emulator.hyperparameter_runs,
+                len(xt), time.perf_counter() - started)
+    return emulator

@@ -1,0 +1,130 @@
+"""calibrate_vector(): KOH calibration of a vector output, from a
+VectorCalibrationData to a VectorCalibrationResult. Two programs:
+koh_vector.stan evaluates a cheap Stan simulator at every measured value;
+modular_vector.stan emulates the runs in their reduced basis
+(stancal.numerics.vector_emulator) and fixes that emulator after stage 1."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from stancal.fitting.inits import spread_theta_inits
+from stancal.fitting.plan import Plan, plan_vector
+from stancal.fitting.postfit import check_fit, save_draws
+from stancal.fitting.seeds import command_seed
+from stancal.fitting.stage_one import run_stage_one
+from stancal.numerics.vector_emulator import VectorEmulator
+from stancal.problem.options import VectorOptions
+from stancal.problem.vector_data import VectorCalibrationData
+from stancal.results.vector_result import VectorCalibrationResult, vector_datatree
+from stancal.stan.backends import get_backend
+from stancal.stan.standata import to_stan_json
+from stancal.stan.vector_standata import build_vector_stan_data, mean_terms
+
+logger = logging.getLogger("stancal")
+
+PREDICTION_INDICES = 25  # per experiment, evenly over the index's range (one index column)
+
+
+def prediction_rows(data: VectorCalibrationData, per_experiment: int = PREDICTION_INDICES) -> pd.DataFrame:
+    """Rows where f, delta and zeta are drawn: per experiment, an even grid
+    over the range of one index (the runs' grid, else the measured values'),
+    or the runs' own grid (else the measured points) for a field; with the
+    experiment's other columns, for mean terms."""
+    grid = data.basis.grid if data.basis is not None else np.unique(data.physical[data.output_index].to_numpy(), axis=0)
+    if grid.shape[1] == 1:
+        indices = np.linspace(grid[:, 0].min(), grid[:, 0].max(), per_experiment)[:, None]
+    else:
+        indices = grid[np.unique(np.linspace(0, len(grid) - 1, min(len(grid), 4 * per_experiment)).astype(int))]
+    first = data.source.groupby(data.experiment, sort=False).first().drop(columns=data.output_index)
+    rows = [pd.DataFrame(indices, columns=data.output_index).assign(
+                **{data.experiment: name, **first.loc[name].to_dict()}) for name in data.experiments.index]
+    table = pd.concat(rows, ignore_index=True)
+    return table[[data.experiment, *data.output_index, *[c for c in table if c != data.experiment
+                                                         and c not in data.output_index]]]
+
+
+def joint_inits(emulator: VectorEmulator) -> dict[str, Any]:
+    """The joint fit starts its weight GPs at stage 1's hyperparameters."""
+    hyper = [gp.hyperparameters for gp in emulator.components]
+    return {"weight_gp_mean_free": [h.mean for h in hyper], "weight_gp_sd_free": [h.sd for h in hyper],
+            "weight_gp_length_scale_free": [list(h.length_scale) for h in hyper],
+            "weight_gp_nugget_free": [max(h.nugget, 1e-4) for h in hyper]}
+
+
+def calibrate_vector(
+    data: VectorCalibrationData,
+    *,
+    simulator: str | Path | None = None,
+    method: str | None = None,
+    discrepancy: str = "gp",
+    noise: str | None = None,
+    kernel: str = "se",
+    mean_formula: str | None = None,
+    mean_intercept: bool = False,
+    program: str | Path | None = None,
+    new_rows: pd.DataFrame | None = None,
+    chains: int = 4,
+    warmup: int = 1000,
+    draws: int = 1000,
+    seed: int | None = None,
+    backend: str | None = None,
+    adapt_delta: float = 0.9,
+    max_treedepth: int = 10,
+    out_dir: str | Path | None = None,
+    plan: Plan | None = None,
+) -> VectorCalibrationResult:
+    """KOH for a vector output. ``method``: koh (``simulator``, a Stan file
+    with vector simulator(matrix X, vector theta), rows of X = (inputs...,
+    output index...), evaluated at every measured value; the default when
+    given), modular (stage 1 fits one GP per basis component to the runs;
+    stage 2 samples theta with that emulator fixed) or koh_emulator (the
+    components' GP hyperparameters sampled with theta, the runs' weights in
+    the likelihood; for tens of runs, each step factors every component's
+    runs covariance). Both sample theta
+    (shared and per experiment), the discrepancy over (inputs, output index,
+    covariates) and the noise.
+    ``noise``: known (the data's noise_sd column; the default when it has
+    one), one (one sd estimated) or per_experiment. ``mean_formula``: terms
+    h' beta of the discrepancy mean over the physical columns.
+    ``program``: your copy of the method's program. ``new_rows``: where f,
+    delta and zeta are drawn (default: prediction_rows). ``out_dir``: the
+    posterior is written there as soon as sampling ends."""
+    if plan is None:
+        plan = plan_vector(data, simulator, method, VectorOptions(
+            discrepancy, noise or ("known" if data.noise_sd else "one"), kernel, mean_formula, mean_intercept),
+            program)
+    options, row = plan.options, plan.program
+    seed = command_seed(seed)
+    flat = plan.main_program()
+    stan_backend = get_backend(backend)
+    stan_backend.compile([flat])
+    new_rows = prediction_rows(data) if new_rows is None else new_rows
+    emulator = run_stage_one(row.stage_one, data, options, [flat], backend=stan_backend, seed=seed)
+    stan_data = build_vector_stan_data(data, row.data, options, new_rows, emulator)
+    inits = spread_theta_inits(chains, len(data.parameters), np.random.default_rng(seed))
+    if row.samples_emulator:  # the joint fit starts its weight GPs at stage 1's hyperparameters
+        for init in inits:
+            init.update(joint_inits(emulator))
+    logger.info("sampling %s: %d experiments, %d values%s; %d chains x (%d + %d)", row.name,
+                stan_data["E"], stan_data["N"], f", {stan_data['C']} components" if emulator else "",
+                chains, warmup, draws)
+    stan_json = to_stan_json(stan_data)
+    sample = stan_backend.sample(flat, stan_json, inits=inits, chains=chains, warmup=warmup, draws=draws,
+                                 seed=seed, adapt_delta=adapt_delta, max_treedepth=max_treedepth)
+    terms = mean_terms(data, options)
+    tree = vector_datatree(sample.draws, sample.sample_stats, data, new_rows, stan_backend.parameter_names(flat),
+                           options, terms, samples_emulator=row.samples_emulator, from_runs=row.runs)
+    result = VectorCalibrationResult(tree, data, row.name, flat, stan_backend.name,
+                                     {"compile_s": sample.compile_seconds, "sample_s": sample.sample_seconds},
+                                     options, emulator, terms)
+    save_draws(result, out_dir)
+    return check_fit(result, theta_names=data.theta_names,
+                     theta_widths=np.array([p.upper - p.lower for p in data.parameters]),
+                     log_density_functions=lambda: stan_backend.log_density_functions(flat, stan_json),
+                     max_treedepth=max_treedepth, diagnosed=lambda names: names, seed=seed, out_dir=out_dir)

@@ -1,0 +1,434 @@
+"""One validated container for a calibration problem: physical data,
+optional simulator runs, and the calibration parameters with their bounds."""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from stancal.problem.observations import LINKS, read_observations
+from stancal.problem.validation import DataError, numeric_values, require_whole
+from stancal.problem.validation import row_labels as _rows
+
+
+class InputRangeWarning(UserWarning):
+    """Physical inputs outside the range covered by the simulator runs."""
+
+
+@dataclass(frozen=True)
+class Parameter:
+    """A calibration parameter; its bounds are the support of a uniform prior."""
+
+    name: str
+    lower: float
+    upper: float
+
+
+def _require_columns(frame: pd.DataFrame, columns: Sequence[str], what: str) -> None:
+    if frame.columns.duplicated().any():
+        dup = sorted(set(frame.columns[frame.columns.duplicated()]))
+        raise DataError(f"{what}: duplicate column(s) {dup}")
+    missing = [c for c in columns if c not in frame.columns]
+    if missing:
+        raise DataError(
+            f"{what}: missing column(s) {missing}; available: {list(frame.columns)}"
+        )
+
+
+def _numeric_columns(frame: pd.DataFrame, columns: Sequence[str], what: str) -> pd.DataFrame:
+    """The named columns as floats, or a DataError naming the column and rows."""
+    _require_columns(frame, columns, what)
+    out = {}
+    for column in columns:
+        values = numeric_values(frame, column, what)
+        bad = ~np.isfinite(values)
+        if bad.any():
+            raise DataError(
+                f"{what}: column '{column}' has NaN or inf in rows {_rows(bad, frame.index)}"
+            )
+        out[column] = values
+    return pd.DataFrame(out, index=frame.index)
+
+
+def _category_levels(frame: pd.DataFrame, column: str, what: str) -> list[str] | None:
+    """Levels of a text column, or None for a numeric one."""
+    raw = frame[column]
+    if pd.api.types.is_numeric_dtype(raw):
+        return None
+    numeric = pd.to_numeric(raw, errors="coerce").notna().to_numpy()
+    missing = raw.isna().to_numpy()
+    if numeric[~missing].all():
+        return None
+    if numeric.any():
+        raise DataError(f"{what}: column '{column}' mixes numbers and text; numbers in rows "
+                        f"{_rows(numeric, frame.index)}")
+    if missing.any():
+        raise DataError(f"{what}: categorical column '{column}' is empty in rows {_rows(missing, frame.index)}")
+    return sorted(raw.astype(str).unique())
+
+
+def parameters_from_bounds(theta: Mapping[str, tuple[float, float]], what: str = "theta",
+                           required: bool = True) -> list[Parameter]:
+    """Parameters from name -> (lower, upper), each checked (the error names it)."""
+    if required and not theta:
+        raise DataError(f"{what}: give at least one calibration parameter with bounds")
+    out = []
+    for name, bounds in theta.items():
+        try:
+            lower, upper = (float(b) for b in bounds)
+        except (TypeError, ValueError):
+            raise DataError(f"{what} '{name}': bounds must be two numbers [lower, upper]; got {bounds!r}") from None
+        if not (np.isfinite(lower) and np.isfinite(upper) and lower < upper):
+            raise DataError(f"{what} '{name}': bounds must be finite with lower < upper; got [{lower}, {upper}]")
+        out.append(Parameter(name, lower, upper))
+    return out
+
+
+def bounds_of(parameters: Sequence[Parameter]) -> dict[str, tuple[float, float]]:
+    """name -> (lower, upper): the form the data containers take theta in."""
+    return {p.name: (p.lower, p.upper) for p in parameters}
+
+
+def require_runs_within_bounds(runs: pd.DataFrame, parameters: Sequence[Parameter]) -> None:
+    """Each run's theta inside its prior box (the error names column and rows)."""
+    for p in parameters:
+        values = runs[p.name].to_numpy()
+        bad = (values < p.lower) | (values > p.upper)
+        if bad.any():
+            raise DataError(f"simulator runs: column '{p.name}' lies outside its bounds [{p.lower}, {p.upper}] "
+                            f"in rows {_rows(bad, runs.index)}")
+
+
+def warn_outside_runs(physical: pd.DataFrame, runs: pd.DataFrame, inputs: Sequence[str]) -> None:
+    """InputRangeWarning for physical inputs beyond the runs' range, where the emulator extrapolates."""
+    for column in inputs:
+        lo, hi = runs[column].min(), runs[column].max()
+        values = physical[column].to_numpy()
+        outside = (values < lo) | (values > hi)
+        if outside.any():
+            warnings.warn(f"physical input '{column}' lies outside the simulator runs' range [{lo:g}, {hi:g}] "
+                          f"in rows {_rows(outside, physical.index)}; the emulator extrapolates there",
+                          InputRangeWarning, stacklevel=4)
+
+
+def one_hot_name(column: str, level: str) -> str:
+    return f"{column}[{level}]"
+
+
+@dataclass(frozen=True)
+class Scaling:
+    """Affine maps to the unit cube (inputs, covariates, theta) and to a
+    standardised output; everything reported goes back through it."""
+
+    low: dict[str, float]
+    width: dict[str, float]
+    y_center: float
+    y_scale: float
+
+    def to_unit(self, frame: pd.DataFrame, columns: Sequence[str]) -> np.ndarray:
+        if not columns:
+            return np.zeros((len(frame), 0))
+        return np.column_stack(
+            [(frame[c].to_numpy(float) - self.low[c]) / self.width[c] for c in columns]
+        )
+
+    def standardise(self, y: np.ndarray) -> np.ndarray:
+        """Outputs in original units -> the standardised scale the programs use."""
+        return (np.asarray(y, float) - self.y_center) / self.y_scale
+
+    def original(self, y_standardised: np.ndarray) -> np.ndarray:
+        """The inverse of standardise."""
+        return self.y_center + self.y_scale * np.asarray(y_standardised, float)
+
+
+class CalibrationData:
+    """Physical observations, optional simulator runs and the calibration
+    parameters of one problem.
+
+    Parameters
+    ----------
+    physical : DataFrame with the simulator inputs, the output and any
+        covariates (measured, but not taken by the simulator).
+    inputs : simulator input columns, in the simulator's column order.
+    output : the output column (same name in ``runs``).
+    theta : calibration parameters in the simulator's order, name -> (lower, upper).
+    covariates : extra physical columns the discrepancy may depend on;
+        text columns are categorical and enter the discrepancy one-hot.
+    runs : simulator runs: the input columns, one column per theta, the output.
+    levels : categories of categorical covariates, when they must not be
+        taken from ``physical`` (a subset that lacks a level).
+    likelihood : gaussian (default), poisson, negbinomial (counts, log link)
+        or binomial (successes, logit link). The simulator returns the mean:
+        a positive count rate, or a success probability for binomial.
+    trials : binomial only: the column with the number of trials (without
+        it, the outputs are binary 0/1).
+    lower, upper : gaussian only: columns of censoring bounds. A row whose
+        output is empty is censored to [lower, upper] (an empty lower is
+        -inf, an empty upper +inf); rows with an output are exact.
+    """
+
+    def __init__(
+        self,
+        physical: pd.DataFrame,
+        inputs: Sequence[str],
+        output: str,
+        theta: Mapping[str, tuple[float, float]],
+        covariates: Sequence[str] = (),
+        runs: pd.DataFrame | None = None,
+        levels: Mapping[str, Sequence[str]] | None = None,
+        likelihood: str = "gaussian",
+        trials: str | None = None,
+        lower: str | None = None,
+        upper: str | None = None,
+    ) -> None:
+        self.inputs = list(inputs)
+        self.output = output
+        self.covariates = list(covariates)
+        self.parameters = parameters_from_bounds(theta)
+        self._check_names()
+        self.source = physical.copy()  # every column, for formulas over the physical data
+        self.levels = self._levels(physical, levels or {})
+        numeric = [c for c in self.covariates if c not in self.levels]
+        _require_columns(physical, [output], "physical data")
+        self.observations = read_observations(physical, output, likelihood, trials, lower, upper)
+        self.observation_columns = {"likelihood": likelihood, "trials": trials, "lower": lower, "upper": upper}
+        self.physical = pd.concat([
+            _numeric_columns(physical, [*self.inputs, *numeric], "physical data"),
+            pd.DataFrame({output: self.observations.value}, index=physical.index),
+            self.one_hot(physical)], axis=1)
+        if len(self.physical) < 3:
+            raise DataError(
+                f"physical data: {len(self.physical)} rows; calibration needs at least 3"
+            )
+        if np.ptp(self.observations.value[self.observations.observed]) == 0 and self.observations.is_gaussian:
+            raise DataError(f"physical data: output column '{output}' is constant")
+        self.runs = None if runs is None else self._check_runs(runs)
+        self.scaling = self._scaling()
+
+    @property
+    def theta_names(self) -> list[str]:
+        return [p.name for p in self.parameters]
+
+    @property
+    def theta_lower(self) -> np.ndarray:
+        return np.array([p.lower for p in self.parameters])
+
+    @property
+    def theta_upper(self) -> np.ndarray:
+        return np.array([p.upper for p in self.parameters])
+
+    @property
+    def discrepancy_variables(self) -> dict[str, list[str]]:
+        """Each simulator input and covariate -> its discrepancy GP columns
+        (one per level for a categorical covariate)."""
+        out = {c: [c] for c in self.inputs}
+        for c in self.covariates:
+            out[c] = [one_hot_name(c, v) for v in self.levels[c]] if c in self.levels else [c]
+        return out
+
+    @property
+    def discrepancy_inputs(self) -> list[str]:
+        """Columns of the discrepancy GP: simulator inputs, then covariates."""
+        return [col for cols in self.discrepancy_variables.values() for col in cols]
+
+    def _levels(self, physical: pd.DataFrame, given: Mapping[str, Sequence[str]]) -> dict[str, list[str]]:
+        _require_columns(physical, self.covariates, "physical data")
+        out = {}
+        for column in self.covariates:
+            found = _category_levels(physical, column, "physical data")
+            if found is not None:
+                out[column] = list(given.get(column, found))
+        return out
+
+    def one_hot(self, frame: pd.DataFrame, what: str = "physical data") -> pd.DataFrame:
+        """One 0/1 column per level of each categorical covariate."""
+        columns = {}
+        for column, levels in self.levels.items():
+            if column not in frame.columns:
+                raise DataError(f"{what}: missing categorical column '{column}'")
+            values = frame[column].astype(str).to_numpy()
+            unknown = ~np.isin(values, levels)
+            if unknown.any():
+                raise DataError(f"{what}: column '{column}' has levels not in {levels} in rows "
+                                f"{_rows(unknown, frame.index)}")
+            for level in levels:
+                columns[one_hot_name(column, level)] = (values == level).astype(float)
+        return pd.DataFrame(columns, index=frame.index)
+
+    def _rebuilt(self, source: pd.DataFrame, inputs: Sequence[str] | None = None,
+                 theta: Mapping[str, tuple[float, float]] | None = None,
+                 covariates: Sequence[str] | None = None, keep_runs: bool = True) -> CalibrationData:
+        """This problem rebuilt (and checked) with some parts changed; same categories."""
+        return CalibrationData(source, self.inputs if inputs is None else inputs, self.output,
+                               bounds_of(self.parameters) if theta is None else theta,
+                               self.covariates if covariates is None else covariates,
+                               self.runs if keep_runs else None, levels=self.levels, **self.observation_columns)
+
+    def subset(self, rows: Sequence[int]) -> CalibrationData:
+        """The same problem on some physical rows (positions), same categories."""
+        return self._rebuilt(self.source.iloc[list(rows)])
+
+    def variant(self, inputs: Sequence[str], extra_theta: Mapping[str, tuple[float, float]]) -> CalibrationData:
+        """The problem as a simulator variant sees it: its own inputs and
+        theta (this one's, then its extra ones), no runs; the discrepancy
+        keeps every variable of this one."""
+        return self._rebuilt(self.source, inputs, bounds_of(self.parameters) | dict(extra_theta),
+                             [v for v in self.discrepancy_variables if v not in inputs], keep_runs=False)
+
+    def with_output(self, y: np.ndarray) -> CalibrationData:
+        """The same problem with other outputs (simulated ones) and this
+        problem's scaling kept: the programs' priors live on the
+        standardised scale, so a fit of simulated data must standardise as
+        the simulation did. Censored data censor the new values as the lab
+        did: a value inside one of the censoring ranges this data has (each
+        distinct lower, upper pair) is reported as that range."""
+        source = self.source.copy()
+        y = np.asarray(y)
+        source[self.output] = y
+        observations = self.observations
+        if observations.any_censored:
+            lower, upper = self.observation_columns["lower"], self.observation_columns["upper"]
+            censored = ~observations.observed
+            ranges = sorted(set(zip(observations.lower[censored], observations.upper[censored], strict=False)))
+            for column in (lower, upper):
+                if column:
+                    source[column] = np.nan
+            for low, high in ranges:
+                inside = (y >= low) & (y <= high)
+                source.loc[inside, self.output] = np.nan
+                if lower and np.isfinite(low):
+                    source.loc[inside, lower] = low
+                if upper and np.isfinite(high):
+                    source.loc[inside, upper] = high
+        other = self._rebuilt(source)
+        other.scaling = self.scaling
+        return other
+
+    @property
+    def latent_reason(self) -> str | None:
+        """Why the outputs need the latent-GP programs (the GP cannot be
+        integrated out), or None."""
+        if not self.observations.is_gaussian:
+            return f"likelihood '{self.observations.likelihood.name.lower()}'"
+        if self.observations.any_censored:
+            return "censored outputs"
+        return None
+
+    @property
+    def discrepancy_scale(self) -> str:
+        """What the discrepancy is measured in (output units, or a link scale)."""
+        return LINKS[self.observations.likelihood].scale
+
+    def heldout_log_density(self, rows: np.ndarray, zeta: np.ndarray, posterior) -> np.ndarray:
+        """log p(y_row | zeta, the fit's noise or dispersion) per draw (draws, rows)."""
+        noise, phi = (np.asarray(posterior[v]).reshape(-1, 1) if v in posterior else None
+                      for v in ("noise_sd", "phi"))
+        return self.observations.log_density(rows, zeta, noise, phi)
+
+    @property
+    def discrepancy_units(self) -> float:
+        """Output units per model-scale unit of the discrepancy: the output's
+        scale for Gaussian outputs (standardised), 1 on a link scale (the
+        Stan programs' discrepancy_units)."""
+        return self.scaling.y_scale if self.observations.is_gaussian else 1.0
+
+    def trials_at(self, points: pd.DataFrame) -> np.ndarray:
+        """Binomial trials of a new observation at each point: the trials
+        column where the points have it, else one (a binary outcome)."""
+        column = self.observation_columns["trials"]
+        if column is None or column not in points:
+            return np.ones(len(points), dtype=int)
+        values = numeric_values(points, column, "prediction points")
+        require_whole(values, column, points.index, "prediction points", 1)
+        return values.astype(int)
+
+    @property
+    def has_runs(self) -> bool:
+        return self.runs is not None
+
+    def _check_names(self) -> None:
+        if not self.inputs:
+            raise DataError("inputs: give at least one simulator input column")
+        named = [*self.inputs, *self.covariates, self.output]
+        repeated = sorted({n for n in named if named.count(n) > 1})
+        if repeated:
+            raise DataError(f"column(s) {repeated} named more than once among inputs, covariates and output")
+        clash = sorted(set(self.theta_names) & set(named))
+        if clash:
+            raise DataError(f"theta name(s) {clash} clash with data column names")
+
+    def _check_runs(self, runs: pd.DataFrame) -> pd.DataFrame:
+        table = _numeric_columns(runs, [*self.inputs, *self.theta_names, self.output], "simulator runs")
+        if len(table) < 3:
+            raise DataError(f"simulator runs: {len(table)} rows; an emulator needs at least 3")
+        if np.ptp(table[self.output].to_numpy()) == 0:
+            raise DataError(f"simulator runs: output column '{self.output}' is constant")
+        self._check_runs_on_link_scale(table)
+        require_runs_within_bounds(table, self.parameters)
+        warn_outside_runs(self.physical, table, self.inputs)
+        return table
+
+    def _check_runs_on_link_scale(self, table: pd.DataFrame) -> None:
+        """The runs' output is the simulator's mean: it must lie where the link is defined."""
+        link = LINKS[self.observations.likelihood]
+        values = table[self.output].to_numpy()
+        bad = ~link.defined(values)
+        if bad.any():
+            raise DataError(f"simulator runs: output column '{self.output}' must be {link.requirement}; rows "
+                            f"{_rows(bad, table.index)} hold {values[bad][:5].tolist()}")
+
+    def runs_on_link_scale(self) -> np.ndarray:
+        """The runs' output on the likelihood's link scale."""
+        assert self.runs is not None
+        return LINKS[self.observations.likelihood].transform(self.runs[self.output].to_numpy())
+
+    def _scaling(self) -> Scaling:
+        low, width = {}, {}
+        for column in self.discrepancy_inputs:
+            values = self.physical[column].to_numpy()
+            if self.runs is not None and column in self.runs:
+                values = np.concatenate([values, self.runs[column].to_numpy()])
+            low[column] = float(values.min())
+            width[column] = float(np.ptp(values)) or 1.0
+        for p in self.parameters:
+            low[p.name], width[p.name] = p.lower, p.upper - p.lower
+        # With runs, the emulator sees mostly simulator output: standardise by it
+        # (on the link scale). A cheap simulator's link scale is left as it is.
+        if self.runs is not None:
+            reference = self.runs_on_link_scale()
+        elif self.observations.is_gaussian:
+            reference = self.observations.value[self.observations.observed]
+        else:
+            return Scaling(low, width, 0.0, 1.0)
+        return Scaling(low, width, float(reference.mean()), float(reference.std()) or 1.0)
+
+    def check_new_points(self, new: pd.DataFrame) -> pd.DataFrame:
+        """Validated prediction points: the inputs and covariates as in the
+        physical data, returned with categorical covariates one-hot."""
+        table = pd.concat([new.drop(columns=list(self.levels), errors="ignore"),
+                           self.one_hot(new, "prediction points")], axis=1)
+        return _numeric_columns(table, self.discrepancy_inputs, "prediction points")
+
+    def to_dict(self) -> dict:
+        return {
+            "physical": self.source.to_dict(orient="list"),
+            "inputs": self.inputs,
+            "output": self.output,
+            "covariates": self.covariates,
+            "theta": {p.name: [p.lower, p.upper] for p in self.parameters},
+            "runs": None if self.runs is None else self.runs.to_dict(orient="list"),
+            "levels": self.levels,
+            **self.observation_columns,
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict) -> CalibrationData:
+        runs = None if d["runs"] is None else pd.DataFrame(d["runs"])
+        return cls(pd.DataFrame(d["physical"]), d["inputs"], d["output"],
+                   {k: tuple(v) for k, v in d["theta"].items()}, d["covariates"], runs,
+                   levels=d.get("levels"), likelihood=d.get("likelihood", "gaussian"),
+                   trials=d.get("trials"), lower=d.get("lower"), upper=d.get("upper"))

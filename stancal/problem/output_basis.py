@@ -1,0 +1,107 @@
+"""The reduced basis of vector simulator output (Higdon et al. 2008,
+"Computer model calibration using high-dimensional output", JASA 103,
+section 2.1): principal components of the standardised runs.
+
+Each run returns a vector over one shared grid of output indices (times,
+positions, features). The runs are centred by their mean vector and scaled
+by one overall sd (one sd, not one per index, so that a component's
+share of variance is a share of the output's own variance); their SVD gives
+the components, kept until they explain a share of the variance or to a
+given number. An emulator then needs one GP per component weight instead of
+one per grid value, and the variance the kept components leave (the
+truncation error) enters the likelihood as GPMSA's does.
+
+Experiments are observed at their own indices, which need not lie on the
+runs' grid: the mean vector and the components are interpolated there,
+linearly (piecewise-linear in one index; over the Delaunay triangulation of
+the grid for a field).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.interpolate import LinearNDInterpolator
+
+from stancal.problem.validation import DataError
+
+DEFAULT_VARIANCE_SHARE = 0.995  # Higdon et al. keep components to 99 %+ of the variance
+
+
+@dataclass(frozen=True)
+class OutputBasis:
+    """y(index) ~ mean(index) + scale * components(index) @ weights."""
+
+    grid: np.ndarray  # (K, index columns): the runs' shared output indices
+    mean: np.ndarray  # (K,)
+    scale: float  # one sd over all runs and indices
+    components: np.ndarray  # (K, p): orthonormal over the grid, times their singular value / sqrt(N)
+    explained: np.ndarray  # (p,): each component's share of the standardised runs' variance
+    truncation_variance: float  # per grid value, standardised units: what the p components leave
+
+    @classmethod
+    def from_runs(cls, grid: np.ndarray, outputs: np.ndarray, variance_share: float = DEFAULT_VARIANCE_SHARE,
+                  components: int | None = None) -> OutputBasis:
+        """``outputs``: (runs, K) on ``grid`` (K rows). Keep ``components``
+        if given, else the fewest whose share of variance reaches ``variance_share``."""
+        grid = np.asarray(grid, float).reshape(len(outputs[0]), -1)
+        outputs = np.asarray(outputs, float)
+        runs = len(outputs)
+        if not 0 < variance_share <= 1:
+            raise ValueError(f"variance_share must lie in (0, 1]; got {variance_share}")
+        mean = outputs.mean(axis=0)
+        scale = float((outputs - mean).std())
+        if scale == 0:
+            raise DataError("simulator runs: every run returns the same output vector")
+        standardised = (outputs - mean) / scale
+        left, singular, right_t = np.linalg.svd(standardised, full_matrices=False)
+        share = singular**2 / np.sum(singular**2)
+        count = (components if components is not None
+                 else int(np.searchsorted(np.cumsum(share), variance_share - 1e-12) + 1))
+        # centred runs span at most runs - 1 directions: a basis that needs all of them has too few runs
+        # to tell the output's variation apart from the runs' own
+        if count >= runs - 1:
+            raise DataError(f"simulator runs: {runs} runs for {count} output components "
+                            f"({'asked for' if components is not None else f'{variance_share:.1%} of the variance'}); "
+                            f"the emulator needs more runs than components: add runs, or keep fewer components")
+        if count > len(share):
+            raise DataError(f"simulator runs: {count} components asked for, but the runs span only {len(share)}")
+        kept = right_t[:count].T * singular[:count] / np.sqrt(runs)
+        residual = standardised - (left[:, :count] * singular[:count]) @ right_t[:count]
+        return cls(grid, mean, scale, kept, share[:count], float(np.mean(residual**2)))
+
+    @property
+    def count(self) -> int:
+        return self.components.shape[1]
+
+    def weights(self, outputs: np.ndarray) -> np.ndarray:
+        """(runs, p): least-squares weights of output vectors on the grid
+        (for the runs, their principal-component scores, of unit variance)."""
+        standardised = (np.asarray(outputs, float) - self.mean) / self.scale
+        return np.linalg.lstsq(self.components, standardised.T, rcond=None)[0].T
+
+    def at(self, indices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The mean (M,) and components (M, p) interpolated at M output
+        indices, each within the grid's range (DataError otherwise)."""
+        indices = np.asarray(indices, float).reshape(-1, self.grid.shape[1])
+        values = np.column_stack([self.mean, self.components])
+        if self.grid.shape[1] == 1:
+            order = np.argsort(self.grid[:, 0])
+            lo, hi = self.grid[order[0], 0], self.grid[order[-1], 0]
+            outside = (indices[:, 0] < lo) | (indices[:, 0] > hi)
+            if outside.any():
+                raise DataError(f"output indices {indices[outside, 0][:5].tolist()} lie outside the runs' grid "
+                                f"[{lo:g}, {hi:g}]")
+            out = np.column_stack([np.interp(indices[:, 0], self.grid[order, 0], v[order]) for v in values.T])
+        else:
+            out = LinearNDInterpolator(self.grid, values)(indices)
+            outside = np.isnan(out).any(axis=1)
+            if outside.any():
+                raise DataError(f"output indices {indices[outside][:5].tolist()} lie outside the runs' grid "
+                                f"(its convex hull)")
+        return out[:, 0], out[:, 1:]
+
+    def describe(self) -> str:
+        return (f"{self.count} components explain {self.explained.sum():.2%} of the runs' variance "
+                f"({', '.join(f'{s:.1%}' for s in self.explained[:6])}{', ...' if self.count > 6 else ''})")

@@ -1,0 +1,94 @@
+"""The report folder of one calibration: summary.json, summary.csv, figures
+and report.md. The command line and the case studies write it through here."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+
+def write_calibration(result, folder: Path, warning_messages: list[str]) -> dict:
+    """summary.json, summary.csv, figures and report.md of one calibration."""
+    from stancal.reporting.plots import write_plots
+
+    summary = result.to_summary_json()
+    summary["warnings"] = warning_messages
+    (folder / "summary.json").write_text(json.dumps(summary, indent=2))
+    result.summary().to_csv(folder / "summary.csv")
+    plots = write_plots(result, folder)
+    (folder / "report.md").write_text(_report(summary, result.summary(), plots))
+    return summary
+
+
+def _parameters_and_sampler(summary: dict, table) -> list[str]:
+    """The report's theta table, every parameter, and the sampler's figures
+    and warnings: the same for every kind of calibration."""
+    d = summary["diagnostics"]
+    return [
+        "## Calibration parameters (original units; 90 % interval)", "",
+        "| parameter | mean | 5 % | 50 % | 95 % | R-hat | bulk ESS |", "|---|---|---|---|---|---|---|",
+        *(f"| {k} | {v['mean']:.4g} | {v['q05']:.4g} | {v['q50']:.4g} | {v['q95']:.4g} | "
+          f"{v['rhat']:.3f} | {v['ess_bulk']:.0f} |" for k, v in summary["theta"].items()),
+        "", "## All parameters", "", table.round(4).to_markdown(),
+        "", "## Sampler", "",
+        (f"- divergences: {d['divergences']}; max R-hat {d['max_rhat']:.3f}; "
+        f"min bulk ESS {d['min_ess_bulk']:.0f}; min tail ESS {d['min_ess_tail']:.0f}"),
+        f"- compile {summary['timing']['compile_s']:.1f} s, sampling {summary['timing']['sample_s']:.1f} s",
+        *(f"- **warning**: {w}" for w in summary.get("warnings", [])),
+    ]
+
+
+def _report(summary: dict, table, plots: list[Path]) -> str:
+    lines = [
+        (f"# Calibration report ({summary['method']}, {summary['backend']}, "
+        f"{summary['likelihood']} likelihood)"), "",
+        *_parameters_and_sampler(summary, table),
+    ]
+    if "censoring" in summary:
+        counts = summary["censoring"]
+        lines += ["", "## Censored observations", "",
+                  (f"- exact {counts['observed']}, left-censored {counts['left']}, "
+                  f"right-censored {counts['right']}, interval-censored {counts['interval']}")]
+    for name, curve in summary.get("theta_functions", {}).items():
+        column = next(iter(curve["inputs"]))
+        lines += ["", f"## Functional parameter {name}({', '.join(curve['inputs'])})", "",
+                  (f"- over {column} from {min(curve['inputs'][column]):.4g} to {max(curve['inputs'][column]):.4g}: "
+                  f"posterior mean from {min(curve['mean']):.4g} to {max(curve['mean']):.4g}; "
+                  "the grid and its 90 % band are in summary.json (theta_functions)")]
+    if len(summary["modes"]) > 1:
+        weighed = summary["modes"][0]["weight"] is not None
+        lines += ["", "## Separate theta modes", "",
+                  ("The theta table above is the mixture of the modes, each weighted by its posterior "
+                   "mass (bridge sampling; 90 % Monte Carlo interval of the weight)." if weighed else
+                   "Their posterior masses are unknown: the theta table above is the mode with the "
+                   "highest log density."), "",
+                  *(f"- mode {i + 1}: chains {m['chains']}, "
+                    + (f"weight {m['weight']['mean']:.3f} [{m['weight']['q05']:.3f}, {m['weight']['q95']:.3f}], "
+                       if weighed else f"mean log density {m['mean_log_density']:.1f}, ")
+                    + ", ".join(f"{k} {t['mean']:.4g} [{t['q05']:.4g}, {t['q95']:.4g}]" for k, t in m["theta"].items())
+                    for i, m in enumerate(summary["modes"]))]
+    lines += ["", "## Figures", "", *(f"![{p.stem}]({p.name})" for p in plots), ""]
+    return "\n".join(lines)
+
+
+def write_vector_calibration(result, folder: Path, warning_messages: list[str]) -> dict:
+    """summary.json, summary.csv, the curves per experiment and report.md
+    of one vector-output calibration."""
+    from stancal.reporting.plots import plot_vector_curves
+
+    summary = result.to_summary_json()
+    summary["warnings"] = warning_messages
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "summary.json").write_text(json.dumps(summary, indent=2))
+    table = result.summary()
+    table.to_csv(folder / "summary.csv")
+    plot_vector_curves(result, folder / "curves.png")
+    basis = summary["basis"]
+    lines = [
+        f"# Calibration report ({summary['method']}, {summary['backend']})", "",
+        *([f"Output basis: {basis['description']}; truncation error sd {basis['truncation_sd']:.3g}.", ""]
+          if basis else ["The Stan simulator is evaluated at every measured value (no output basis).", ""]),
+        *_parameters_and_sampler(summary, table),
+        "", "## Curves", "", "![curves per experiment](curves.png)", ""]
+    (folder / "report.md").write_text("\n".join(lines))
+    return summary

@@ -1,0 +1,277 @@
+"""The result of a calibration: an ArviZ DataTree plus what is needed to
+summarise it on the original scale and to predict at new points."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+import xarray as xr
+
+from stancal.problem.data import CalibrationData
+from stancal.problem.functional import functional_grid
+from stancal.problem.options import ModelOptions
+from stancal.results.diagnostics import Diagnostics
+from stancal.results.modes import Mode
+from stancal.results.summaries import band, summary_by_mode, theta_function_summary, theta_summary
+from stancal.stan.backends.base import Draws, SampleOutput
+from stancal.stan.source import FlatProgram
+from stancal.stan.standata import EMULATOR_HYPERPARAMETERS, mean_terms_of
+
+# Stan program variables -> names in the posterior group (original units)
+_REPORTED = {
+    "theta": "theta",
+    "noise_sd_original": "noise_sd",
+    "delta_sd_original": "delta_sd",
+    "rho": "rho",
+    "phi": "phi",
+}
+# the latent programs declare these as arrays of size 0 or 1 (present or not)
+_OPTIONAL_SCALARS = ("noise_sd", "delta_sd", "phi")
+PREDICTED = ("f_new", "delta_new", "zeta_new")
+NEW_OBSERVATION = "y_new"  # latent programs: a new observation from the likelihood
+# per physical point: the GP part of delta (a draw, and its mean given the
+# parameters), and E(y_i | y_-i) for held-out error
+AT_OBSERVATIONS = ("delta_gp", "delta_gp_mean", "y_loo_mean")
+# parameters of stancal's programs that the posterior group holds in another
+# form (original units, or not at all: latent standard normals); any other
+# parameter of a program goes into the posterior group as it is
+_REEXPRESSED = {"theta_unit", "noise_sd", "delta_sd", "delta_input_length_scale", "delta_relevance",
+                "rho_free", "beta",
+                "inv_sqrt_phi", "delta_z", "emulator_z", "theta_function_sd",
+                "theta_function_length_scale", "theta_function_logit", "theta_function_raw"}
+
+
+def build_datatree(sample: SampleOutput, data: CalibrationData,
+                   new_points: pd.DataFrame, parameter_names: list[str],
+                   options: ModelOptions) -> xr.DataTree:
+    """The fit as an ArviZ DataTree: the posterior on the original scale, the
+    posterior predictive, log likelihood, sampler statistics, predictions at
+    ``new_points``, the values at the observations, the data, and the
+    program's own parameters (for reruns)."""
+    import arviz_base as ab
+
+    d = sample.draws
+    terms = mean_terms_of(data, options)
+    sampled = {
+        "posterior": _posterior(d, data, parameter_names, options, terms),
+        "posterior_predictive": {"y": d["y_rep"]},
+        "log_likelihood": {"y": d["log_lik"]},
+        "sample_stats": sample.sample_stats,
+        "predictions": {k: d[k] for k in (*PREDICTED, NEW_OBSERVATION) if k in d},
+        "at_observations": {k: d[k] for k in AT_OBSERVATIONS if k in d},
+    }
+    if options.functional:
+        sampled["theta_functions"] = {"theta_function": d["theta_function_grid"]}
+    if "delta_basis_weights" in d and d["delta_basis_weights"].shape[-1]:  # the Hilbert-space discrepancy's
+        sampled["discrepancy_basis"] = {"weights": d["delta_basis_weights"]}
+    grid = functional_grid(data, options.functional_inputs)
+    coords = _coords(data, new_points, options, terms, grid)
+    tree = ab.from_dict(sampled, dims=_DIMS, coords=coords, pred_dims=_DIMS, pred_coords=coords)
+    if options.functional:  # the grid's input values, for plotting theta(x)
+        tree["theta_functions"] = xr.DataTree(tree["theta_functions"].to_dataset().assign_coords(
+            {c: ("grid_point", grid[c].to_numpy()) for c in grid.columns}))
+    _add_data_groups(tree, data, new_points)
+    tree["stan_parameters"] = xr.DataTree(ab.dict_to_dataset({k: d[k] for k in parameter_names}))
+    return tree
+
+
+def _posterior(d: Draws, data: CalibrationData, parameter_names: list[str], options: ModelOptions,
+               terms) -> Draws:
+    """The posterior group: the program's parameters in original units, and
+    any parameter of a user's program as the program has it."""
+    posterior: Draws = {out: d[stan] for stan, out in _REPORTED.items() if stan in d}
+    for name in _OPTIONAL_SCALARS:
+        if name in posterior and posterior[name].ndim == 3:
+            if posterior[name].shape[-1] == 0:
+                del posterior[name]
+            else:
+                posterior[name] = posterior[name][..., 0]
+    if options.has_discrepancy:
+        widths = np.array([data.scaling.width[c] for c in data.discrepancy_inputs])
+        posterior["delta_length_scale"] = d["delta_length_scale"] * widths
+        covariates = len(data.discrepancy_inputs) - len(data.inputs)
+        if covariates:  # per unit of each covariate: 0 switches it off
+            posterior["delta_relevance"] = d["delta_relevance"] / widths[len(data.inputs):]
+    if options.functional:
+        widths = np.array([data.scaling.width[c] for c in options.functional_inputs])
+        posterior["theta_function_sd"] = d["theta_function_sd"]
+        posterior["theta_function_length_scale"] = d["theta_function_length_scale"] * widths
+    if not options.estimate_rho:
+        posterior.pop("rho", None)
+    for name in EMULATOR_HYPERPARAMETERS:
+        if name in d:
+            posterior[name] = d[name]
+    if terms is not None:  # coefficients per raw term, in the discrepancy's units
+        posterior["beta"] = d["beta"] * data.discrepancy_units / terms.scale
+    for name in parameter_names:  # a parameter of the user's own program, as the program has it
+        if name not in _REEXPRESSED and name not in posterior and d[name].size:
+            posterior[name] = d[name]
+    return posterior
+
+
+_DIMS = {
+    "theta": ["theta_name"], "delta_length_scale": ["delta_input"], "delta_relevance": ["delta_covariate"],
+    "emulator_length_scale": ["emulator_input"], "y": ["obs"], "beta": ["mean_term"],
+    **{k: ["obs"] for k in AT_OBSERVATIONS},
+    **{k: ["new_point"] for k in (*PREDICTED, NEW_OBSERVATION)},
+    "theta_function_sd": ["functional_theta"],
+    "theta_function_length_scale": ["functional_theta", "functional_input"],
+    "theta_function": ["grid_point", "functional_theta"],
+    "weights": ["basis_function"],
+}
+
+
+def _coords(data: CalibrationData, new_points: pd.DataFrame, options: ModelOptions, terms,
+            grid: pd.DataFrame) -> dict:
+    return {
+        "theta_name": data.theta_names, "delta_input": data.discrepancy_inputs,
+        "delta_covariate": data.discrepancy_inputs[len(data.inputs):],
+        "emulator_input": [*data.inputs, *data.theta_names],
+        "obs": np.arange(len(data.physical)), "new_point": np.arange(len(new_points)),
+        "mean_term": terms.names if terms else [],
+        "functional_theta": list(options.functional), "functional_input": list(options.functional_inputs),
+        "grid_point": np.arange(len(grid)),
+    }
+
+
+def _add_data_groups(tree: xr.DataTree, data: CalibrationData, new_points: pd.DataFrame) -> None:
+    """observed_data, constant_data (inputs, censoring, trials) and the prediction points."""
+    obs = {"obs": np.arange(len(data.physical))}
+    tree["observed_data"] = xr.DataTree(xr.Dataset(
+        {"y": ("obs", data.physical[data.output].to_numpy())}, coords=obs))
+    observations = data.observations
+    tree["constant_data"] = xr.DataTree(xr.Dataset(
+        {**{c: ("obs", data.physical[c].to_numpy()) for c in data.discrepancy_inputs},
+         **({"censoring": ("obs", observations.censoring), "lower": ("obs", observations.lower),
+             "upper": ("obs", observations.upper)} if observations.any_censored else {}),
+         **({"trials": ("obs", observations.trials)} if data.observation_columns["trials"] else {})},
+        coords=obs))
+    tree["predictions_constant_data"] = xr.DataTree(xr.Dataset(
+        {c: ("new_point", new_points[c].to_numpy()) for c in new_points},
+        coords={"new_point": np.arange(len(new_points))}))
+
+
+def interval_table(values: np.ndarray, prefix: str) -> dict[str, np.ndarray]:
+    """values: (samples, points) -> mean and quantiles per point."""
+    return {f"{prefix}_{k}": v for k, v in band(values).items()}
+
+
+@dataclass
+class CalibrationResult:
+    """Posterior of one calibration. ``idata`` is the ArviZ DataTree."""
+
+    idata: xr.DataTree
+    data: CalibrationData
+    method: str
+    backend: str
+    options: ModelOptions
+    program: FlatProgram
+    timing: dict[str, float]
+    # None until the sampler has been checked (a result is saved before that)
+    diagnostics: Diagnostics | None = None
+    modes: list[Mode] = field(default_factory=list)
+    emulator: dict[str, Any] = field(default_factory=dict)  # stage-1 results of modular
+    # L2 calibration (l2.py): theta is the projection of each zeta draw; empty otherwise
+    l2: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def estimator(self) -> str:
+        """What theta is: 'l2' (projection of the fit's zeta) or the fit's method."""
+        return "l2" if self.l2 else self.method
+
+    # ---- summaries -------------------------------------------------------
+    def summary(self) -> pd.DataFrame:
+        """theta and hyperparameters on the original scale. With several theta
+        modes, one block of rows per mode (column ``mode``, 1 = the heaviest,
+        or the highest density when the masses are unknown; column ``weight``,
+        its share of the posterior mass)."""
+        return summary_by_mode(self.idata["posterior"].to_dataset(), self.modes)
+
+    def theta_summary(self) -> dict[str, dict[str, float]]:
+        """theta's posterior summary. With several modes whose masses are
+        known, that of their mixture, each mode weighted by its mass (R-hat
+        is the worst within a mode, ESS the smallest)."""
+        return theta_summary(self.idata["posterior"].to_dataset(), self.modes, self.data.theta_names)
+
+    def theta_draws(self) -> pd.DataFrame:
+        theta = self.idata["posterior"]["theta"]
+        flat = np.asarray(theta).reshape(-1, theta.shape[-1])
+        return pd.DataFrame(flat, columns=self.data.theta_names)
+
+    # ---- prediction ------------------------------------------------------
+    def predict(self, new_points: pd.DataFrame | None = None, *, backend: str | None = None,
+                seed: int = 1) -> pd.DataFrame:
+        """zeta (the real process), f(x, theta) and delta at ``new_points``
+        (columns: simulator inputs and covariates), with 5/50/95 % quantiles,
+        plus ``y`` with measurement noise. Without ``new_points``, the points
+        stored with the fit. See stancal.fitting.predict."""
+        # imported here: rerunning Stan at new points is fitting's job, and a result holds data only
+        from stancal.fitting.predict import predict
+
+        return predict(self, new_points, backend=backend, seed=seed)
+
+    # ---- persistence -----------------------------------------------------
+    def _metadata(self) -> dict[str, Any]:
+        return {
+            "method": self.method, "backend": self.backend,
+            "options": asdict(self.options),
+            "program": {"code": self.program.code, "origin": self.program.origin},
+            "data": self.data.to_dict(),
+            "diagnostics": self.diagnostics and self.diagnostics.to_dict(), "modes": [m.__dict__ for m in self.modes],
+            "timing": self.timing, "emulator": self.emulator, "l2": self.l2,
+        }
+
+    def save(self, path: str | Path) -> Path:
+        """Write the DataTree and everything needed to reload it as netCDF."""
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tree = self.idata.copy()
+        tree.attrs["stancal"] = json.dumps(self._metadata())
+        tree.to_netcdf(path)
+        return path
+
+    @classmethod
+    def load(cls, path: str | Path) -> CalibrationResult:
+        tree = xr.open_datatree(path).load()
+        meta = json.loads(tree.attrs.pop("stancal"))
+        return cls(
+            idata=tree, data=CalibrationData.from_dict(meta["data"]), method=meta["method"],
+            backend=meta["backend"], options=ModelOptions(**meta["options"]),
+            program=FlatProgram(meta["program"]["code"],
+                                tuple(tuple(o) for o in meta["program"]["origin"])),
+            diagnostics=meta["diagnostics"] and Diagnostics(**meta["diagnostics"]),
+            modes=[Mode(**m) for m in meta["modes"]], timing=meta["timing"],
+            emulator=meta["emulator"], l2=meta.get("l2", {}),
+        )
+
+    def to_summary_json(self) -> dict[str, Any]:
+        d = self.diagnostics
+        return {
+            "method": self.estimator,
+            "backend": self.backend,
+            "options": asdict(self.options),
+            "theta": self.theta_summary(),
+            "modes": [m.to_dict() for m in self.modes],
+            "parameters": json.loads(self.summary().reset_index().to_json(orient="records")),
+            "diagnostics": d.summary(),
+            "timing": self.timing,
+            "emulator": {k: v for k, v in self.emulator.items() if k != "hyperparameters"},
+            **({"l2": self.l2} if self.l2 else {}),
+            "likelihood": self.data.observations.likelihood.name.lower(),
+            **({"censoring": self.data.observations.counts_by_kind()}
+               if self.data.observations.any_censored else {}),
+            **({"theta_functions": self.theta_functions()} if self.options.functional else {}),
+        }
+
+    def theta_functions(self) -> dict[str, dict]:
+        """Each functional theta on its grid: mean and 90 % band (original units)."""
+        group = self.idata["theta_functions"].to_dataset()
+        curves = np.asarray(group["theta_function"])
+        grid = pd.DataFrame({c: np.asarray(group[c]) for c in self.options.functional_inputs})
+        return theta_function_summary(curves.reshape(-1, *curves.shape[2:]), grid,
+                                      list(self.options.functional))

@@ -1,0 +1,2 @@
+"""Everything that touches Stan: the registry of programs, their source and
+includes, their data, and the backends that compile and sample them."""

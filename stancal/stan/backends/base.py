@@ -1,0 +1,134 @@
+"""The one interface between stancal and a Stan interface library."""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Protocol
+
+import numpy as np
+
+from stancal.stan.source import FlatProgram
+
+
+def cache_root() -> Path:
+    """Where every backend keeps what it builds: $STANCAL_CACHE, else
+    stancal's folder in the user cache ($XDG_CACHE_HOME, else ~/.cache)."""
+    if os.environ.get("STANCAL_CACHE"):
+        return Path(os.environ["STANCAL_CACHE"])
+    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "stancal"
+
+# Stan's sampler columns -> ArviZ sample_stats names
+SAMPLER_STATS = {
+    "lp__": "lp",
+    "accept_stat__": "acceptance_rate",
+    "stepsize__": "step_size",
+    "treedepth__": "tree_depth",
+    "n_leapfrog__": "n_steps",
+    "divergent__": "diverging",
+    "energy__": "energy",
+}
+
+Draws = dict[str, np.ndarray]
+"""Variable name -> array of shape (chain, draw, *variable shape)."""
+
+
+def fresh_prediction_normals(data: dict[str, Any], rng: np.random.Generator) -> dict[str, Any]:
+    """Data entries that give a program fresh standard normals for its draws
+    at the prediction points, for one parameter draw. A program opts in by
+    declaring ``P_normals`` and ``normals_new`` (P x (2 + F), F = 0 when the
+    program has no functional theta); see prediction_normals_rng in
+    functions/gp_conditional.stan. The Hilbert-space programs draw their
+    basis weights from ``B_normals`` and ``basis_normals`` (B, plus
+    modular_hsgp's emulator-error weights) likewise."""
+    out: dict[str, Any] = {}
+    if "P_normals" in data:
+        rows, columns = int(data["P"]), 2 + int(data.get("F", 0))
+        out.update(P_normals=rows, normals_new=rng.standard_normal((rows, columns)).tolist())
+    if "B_normals" in data:  # the Hilbert-space programs' basis weights (functions/hsgp.stan)
+        weights = int(data["B"]) + int(data.get("emulator_error_rank", 0))
+        out.update(B_normals=weights, basis_normals=rng.standard_normal(weights).tolist())
+    return out
+
+
+class StanRuntimeError(RuntimeError):
+    """Stan rejected the data or failed while sampling."""
+
+
+@dataclass
+class SampleOutput:
+    draws: Draws
+    sample_stats: Draws  # lp, diverging, tree_depth, n_steps, step_size, energy, ...
+    max_treedepth: int
+    compile_seconds: float
+    sample_seconds: float
+    messages: list[str] = field(default_factory=list)
+
+
+class StanBackend(Protocol):
+    name: str
+
+    def check(self, program: FlatProgram) -> None:
+        """Raise StanProgramError, with the user's file and line, if stanc rejects the program."""
+        ...
+
+    def compile(self, programs: list[FlatProgram]) -> None:
+        """Compile the programs that are not compiled yet (each once, however
+        often it is listed), in parallel over the machine's cores, so that the
+        fits after it start at once."""
+        ...
+
+    def sample(
+        self,
+        program: FlatProgram,
+        data: dict[str, Any],
+        *,
+        chains: int,
+        warmup: int,
+        draws: int,
+        seed: int,
+        inits: list[dict[str, Any]] | None,
+        adapt_delta: float,
+        max_treedepth: int,
+    ) -> SampleOutput: ...
+
+    def parameter_names(self, program: FlatProgram) -> list[str]:
+        """The names in the program's parameters block, read by stanc."""
+        ...
+
+    def generate_quantities(
+        self,
+        program: FlatProgram,
+        data: dict[str, Any],
+        parameters: Draws,
+        seed: int,
+    ) -> Draws:
+        """Rerun generated quantities for given parameter draws (chain, draw, ...),
+        with fresh random numbers for every draw, seeded by ``seed``."""
+        ...
+
+    def quantities_function(
+        self, program: FlatProgram, data: dict[str, Any], seed: int
+    ) -> Callable[[Draws], Draws]:
+        """generate_quantities with the program and data bound once, for many calls."""
+        ...
+
+    def posterior_mode(
+        self, program: FlatProgram, data: dict[str, Any], *, starts: int, seed: int
+    ) -> tuple[Draws, float]:
+        """The posterior's mode on the unconstrained scale (the log density with
+        its Jacobian, as lp__), the best of ``starts`` L-BFGS runs from Stan's
+        random inits: every variable of the program there (parameters,
+        transformed parameters, generated quantities) as one draw (1, 1, ...),
+        and its lp."""
+        ...
+
+    def log_density_functions(
+        self, program: FlatProgram, data: dict[str, Any]
+    ) -> tuple[Callable[[Draws], np.ndarray], Callable[[np.ndarray], np.ndarray]]:
+        """(unconstrain, log_density): parameter draws (chain, draw, ...) to
+        unconstrained vectors (chain, draw, d), and the log density with its
+        Jacobian (as the sampler's lp__) at unconstrained vectors (n, d)."""
+        ...

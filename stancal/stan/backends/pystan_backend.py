@@ -1,0 +1,273 @@
+"""PyStan 3 (httpstan): the embedded backend that needs only pip and g++."""
+
+from __future__ import annotations
+
+import contextlib
+import functools
+import json
+import logging
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from stancal.stan.backends.base import SAMPLER_STATS, Draws, SampleOutput, StanRuntimeError, fresh_prediction_normals
+from stancal.stan.backends.pystan_compile import compile_programs, held_output, is_compiled, stanc
+from stancal.stan.source import FlatProgram, StanProgramError
+
+logger = logging.getLogger("stancal")
+
+
+def _draw(parameters: Draws, chain: int, draw: int) -> dict[str, Any]:
+    """One parameter draw as the lists the services functions take."""
+    return {k: np.asarray(v[chain, draw]).tolist() for k, v in parameters.items()}
+
+
+def _by_chain(flat: np.ndarray, dims: list[int], chains: int) -> np.ndarray:
+    """PyStan's (*dims, draw * chains) with chain varying fastest -> (chain, draw, *dims)."""
+    draws = flat.shape[-1] // chains
+    return np.moveaxis(flat.reshape(*dims, draws, chains), [-1, -2], [0, 1])
+
+
+def _by_variable(flat: np.ndarray, model, leading: tuple[int, ...]) -> Draws:
+    """Rows of write_array's output (every variable, flattened column-major as
+    Stan does) -> variable name -> (*leading, *its shape)."""
+    out: Draws = {}
+    offset = 0
+    for name, shape in zip(model.param_names, model.dims, strict=False):
+        size = int(np.prod(shape))
+        block = flat[:, offset : offset + size].reshape(*leading, *reversed(shape))
+        n = len(leading)
+        out[name] = block.transpose(*range(n), *range(block.ndim - 1, n - 1, -1))  # the variable's axes in order
+        offset += size
+    return out
+
+
+def _interior_point(model) -> dict[str, Any]:
+    """0.1 for every variable: inside every constraint stancal's programs use,
+    the Hilbert-space programs' upper bounds on length scales (0.19 at the
+    least) among them (transform_inits reads the parameters and ignores the rest)."""
+    return {name: np.full(dims, 0.1).tolist() for name, dims in zip(model.param_names, model.dims, strict=False)}
+
+
+@contextlib.contextmanager
+def _sampling_output(model_name: str):
+    """PyStan's sampling output, tamed. In a terminal its progress bar stays;
+    otherwise (a log file, CI) its line per progress step and Stan's
+    informational messages are held back (shown if sampling fails), stancal
+    logs one line per fit instead. httpstan keeps every seeded fit's draws in
+    its cache, gigabytes over time, and would serve the same draws again for
+    the same seed and data: the fits made here are deleted once read."""
+    import httpstan.cache
+
+    fits = httpstan.cache.model_directory(model_name) / "fits"
+    before = set(fits.glob("*")) if fits.is_dir() else set()
+    try:
+        with contextlib.nullcontext() if sys.stderr.isatty() else held_output():
+            yield
+    finally:
+        for path in (set(fits.glob("*")) if fits.is_dir() else set()) - before:
+            path.unlink(missing_ok=True)
+
+
+@functools.cache
+def _program_info(code: str) -> dict[str, Any]:
+    """stanc's --info on a program: its variables by block."""
+    import httpstan
+
+    stanc = Path(httpstan.__file__).parent / "stanc"
+    with tempfile.TemporaryDirectory(prefix="stancal_") as folder:
+        path = Path(folder) / "program.stan"
+        path.write_text(code)
+        done = subprocess.run([str(stanc), "--info", str(path)], capture_output=True, text=True, timeout=60)
+    if done.returncode != 0:
+        raise StanProgramError(done.stderr.strip())
+    return json.loads(done.stdout)
+
+
+class PyStanBackend:
+    name = "pystan"
+
+    def _build(self, program: FlatProgram, data: dict[str, Any], seed: int):
+        import stan
+
+        # compiled here rather than by stan.build, whose HTTP request to httpstan
+        # times out after 5 minutes: a compile can take longer on a busy 2-core machine
+        self.compile([program])
+        try:
+            with held_output():
+                return stan.build(program.code, data=data, random_seed=seed)
+        except ValueError as err:  # stanc errors and data errors arrive as ValueError
+            raise StanProgramError(program.explain(str(err))) from None
+        except RuntimeError as err:
+            raise StanRuntimeError(program.explain(str(err))) from None
+
+    def compile(self, programs: list[FlatProgram]) -> None:
+        for program in {p.code: p for p in programs if not is_compiled(p.code)}.values():
+            self.check(program, show_warnings=True)  # stanc's errors first, with the user's lines
+        compile_programs(programs)
+
+    @staticmethod
+    def check(program: FlatProgram, show_warnings: bool = False) -> None:
+        """Run stanc alone (no C++, a fraction of a second). PyStan's build
+        error keeps only 'Semantic error'; stanc gives the whole message.
+        ``show_warnings``: log stanc's warnings, with the user's file and line."""
+        try:
+            _, warnings = stanc(program.code, "stancal_check")
+        except ValueError as err:
+            raise StanProgramError(program.explain(str(err))) from None
+        if show_warnings:
+            for warning in program.users_warnings(warnings):
+                logger.warning("stanc: %s", warning)
+
+    def parameter_names(self, program: FlatProgram) -> list[str]:
+        return list(_program_info(program.code)["parameters"])
+
+    def sample(
+        self,
+        program: FlatProgram,
+        data: dict[str, Any],
+        *,
+        chains: int,
+        warmup: int,
+        draws: int,
+        seed: int,
+        inits: list[dict[str, Any]] | None,
+        adapt_delta: float,
+        max_treedepth: int,
+    ) -> SampleOutput:
+        started = time.perf_counter()
+        model = self._build(program, data, seed)
+        compiled = time.perf_counter()
+        kwargs: dict[str, Any] = {
+            "num_chains": chains, "num_warmup": warmup, "num_samples": draws,
+            "delta": adapt_delta, "max_depth": max_treedepth,
+        }
+        if inits is not None:
+            kwargs["init"] = inits
+        try:
+            with _sampling_output(model.model_name):
+                fit = model.sample(**kwargs)
+        except RuntimeError as err:
+            raise StanRuntimeError(self._explain_failure(model, program, inits, err)) from None
+        finished = time.perf_counter()
+        logger.info("sampled in %.0f s", finished - compiled)
+        names = list(fit.param_names)
+        draws_out = {
+            n: _by_chain(np.asarray(fit[n]), list(fit.dims[i]), chains)
+            for i, n in enumerate(names)
+        }
+        stats = {
+            out: _by_chain(np.asarray(fit[stan_name]).reshape(-1), [], chains)
+            for stan_name, out in SAMPLER_STATS.items()
+            if stan_name in fit.sample_and_sampler_param_names
+        }
+        return SampleOutput(
+            draws=draws_out,
+            sample_stats=stats,
+            max_treedepth=max_treedepth,
+            compile_seconds=compiled - started,
+            sample_seconds=finished - compiled,
+        )
+
+    @staticmethod
+    def _explain_failure(model, program: FlatProgram, inits, err: RuntimeError) -> str:
+        """httpstan 4.17 can lose Stan's message while reporting a failed run;
+        evaluating the log density at the first init usually recovers it."""
+        message = str(err)
+        if inits:
+            point = _interior_point(model)  # for the variables the init leaves to Stan
+            point.update(inits[0])
+            try:
+                model.log_prob(model.unconstrain_pars(point))
+            except Exception as inner:  # the recovered Stan message
+                message = f"{inner}"
+        return program.explain(f"Stan failed while sampling: {message.strip()}")
+
+    def generate_quantities(
+        self, program: FlatProgram, data: dict[str, Any], parameters: Draws, seed: int
+    ) -> Draws:
+        return self.quantities_function(program, data, seed)(parameters)
+
+    def quantities_function(self, program: FlatProgram, data: dict[str, Any],
+                            seed: int) -> Callable[[Draws], Draws]:
+        """Build once, then run generated quantities for any parameter draws
+        (chain, draw, ...) in this process: PyStan's constrain_pars makes two
+        HTTP round trips per draw. httpstan seeds the RNG of every call with 0,
+        so the draws at the prediction points take their standard normals from
+        the data, fresh for every parameter draw (fresh_prediction_normals)."""
+        import httpstan.models
+
+        model = self._build(program, data, seed)
+        services = httpstan.models.import_services_extension_module(model.model_name)
+        rng = np.random.default_rng(seed)
+
+        def run(parameters: Draws) -> Draws:
+            chains, draws = next(iter(parameters.values())).shape[:2]
+            flat_rows = []
+            try:
+                for c in range(chains):
+                    for d in range(draws):
+                        unconstrained = services.transform_inits(model.data, _draw(parameters, c, d))
+                        draw_data = {**model.data, **fresh_prediction_normals(model.data, rng)}
+                        flat_rows.append(services.write_array(draw_data, unconstrained, True, True))
+            except RuntimeError as err:
+                raise StanRuntimeError(program.explain(f"Stan failed in generated quantities: {err}")) from None
+            values = _by_variable(np.asarray(flat_rows, dtype=float), model, (chains, draws))
+            return {name: v for name, v in values.items() if name not in parameters}
+
+        return run
+
+    def posterior_mode(self, program: FlatProgram, data: dict[str, Any], *, starts: int,
+                       seed: int) -> tuple[Draws, float]:
+        import httpstan.models
+        from scipy.optimize import minimize
+
+        model = self._build(program, data, seed)
+        services = httpstan.models.import_services_extension_module(model.model_name)
+        dimension = len(services.transform_inits(model.data, _interior_point(model)))
+
+        def negative_log_density(point: np.ndarray) -> tuple[float, np.ndarray]:
+            try:
+                lp = services.log_prob(model.data, point.tolist(), True)
+                gradient = services.log_prob_grad(model.data, point.tolist(), True)
+            except RuntimeError:  # outside the support: L-BFGS's line search backs off
+                return np.inf, np.zeros(dimension)
+            return -lp, -np.asarray(gradient)
+
+        rng = np.random.default_rng(seed)
+        runs = [minimize(negative_log_density, rng.uniform(-2, 2, dimension), jac=True, method="L-BFGS-B")
+                for _ in range(starts)]  # Stan's default inits: uniform(-2, 2) unconstrained
+        best = min(runs, key=lambda run: run.fun)
+        if not np.isfinite(best.fun):
+            raise StanRuntimeError(program.explain(
+                f"no finite log density found from {starts} starting points: {best.message}"))
+        at_mode = services.write_array(model.data, best.x.tolist(), True, True)
+        return _by_variable(np.asarray([at_mode], dtype=float), model, (1, 1)), -float(best.fun)
+
+    def log_density_functions(self, program: FlatProgram, data: dict[str, Any]):
+        import httpstan.models
+
+        model = self._build(program, data, seed=1)
+        services = httpstan.models.import_services_extension_module(model.model_name)
+
+        def unconstrain(parameters: Draws) -> np.ndarray:
+            chains, draws = next(iter(parameters.values())).shape[:2]
+            return np.asarray([[services.transform_inits(model.data, _draw(parameters, c, d))
+                                for d in range(draws)] for c in range(chains)], dtype=float)
+
+        def log_density(points: np.ndarray) -> np.ndarray:
+            out = np.empty(len(points))
+            for i, point in enumerate(points):
+                try:
+                    out[i] = services.log_prob(model.data, point.tolist(), True)
+                except RuntimeError:  # outside the support, or the simulator rejected it
+                    out[i] = -np.inf
+            return out
+
+        return unconstrain, log_density

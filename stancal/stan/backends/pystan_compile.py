@@ -1,0 +1,259 @@
+"""Compiling Stan programs for PyStan: once per machine, several at a time.
+
+httpstan keys its cache by the program *and* the Python executable, so every
+new virtual environment (every fresh clone) would compile every program
+again, with g++'s debug information (``-g`` from Python's CFLAGS), which
+costs a third of the time and most of the 90 MB of each module. stancal
+builds the extension module itself, as httpstan.models.build_services_extension_module
+does but without debug information, keeps a copy in a store shared by all
+environments of this machine (keyed by program, httpstan and Python
+version), and installs it into httpstan's cache on demand.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import fcntl
+import hashlib
+import io
+import logging
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from concurrent.futures import ThreadPoolExecutor
+from importlib.machinery import EXTENSION_SUFFIXES
+from pathlib import Path
+
+from stancal.stan.backends.base import StanRuntimeError, cache_root
+from stancal.stan.source import FlatProgram
+
+logger = logging.getLogger("stancal")
+
+# httpstan's own flags, and -g0: Python's CFLAGS add -g, which slows g++ by half
+COMPILE_ARGS = ("-O3", "-std=c++17", "-Wno-sign-compare", "-g0")
+STAN_MACROS = (
+    ("BOOST_DISABLE_ASSERTS", None), ("BOOST_PHOENIX_NO_VARIADIC_EXPRESSION", None),
+    ("STAN_THREADS", None), ("_REENTRANT", None), ("_GLIBCXX_USE_CXX11_ABI", "0"),
+)
+
+
+# httpstan.compile.compile gives stanc one second, which a busy machine exceeds
+# (a stanc of koh_latent.stan took longer while two compiles ran beside it)
+STANC_TIMEOUT_S = 300
+
+
+def stanc_binary() -> Path:
+    """The stanc that ships with httpstan (the Stan version PyStan runs)."""
+    import httpstan
+
+    return Path(httpstan.__file__).parent / "stanc"
+
+
+def stanc(code: str, name: str) -> tuple[str, str]:
+    """httpstan's stanc on ``code``: (C++ code, warnings), as
+    httpstan.compile.compile gives them, with a timeout a loaded machine meets.
+    Raises ValueError with stanc's message for a program with an error."""
+    with tempfile.TemporaryDirectory(prefix="stancal_stanc_") as folder:
+        path = Path(folder) / f"{name}.stan"
+        path.write_text(code)
+        done = subprocess.run([stanc_binary(), "--name", name, "--warn-pedantic", "--print-cpp", str(path)],
+                              capture_output=True, timeout=STANC_TIMEOUT_S)
+    stderr = done.stderr.decode().strip()
+    if done.returncode != 0:
+        raise ValueError(stderr)
+    return done.stdout.decode().strip(), stderr
+
+
+def store_directory() -> Path:
+    """The machine's store of compiled modules ($STANCAL_CACHE, else the user cache)."""
+    import httpstan
+
+    tag = f"httpstan-{httpstan.__version__}-py{sys.version_info[0]}{sys.version_info[1]}"
+    return cache_root() / "pystan" / tag
+
+
+def stored_module(code: str) -> Path:
+    key = hashlib.sha256("\0".join([code, *COMPILE_ARGS]).encode()).hexdigest()[:24]
+    return store_directory() / f"{key}{EXTENSION_SUFFIXES[0]}"
+
+
+def model_name(code: str) -> str:
+    import httpstan.models
+
+    return httpstan.models.calculate_model_name(code)
+
+
+def is_compiled(code: str) -> bool:
+    """httpstan's cache holds the program's module (so stan.build will not compile)."""
+    import httpstan.cache
+
+    try:
+        folder = httpstan.cache.model_directory(model_name(code))
+        return any(p.suffix in EXTENSION_SUFFIXES for p in folder.iterdir())
+    except OSError:
+        return False
+
+
+def _shared_libraries() -> Path:
+    """httpstan's shared libraries (TBB), copied into the store, so that a
+    stored module still loads after the environment that built it is gone."""
+    import httpstan
+
+    target = store_directory() / "lib"
+    if not target.is_dir():
+        staging = Path(tempfile.mkdtemp(dir=store_directory()))
+        for library in (Path(httpstan.__file__).parent / "lib").glob("*.so*"):
+            shutil.copy2(library, staging)
+        with contextlib.suppress(OSError):  # another process got there first
+            staging.rename(target)
+        shutil.rmtree(staging, ignore_errors=True)
+    return target
+
+
+def _build_module(code: str, folder: Path) -> Path:
+    """Build the program's extension module into ``folder`` (a setuptools
+    build, as httpstan does) and return its path."""
+    import httpstan
+    import httpstan.build_ext
+    import setuptools
+
+    package = Path(httpstan.__file__).parent
+    stan_name = f"model_{model_name(code).split('/')[1]}"
+    cpp, _ = stanc(code, stan_name)
+    source = folder / f"{stan_name}.cpp"
+    source.write_text(cpp)
+    libraries = ["sundials_cvodes", "sundials_idas", "sundials_nvecserial", "tbb"]
+    if sys.platform == "darwin":  # pragma: no cover
+        libraries += ["tbbmalloc", "tbbmalloc_proxy"]
+    extension = setuptools.Extension(
+        f"stan_services_{stan_name}", language="c++", sources=[str(source)],
+        define_macros=list(STAN_MACROS), include_dirs=[str(folder), str(package / "include")],
+        library_dirs=[str(package / "lib")], libraries=libraries, extra_compile_args=list(COMPILE_ARGS),
+        extra_link_args=[f"-Wl,-rpath,{_shared_libraries()}", f"-Wl,-rpath,{package / 'lib'}"],
+        extra_objects=[str(package / "stan_services.o")],
+    )
+    httpstan.build_ext.run_build_ext([extension], str(folder))
+    return next(p for p in folder.iterdir() if p.suffix in EXTENSION_SUFFIXES and p.name.startswith("stan_services"))
+
+
+def _install(code: str, module: Path) -> None:
+    """Put a built module where httpstan looks for the program. stanc's
+    warnings are left out: stancal shows them itself, with the user's file
+    and line (PyStanBackend.check), and holds back what stan.build prints."""
+    import httpstan.cache
+
+    name = model_name(code)
+    httpstan.cache.delete_model_directory(name)
+    folder = httpstan.cache.model_directory(name)
+    folder.mkdir(parents=True)
+    httpstan.cache.dump_stanc_warnings("", name)
+    httpstan.cache.dump_services_extension_module_compiler_output("", name)
+    target = folder / f"stan_services_model_{name.split('/')[1]}{EXTENSION_SUFFIXES[0]}"
+    try:
+        os.link(module, target)  # one copy on disk; either name may be deleted
+    except OSError:  # another file system
+        shutil.copy2(module, target)
+
+
+def build_into_store(code: str) -> Path:
+    """The program's module in the machine's store, built if no process of
+    this machine built it before. Processes that ask at once (Dask workers,
+    two commands) take a lock per program: one builds, the others wait and
+    find it built."""
+    stored = stored_module(code)
+    if stored.is_file():
+        return stored
+    stored.parent.mkdir(parents=True, exist_ok=True)
+    with open(stored.parent / f"{stored.name.split('.')[0]}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes
+        if not stored.is_file():
+            logger.info("building %s", stored.name)
+            with tempfile.TemporaryDirectory(dir=stored.parent) as folder:
+                built = _build_module(code, Path(folder))
+                os.replace(built, stored)  # atomic: a reader without the lock sees all or nothing
+    return stored
+
+
+def use_private_httpstan_cache(folder: Path) -> None:
+    """Give this process's httpstan a cache of its own. Processes that share
+    one race: each deletes the fits that appeared while it sampled
+    (_sampling_output), which may be another process's fit not read yet
+    ("Fit ... not found"). Modules still come from the machine's store, by
+    hard link, so nothing is compiled again."""
+    import httpstan.cache
+
+    folder.mkdir(parents=True, exist_ok=True)
+    httpstan.cache.cache_directory = lambda: folder  # httpstan looks it up at every use
+
+
+def release_private_httpstan_cache(folder: Path) -> None:
+    """Undo use_private_httpstan_cache when a process (a Dask worker) stops:
+    its sampling processes would otherwise hold the exit back."""
+    import httpstan.services_stub
+
+    httpstan.services_stub.executor.shutdown(wait=False, cancel_futures=True)
+    shutil.rmtree(folder, ignore_errors=True)
+
+
+@contextlib.contextmanager
+def held_output():
+    """Hold back what a build or a run prints: PyStan's stanc warnings about the flat
+    program (print) and g++'s pages of warnings (a subprocess writing to file
+    descriptors 1 and 2). Shown only if it fails."""
+    with tempfile.TemporaryFile(mode="w+b") as held, \
+            contextlib.redirect_stdout(io.StringIO()) as printed, contextlib.redirect_stderr(printed):
+        saved = [os.dup(1), os.dup(2)]
+        try:
+            for fd in (1, 2):
+                os.dup2(held.fileno(), fd)
+            yield
+        except Exception:
+            for fd, copy in zip((1, 2), saved, strict=False):
+                os.dup2(copy, fd)
+            held.seek(0)
+            tail = (printed.getvalue() + held.read().decode(errors="replace")).strip().splitlines()[-20:]
+            if tail:
+                logger.warning("before failing, it printed:\n%s", "\n".join(tail))
+            raise
+        finally:
+            for fd, copy in zip((1, 2), saved, strict=False):
+                os.dup2(copy, fd)
+                os.close(copy)
+
+
+def _compile_in_subprocess(program: FlatProgram) -> None:
+    """One build into the store in its own Python process (its g++ output held back), so
+    that several run side by side; a subprocess rather than multiprocessing,
+    which would re-import the user's script in every worker."""
+    script = ("import sys; from stancal.stan.backends.pystan_compile import build_into_store; "
+              "build_into_store(sys.stdin.read())")
+    done = subprocess.run([sys.executable, "-c", script], input=program.code, capture_output=True, text=True)
+    if done.returncode != 0:
+        tail = "\n".join((done.stdout + done.stderr).strip().splitlines()[-20:])
+        raise StanRuntimeError(f"compiling {program.origin[0][0] if program.origin else 'the program'} "
+                               f"failed:\n{tail}")
+
+
+def compile_programs(programs: list[FlatProgram]) -> None:
+    """Compile (or fetch from the store) the programs httpstan lacks, one per core at a time."""
+    todo = {p.code: p for p in programs if not is_compiled(p.code)}
+    if not todo:
+        return
+    building = [p for p in todo.values() if not stored_module(p.code).is_file()]
+    workers = max(1, min(len(building), os.cpu_count() or 1))
+    if building:
+        logger.warning("Compiling %d Stan program%s with PyStan, %d at a time (%s); each takes two to "
+                       "four minutes on a 2-core machine, once per machine.",
+                       len(building), "s" if len(building) > 1 else "", workers,
+                       ", ".join(Path(p.origin[0][0]).name if p.origin else "?" for p in building))
+    started = time.perf_counter()
+    with ThreadPoolExecutor(max_workers=workers) as pool:  # each thread waits on one subprocess
+        list(pool.map(_compile_in_subprocess, building))
+    for code in todo:  # into this process's httpstan cache, which may be private to it
+        _install(code, stored_module(code))
+    if building:
+        logger.info("compiled %d program%s in %.0f s", len(building), "s" if len(building) > 1 else "",
+                    time.perf_counter() - started)

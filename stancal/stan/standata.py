@@ -1,0 +1,282 @@
+"""Stan data for each program, built from a CalibrationData."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from stancal.numerics.hsgp import HALF_RANGE, HSGPBasis, first_basis
+from stancal.numerics.quadrature import input_box_quadrature
+from stancal.numerics.scalable_emulator import ScalableEmulator
+from stancal.problem.data import CalibrationData
+from stancal.problem.functional import functional_grid
+from stancal.problem.mean_terms import MeanTerms, build_mean_terms
+from stancal.problem.options import DISCREPANCIES, ModelOptions
+
+EMULATOR_HYPERPARAMETERS = ("emulator_mean", "emulator_sd", "emulator_length_scale", "emulator_nugget")
+
+
+# more physical points than this: the default prediction points are a subsample,
+# since every prediction point adds three values to every stored draw
+MAX_DEFAULT_PREDICTION_POINTS = 500
+
+
+def default_new_points(data: CalibrationData, size: int = 60) -> pd.DataFrame:
+    """A grid over the one input when there is one; otherwise the physical
+    points (every column, so that formulas over them can be evaluated), a
+    fixed random subsample of them when there are many."""
+    if len(data.discrepancy_inputs) == 1:
+        values = data.physical[data.inputs[0]]
+        return pd.DataFrame({data.inputs[0]: np.linspace(values.min(), values.max(), size)})
+    points = data.source.reset_index(drop=True)
+    if len(points) > MAX_DEFAULT_PREDICTION_POINTS:
+        chosen = np.random.default_rng(0).choice(len(points), MAX_DEFAULT_PREDICTION_POINTS, replace=False)
+        points = points.iloc[np.sort(chosen)].reset_index(drop=True)
+    return points
+
+
+def mean_terms_of(data: CalibrationData, options: ModelOptions) -> MeanTerms | None:
+    if options.mean_formula is None and not options.mean_intercept:
+        return None
+    return build_mean_terms(options.mean_formula, data.source, intercept=options.mean_intercept)
+
+
+@dataclass(frozen=True)
+class StanInputs:
+    """What every part of a program's Stan data is built from."""
+
+    data: CalibrationData
+    options: ModelOptions
+    raw_points: pd.DataFrame  # prediction points as given (formulas read any column)
+    points: pd.DataFrame  # the same, validated, categorical covariates one-hot
+    emulator: dict[str, Any] | None  # stage 1's hyperparameters, where the program has a stage 1
+
+
+def build_stan_data(
+    data: CalibrationData,
+    parts: tuple[Callable[[StanInputs], dict[str, Any]], ...],
+    options: ModelOptions,
+    new_points: pd.DataFrame,
+    prior_only: bool = False,
+    emulator_hyperparameters: dict[str, Any] | None = None,
+) -> dict[str, Any]:
+    """A program's Stan data: the registry row's ``parts``, merged in order."""
+    inputs = StanInputs(data, options, new_points, data.check_new_points(new_points), emulator_hyperparameters)
+    out: dict[str, Any] = {}
+    for part in parts:
+        out.update(part(inputs))
+    out["prior_only"] = int(prior_only)
+    return out
+
+
+def common_data(inputs: StanInputs) -> dict[str, Any]:
+    """What every scalar program takes: sizes, the discrepancy's inputs,
+    scaling, mean terms, theta's bounds and the model switches."""
+    data, options, s = inputs.data, inputs.options, inputs.data.scaling
+    terms = mean_terms_of(data, options)
+    h_new = terms.at(inputs.raw_points) if terms else np.zeros((len(inputs.points), 0))
+    return {
+        "N": len(data.physical),
+        "D": len(data.inputs),
+        "D_delta": len(data.discrepancy_inputs),
+        "Q": len(data.parameters),
+        "x_delta": s.to_unit(data.physical, data.discrepancy_inputs),
+        "y_center": s.y_center,
+        "y_scale": s.y_scale,
+        "H": h_new.shape[1],
+        "h": terms.h if terms else np.zeros((len(data.physical), 0)),
+        "beta_prior_sd": terms.prior_sd if terms else np.zeros(0),
+        "h_new": h_new,
+        "theta_lower": data.theta_lower,
+        "theta_upper": data.theta_upper,
+        "use_discrepancy": int(options.has_discrepancy),
+        "kernel_id": options.kernel_id,
+        "estimate_rho": int(options.estimate_rho),
+        "P": len(inputs.points),
+        "x_delta_new": s.to_unit(inputs.points, data.discrepancy_inputs),
+        # Stan's RNG draws at the prediction points; the PyStan backend gives
+        # normals per draw when it reruns generated quantities (backends.base)
+        "P_normals": 0,
+        "normals_new": np.zeros((0, 2 + len(options.functional))),
+    }
+
+
+def gaussian_outputs(inputs: StanInputs) -> dict[str, Any]:
+    """The standardised outputs of the Gaussian programs."""
+    data = inputs.data
+    return {"y": data.scaling.standardise(data.physical[data.output].to_numpy())}
+
+
+def latent_outputs(inputs: StanInputs) -> dict[str, Any]:
+    """The observation model and functional theta of koh_latent*.stan."""
+    return latent_data(inputs.data, inputs.options, inputs.points, inputs.data.trials_at(inputs.raw_points))
+
+
+def simulator_points(inputs: StanInputs) -> dict[str, Any]:
+    """The raw inputs where a program's Stan simulator runs."""
+    data = inputs.data
+    return {"X": data.physical[data.inputs].to_numpy(), "X_new": inputs.points[data.inputs].to_numpy()}
+
+
+def hsgp_discrepancy(inputs: StanInputs) -> dict[str, Any]:
+    """The Hilbert-space discrepancy's basis (hsgp.stan)."""
+    x_delta_new = inputs.data.scaling.to_unit(inputs.points, inputs.data.discrepancy_inputs)
+    return hsgp_data(inputs.data, inputs.options, x_delta_new)
+
+
+def restricted_discrepancy(inputs: StanInputs) -> dict[str, Any]:
+    """koh.stan's orthogonal and scaled GPs (restricted_gp.stan)."""
+    return restricted_gp_data(inputs.data, inputs.options)
+
+
+def emulator_inputs(inputs: StanInputs) -> dict[str, Any]:
+    """The runs and the unit-scaled points of the GP-emulator programs."""
+    data = inputs.data
+    return {**emulator_run_data(data), "x": data.scaling.to_unit(data.physical, data.inputs),
+            "x_new": data.scaling.to_unit(inputs.points, data.inputs)}
+
+
+def fixed_emulator(inputs: StanInputs) -> dict[str, Any]:
+    """Stage 1's hyperparameters, fixed in the modular programs."""
+    if inputs.emulator is None:
+        raise ValueError("this program needs the stage-1 emulator's hyperparameters")
+    return {name: inputs.emulator[name] for name in EMULATOR_HYPERPARAMETERS}
+
+
+def scalable_emulator(inputs: StanInputs) -> dict[str, Any]:
+    """modular_hsgp.stan's precomputed-weight emulator."""
+    if inputs.emulator is None:
+        raise ValueError("this program needs the stage-1 emulator")
+    return scalable_emulator_data(inputs.data, inputs.emulator, inputs.points)
+
+
+def latent_data(data: CalibrationData, options: ModelOptions, new_points: pd.DataFrame,
+                trials_new: np.ndarray) -> dict[str, Any]:
+    """The observation model and functional theta of koh_latent*.stan."""
+    obs = data.observations
+    observed = obs.observed & obs.is_gaussian
+    grid = functional_grid(data, options.functional_inputs)
+    slots = [options.functional.index(name) + 1 if name in options.functional else 0
+             for name in data.theta_names]
+    fun_inputs = list(options.functional_inputs)
+    # theta(x) is a latent GP over the distinct values only: replicates share them
+    distinct, fun_point = np.unique(data.scaling.to_unit(data.physical, fun_inputs), axis=0,
+                                    return_inverse=True)
+    return {
+        "likelihood_id": int(obs.likelihood),
+        "y_real": np.where(observed, data.scaling.standardise(np.nan_to_num(obs.value)), 0.0),
+        "y_int": np.where(obs.is_gaussian, 0, np.nan_to_num(obs.value)).astype(int),
+        "trials": obs.trials,
+        "censoring": obs.censoring,
+        # infinite bounds are never read (the censoring code says which side is used)
+        "lower_bound": np.nan_to_num(data.scaling.standardise(obs.lower), posinf=0.0, neginf=0.0),
+        "upper_bound": np.nan_to_num(data.scaling.standardise(obs.upper), posinf=0.0, neginf=0.0),
+        "F": len(options.functional),
+        "functional_slot": slots,
+        "D_fun": len(fun_inputs),
+        "N_fun": len(distinct) if fun_inputs else 0,
+        "x_fun": distinct if fun_inputs else np.zeros((0, 0)),
+        "fun_point": (fun_point.ravel() + 1) if fun_inputs else np.zeros(0, dtype=int),
+        "functional_centred": int(options.functional_parametrization == "centred"),
+        "G": len(grid),
+        "x_fun_grid": data.scaling.to_unit(grid, fun_inputs).reshape(len(grid), len(fun_inputs)),
+        "x_fun_new": data.scaling.to_unit(new_points, fun_inputs),
+        "trials_new": trials_new,
+    }
+
+
+def hsgp_data(data: CalibrationData, options: ModelOptions, x_delta_new: np.ndarray) -> dict[str, Any]:
+    """The Hilbert-space discrepancy's basis (hsgp.stan); prediction points
+    must lie inside its boundary, where the basis functions are defined."""
+    inputs = data.discrepancy_inputs
+    basis = (HSGPBasis(options.basis_functions, options.boundary_factor) if options.basis_functions
+             else first_basis(options.kernel, inputs))
+    if len(basis.counts) != len(inputs):
+        raise ValueError(f"basis_functions and boundary_factor need one value per discrepancy input "
+                         f"({', '.join(inputs)}); got {len(basis.counts)}")
+    outside = np.abs(x_delta_new - HALF_RANGE) >= basis.boundary
+    if outside.any():
+        row, column = np.argwhere(outside)[0]
+        raise ValueError(f"prediction point {row} lies outside the Hilbert-space discrepancy's boundary "
+                         f"in '{inputs[column]}' ({outside.any(axis=1).sum()} points do): the basis "
+                         f"covers {basis.boundary_factors[column]:.2f} half-ranges about the centre of "
+                         f"the data; raise boundary_factor for it, or predict closer to the data")
+    # Stan's RNG draws the basis weights; the PyStan backend gives normals per draw (backends.base)
+    return {**basis.stan_data(), "B_normals": 0, "basis_normals": np.zeros(0),
+            "longest_length_scale": basis.longest_length_scale(options.kernel)[:len(data.inputs)]}
+
+
+def scalable_emulator_data(data: CalibrationData, emulator: dict[str, Any],
+                           new_points: pd.DataFrame) -> dict[str, Any]:
+    """modular_hsgp.stan's emulator: the mean's weights at the physical and
+    the prediction points, and its error's covariance at the physical points
+    at emulator["variance_theta"]: leading eigenvectors as basis columns, the
+    rest as one variance (none before theta is known)."""
+    assert data.runs is not None
+    s = data.scaling
+    state = scalable_emulator_of(data, emulator)
+    x = s.to_unit(data.physical, data.inputs)
+    theta = emulator.get("variance_theta")
+    # results saved before the error basis existed kept no threshold: their fits had none
+    error = None if theta is None else state.error_basis(x, np.asarray(theta),
+                                                          emulator.get("error_threshold", np.inf))
+    columns = np.zeros((len(x), 0)) if error is None else error.columns
+    return {
+        "emulator_mean": state.hyperparameters.mean,
+        "theta_degree": list(state.interpolant.degrees),
+        "G": int(np.prod([p + 1 for p in state.interpolant.degrees])),
+        "emulator_weights": state.mean_weights(x),
+        "emulator_weights_new": state.mean_weights(s.to_unit(new_points, data.inputs)),
+        "emulator_error_rank": columns.shape[1],
+        "emulator_error_basis": columns,
+        # the marginal likelihood takes one independent variance; its spread is checked
+        "emulator_variance": 0.0 if error is None else float(error.residual_variance.mean()),
+    }
+
+
+def scalable_emulator_of(data: CalibrationData, stored: dict[str, Any]) -> ScalableEmulator:
+    """The stage-1 emulator of modular_hsgp that ``stored`` describes, on the data's runs."""
+    runs = emulator_run_data(data)
+    return ScalableEmulator.of(runs["x_sim"], runs["theta_sim"], runs["y_sim"], stored)
+
+
+def restricted_gp_data(data: CalibrationData, options: ModelOptions) -> dict[str, Any]:
+    """koh.stan's data for the orthogonal and scaled GPs (restricted_gp.stan)."""
+    n_inputs = len(data.inputs)
+    out: dict[str, Any] = {
+        "discrepancy_form": DISCREPANCIES[options.discrepancy], "R": 0, "X_quad": np.zeros((0, n_inputs)),
+        "x_quad": np.zeros((0, len(data.discrepancy_inputs))), "w_quad": np.zeros(0),
+        "scaled_lambda": options.scaled_lambda or float(np.sqrt(len(data.physical)))}
+    if options.discrepancy == "orthogonal":
+        quadrature = input_box_quadrature(data)
+        out.update(R=len(quadrature.weights), X_quad=quadrature.nodes.to_numpy(),
+                   x_quad=data.scaling.to_unit(quadrature.nodes, data.discrepancy_inputs),
+                   w_quad=quadrature.weights)
+    return out
+
+
+def emulator_run_data(data: CalibrationData) -> dict[str, Any]:
+    """The runs as the emulator programs take them (emulator.stan's data)."""
+    assert data.runs is not None
+    s = data.scaling
+    return {
+        "M": len(data.runs),
+        "x_sim": s.to_unit(data.runs, data.inputs),
+        "theta_sim": s.to_unit(data.runs, data.theta_names),
+        "y_sim": data.scaling.standardise(data.runs_on_link_scale()),
+    }
+
+
+def build_emulator_data(data: CalibrationData, options: ModelOptions) -> dict[str, Any]:
+    """Data of emulator.stan (stage 1 of modular calibration)."""
+    return {**emulator_run_data(data), "D": len(data.inputs), "Q": len(data.parameters),
+            "y_scale": data.scaling.y_scale, "kernel_id": options.kernel_id, "prior_only": 0}
+
+
+def to_stan_json(stan_data: dict[str, Any]) -> dict[str, Any]:
+    """Plain lists, for PyStan and for storing with a result."""
+    return {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in stan_data.items()}
