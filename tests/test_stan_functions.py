@@ -8,7 +8,7 @@ from scipy import stats
 
 from stancal.stan.backends.pystan_compile import compile_programs
 from stancal.numerics.kernels import ard_cross_cov
-from stancal.stan.registry import Kernel
+from stancal.problem.codes import Kernel
 from stancal.stan.source import flatten
 
 HARNESS = Path(__file__).parent / "stan" / "function_harness.stan"
@@ -322,7 +322,7 @@ def test_hsgp(gq):
 
 
 def test_hsgp_mirrors_python():
-    from stancal import hsgp
+    from stancal.numerics import hsgp
 
     np.testing.assert_allclose(hsgp.basis(X1, HS_INDEX, HS_BOUNDARY), hs_basis(X1), rtol=1e-12)
 
@@ -334,7 +334,7 @@ def test_chebyshev_tensor_basis(gq):
     t2 = [chebyshev.chebval(2 * 0.8 - 1, np.eye(2)[k]) for k in range(2)]
     expected = np.kron(t1, t2)  # the first parameter's index varies slowest
     np.testing.assert_allclose(gq["chebyshev"], expected, rtol=1e-12, atol=1e-15)
-    from stancal.scalable_emulator import chebyshev_basis
+    from stancal.numerics.scalable_emulator import chebyshev_basis
 
     np.testing.assert_allclose(chebyshev_basis(np.array([[0.3, 0.8]]), (2, 1))[0], expected, rtol=1e-12, atol=1e-15)
 

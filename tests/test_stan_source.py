@@ -52,8 +52,8 @@ def test_circular_include(tmp_path):
 # Every integer code the Python side passes to Stan: its data name, the
 # Python codes, and the name the data line's comment gives each code.
 def integer_codes():
-    from stancal.models import DISCREPANCIES, Censoring, Kernel, Likelihood
-    from stancal.vector_calibrate import NOISE_MODES
+    from stancal.problem.codes import NOISE_MODES, Censoring, Kernel, Likelihood
+    from stancal.problem.options import DISCREPANCIES
 
     discrepancy_forms = {code: name for name, code in DISCREPANCIES.items() if name != "none"}
     return {
