@@ -31,10 +31,10 @@ parameters {
   real<lower=0> emulator_nugget;
 }
 model {
-  emulator_mean ~ normal(0, 1);
-  emulator_sd ~ normal(0, 1);
-  emulator_length_scale ~ emulator_length_scale();
-  emulator_nugget ~ normal(0, 0.05);
+  emulator_mean ~ emulator_mean();                   // normal(0, 1)
+  emulator_sd ~ emulator_sd();                       // half-normal(0, 1)
+  emulator_length_scale ~ emulator_length_scale();   // inverse gamma(2, 1)
+  emulator_nugget ~ emulator_nugget();               // half-normal(0, 0.05)
   if (!prior_only) {
     matrix[M, M] K = emulator_run_cov(xt_sim, kernel_id, emulator_sd, emulator_length_scale, emulator_nugget);
     y_sim ~ multi_normal_cholesky(rep_vector(emulator_mean, M), cholesky_decompose(K));

@@ -17,6 +17,7 @@ functions {
 #include priors.stan
 #include scaling.stan
 #include restricted_gp.stan
+#include given_normals.stan
 }
 data {
   int<lower=1> N;                       // number of physical observations
@@ -47,8 +48,7 @@ data {
   matrix[P, D] X_new;                   // simulator inputs of the prediction points, original units
   array[P] vector[D_delta] x_delta_new; // discrepancy inputs of the prediction points, scaled to [0, 1]
   matrix[P, H] h_new;                   // mean terms at the prediction points, scaled like h
-  int<lower=0> P_normals;               // P = the draws at the prediction points use normals_new, 0 = Stan's RNG
-  matrix[P_normals, 2] normals_new;     // standard normals for those draws; column 2: discrepancy (1 unused here)
+#include prediction_normals_data.stan
 }
 transformed data {
   int orthogonal = use_discrepancy && discrepancy_form == 2;
@@ -58,7 +58,8 @@ transformed data {
   int n_functionals = orthogonal ? Q : U;
   // R = 0 unless the GP is orthogonal
   array[U] vector[D_delta] x_U = scaled ? x_delta : x_quad;
-  if (P_normals != 0 && P_normals != P) reject("P_normals must be 0 or P = ", P, "; got ", P_normals);
+  array[0] vector[D_delta] no_points = rep_array(rep_vector(0, D_delta), 0);  // the model block's prediction points
+  check_given_normals(P_normals, P);
 }
 parameters {
   vector<lower=0, upper=1>[Q] theta_unit;                // theta rescaled to [0, 1]
@@ -78,25 +79,23 @@ transformed parameters {
 }
 model {
   // theta_unit is uniform on [0, 1]: the bounds are the prior support.
-  noise_sd ~ normal(0, 1);
-  delta_sd ~ normal(0, 0.5);
-  delta_input_length_scale ~ discrepancy_length_scale();
-  delta_relevance ~ covariate_relevance();
-  rho_free ~ normal(1, 0.25);
+  noise_sd ~ observation_noise_sd();                 // half-normal(0, 1)
+  delta_sd ~ discrepancy_sd();                       // half-normal(0, 0.5)
+  delta_input_length_scale ~ discrepancy_length_scale();  // inverse gamma(3, 1)
+  delta_relevance ~ covariate_relevance();           // half-normal(0, 2)
+  rho_free ~ koh_scale();                            // normal(1, 0.25), rho > 0
   beta ~ normal(0, beta_prior_sd);
   if (!prior_only) {
     vector[N] resid = y - rho * standardized_simulator(X, theta, y_center, y_scale) - h * beta;
     if (use_discrepancy) {
-      matrix[N, N] K = ard_cov(x_delta, kernel_id, delta_sd[1], delta_length_scale);
-      if (U > 0) {
-        matrix[U, n_functionals] A = restriction_map(
-          orthogonal, X_quad, w_quad, theta, theta_lower, theta_upper, y_center, y_scale, N);
-        matrix[n_functionals, N] V = restriction_factor(
-          ard_cross_cov(x_U, x_delta, kernel_id, delta_sd[1], delta_length_scale), A,
-          restriction_cholesky(ard_cov(x_U, kernel_id, delta_sd[1], delta_length_scale), A,
-                               scaled ? square(delta_sd[1]) * N / scaled_lambda : 0));
-        K -= crossprod(V);
-      }
+      // the restriction's map A (no rows: unrestricted) and ridge (restricted_gp.stan)
+      matrix[U, n_functionals] A = U > 0 ? restriction_map(orthogonal, X_quad, w_quad, theta, theta_lower,
+                                                           theta_upper, y_center, y_scale, N)
+                                         : rep_matrix(0, U, n_functionals);
+      real ridge = scaled ? square(delta_sd[1]) * N / scaled_lambda : 0;
+      // the GP's covariance at the points, restricted when U > 0 (no prediction points here)
+      matrix[N, N] K = restricted_gp_cov(x_delta, no_points, x_U, A, kernel_id,
+                                         delta_sd[1], delta_length_scale, ridge).1;
       resid ~ multi_normal_cholesky(rep_vector(0, N), cholesky_decompose(
         add_jitter(add_diag(K, square(noise_sd)), square(delta_sd[1]))));
     } else {
@@ -126,24 +125,18 @@ generated quantities {
     vector[P] delta_new_std = rep_vector(0, P);
     if (use_discrepancy) {
       delta_sd_original[1] = delta_sd[1] * y_scale;
-      matrix[N, N] K_delta = ard_cov(x_delta, kernel_id, delta_sd[1], delta_length_scale);
-      matrix[P, N] K_cross = ard_cross_cov(x_delta_new, x_delta, kernel_id, delta_sd[1],
-                                           delta_length_scale);
-      matrix[P, P] K_new = ard_cov(x_delta_new, kernel_id, delta_sd[1], delta_length_scale);
-      if (U > 0) {
-        matrix[U, n_functionals] A = restriction_map(
-          orthogonal, X_quad, w_quad, theta, theta_lower, theta_upper, y_center, y_scale, N);
-        matrix[n_functionals, n_functionals] L_T = restriction_cholesky(
-          ard_cov(x_U, kernel_id, delta_sd[1], delta_length_scale), A,
-          scaled ? square(delta_sd[1]) * N / scaled_lambda : 0);
-        matrix[n_functionals, N] V = restriction_factor(
-          ard_cross_cov(x_U, x_delta, kernel_id, delta_sd[1], delta_length_scale), A, L_T);
-        matrix[n_functionals, P] V_new = restriction_factor(
-          ard_cross_cov(x_U, x_delta_new, kernel_id, delta_sd[1], delta_length_scale), A, L_T);
-        K_delta -= crossprod(V);
-        K_cross -= V_new' * V;
-        K_new -= crossprod(V_new);
-      }
+      // the restriction's map A (no rows: unrestricted) and ridge (restricted_gp.stan)
+      matrix[U, n_functionals] A = U > 0 ? restriction_map(orthogonal, X_quad, w_quad, theta, theta_lower,
+                                                           theta_upper, y_center, y_scale, N)
+                                         : rep_matrix(0, U, n_functionals);
+      real ridge = scaled ? square(delta_sd[1]) * N / scaled_lambda : 0;
+      // the GP's covariances at the points and the prediction points, restricted when U > 0
+      tuple(matrix[N, N], matrix[P, N], matrix[P, P]) K_all = restricted_gp_cov(
+        x_delta, x_delta_new, x_U, A, kernel_id, delta_sd[1], delta_length_scale,
+        ridge);
+      matrix[N, N] K_delta = K_all.1;
+      matrix[P, N] K_cross = K_all.2;
+      matrix[P, P] K_new = K_all.3;
       matrix[N, N] L = cholesky_decompose(add_jitter(add_diag(K_delta, square(noise_sd)), square(delta_sd[1])));
       tuple(vector[N], vector[N]) loo = mvn_loo(resid, L);
       log_lik = loo.1;

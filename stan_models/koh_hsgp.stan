@@ -17,6 +17,7 @@ functions {
 #include hsgp.stan
 #include priors.stan
 #include scaling.stan
+#include given_normals.stan
 }
 data {
   int<lower=1> N;                       // number of physical observations
@@ -45,14 +46,13 @@ data {
   matrix[P, D] X_new;                   // simulator inputs of the prediction points, original units
   array[P] vector[D_delta] x_delta_new; // discrepancy inputs of the prediction points, scaled to [0, 1]
   matrix[P, H] h_new;                   // mean terms at the prediction points, scaled like h
-  int<lower=0> B_normals;               // B = the basis weights' draws use basis_normals, 0 = Stan's RNG
-  vector[B_normals] basis_normals;      // standard normals for those draws
+#include basis_normals_data.stan
 }
 transformed data {
   matrix[N, B] phi = hsgp_basis(x_delta, basis_index, boundary);
   matrix[B, N] phi_t = phi';
   matrix[B, B] phi_t_phi = crossprod(phi);
-  if (B_normals != 0 && B_normals != B) reject("B_normals must be 0 or B = ", B, "; got ", B_normals);
+  check_given_normals(B_normals, B);
 }
 parameters {
   vector<lower=0, upper=1>[Q] theta_unit;                // theta rescaled to [0, 1]
@@ -72,11 +72,11 @@ transformed parameters {
 }
 model {
   // theta_unit is uniform on [0, 1]: the bounds are the prior support.
-  noise_sd ~ normal(0, 1);
-  delta_sd ~ normal(0, 0.5);
-  delta_input_length_scale ~ discrepancy_length_scale();
-  delta_relevance ~ covariate_relevance();
-  rho_free ~ normal(1, 0.25);
+  noise_sd ~ observation_noise_sd();                 // half-normal(0, 1)
+  delta_sd ~ discrepancy_sd();                       // half-normal(0, 0.5)
+  delta_input_length_scale ~ discrepancy_length_scale();  // inverse gamma(3, 1)
+  delta_relevance ~ covariate_relevance();           // half-normal(0, 2)
+  rho_free ~ koh_scale();                            // normal(1, 0.25), rho > 0
   beta ~ normal(0, beta_prior_sd);
   if (!prior_only) {
     vector[N] resid = y - rho * standardized_simulator(X, theta, y_center, y_scale) - h * beta;

@@ -21,8 +21,10 @@ functions {
 #include observation_model.stan
 #include latent_loo.stan
 #include functional_theta.stan
+#include latent_koh.stan
 #include priors.stan
 #include scaling.stan
+#include given_normals.stan
 }
 data {
   int<lower=1> N;                       // number of physical observations
@@ -71,9 +73,7 @@ data {
   array[P] vector[D_fun] x_fun_new;     // functional inputs of the prediction points, scaled like x_fun
   matrix[P, H] h_new;                   // mean terms at the prediction points, scaled like h
   array[P] int<lower=0> trials_new;     // binomial: trials of a new observation at each prediction point
-  int<lower=0> P_normals;               // P = the draws at the prediction points use normals_new, 0 = Stan's RNG
-  matrix[P_normals, 2 + F] normals_new; // standard normals for those draws; column 1: simulator (emulator),
-                                        // 2: discrepancy, 2 + k: the k-th functional theta
+#include functional_prediction_normals_data.stan
 }
 transformed data {
   // for the leave-one-out densities with the left-out discrepancy integrated out
@@ -83,7 +83,7 @@ transformed data {
   array[0] real no_discrepancy = rep_array(0.0, 0);  // koh_joint_predict draws f alone with it
   matrix[M, M] L_sim = cholesky_decompose(
     emulator_run_cov(xt_sim, kernel_id, emulator_sd, emulator_length_scale, emulator_nugget));
-  if (P_normals != 0 && P_normals != P) reject("P_normals must be 0 or P = ", P, "; got ", P_normals);
+  check_given_normals(P_normals, P);
 }
 parameters {
   vector<lower=0, upper=1>[Q] theta_unit;   // theta on [0, 1]; a functional theta's level
@@ -125,26 +125,24 @@ transformed parameters {
   }
 }
 model {
-  noise_sd ~ normal(0, 1);
-  inv_sqrt_phi ~ normal(0, 1);
-  delta_sd ~ normal(0, 0.5);
-  delta_input_length_scale ~ discrepancy_length_scale();
-  delta_relevance ~ covariate_relevance();
+  noise_sd ~ observation_noise_sd();                 // half-normal(0, 1)
+  inv_sqrt_phi ~ overdispersion();                   // half-normal(0, 1)
+  delta_sd ~ discrepancy_sd();                       // half-normal(0, 0.5)
+  delta_input_length_scale ~ discrepancy_length_scale();  // inverse gamma(3, 1)
+  delta_relevance ~ covariate_relevance();           // half-normal(0, 2)
   delta_z ~ std_normal();
   beta ~ normal(0, beta_prior_sd);
-  theta_function_sd ~ normal(0, 1.5);
-  for (k in 1:F) theta_function_length_scale[k] ~ functional_length_scale();
-  if (functional_centred) {
-    theta_function_logit ~ functional_theta(theta_unit, functional_slot, x_fun, kernel_id, theta_function_sd,
-                                            theta_function_length_scale);
-  } else {
-    to_vector(theta_function_raw) ~ std_normal();
-  }
+  theta_function_sd ~ functional_sd();              // half-normal(0, 1.5)
+  for (k in 1:F) theta_function_length_scale[k] ~ functional_length_scale();  // inverse gamma(3, 1)
+  // the functional theta's GP (centred) or its standard normals (non-centred)
+  target += functional_theta_prior_lupdf(theta_function_logit | theta_function_raw, functional_centred, theta_unit,
+                                         functional_slot, x_fun, kernel_id, theta_function_sd,
+                                         theta_function_length_scale);
   emulator_z ~ std_normal();
   if (!prior_only) {
     vector[N] eta = link_from_standardised(likelihood_id, f_std, y_center, y_scale) + h * beta + delta;
     target += sum(observation_log_lik(
-      likelihood_id, eta, likelihood_id == 1 ? noise_sd[1] : 1, likelihood_id == 3 ? inv_square(inv_sqrt_phi[1]) : 1,
+      likelihood_id, eta, observation_sd(likelihood_id, noise_sd), negbinomial_precision(likelihood_id, inv_sqrt_phi),
       y_real, y_int, trials, censoring, lower_bound, upper_bound));
   }
 }
@@ -162,34 +160,28 @@ generated quantities {
   vector[P] zeta_new;     // mean of the real process g^-1(g(f) + delta), response scale
   vector[P] y_new;        // a new observation at each prediction point
   {
-    real sd_obs = likelihood_id == 1 ? noise_sd[1] : 1;
-    real precision = likelihood_id == 3 ? inv_square(inv_sqrt_phi[1]) : 1;
+    real sd_obs = observation_sd(likelihood_id, noise_sd);
+    real precision = negbinomial_precision(likelihood_id, inv_sqrt_phi);
     real units = discrepancy_units(likelihood_id, y_scale);
     if (likelihood_id == 1) noise_sd_original[1] = noise_sd[1] * y_scale;
     if (likelihood_id == 3) phi[1] = precision;
-    int n_delta = use_discrepancy ? N : 0;
-    matrix[n_delta, n_delta] L_delta = rep_matrix(0, n_delta, n_delta);  // Cholesky factor of delta's prior
-    if (use_discrepancy) {
-      delta_sd_original[1] = delta_sd[1] * units;
-      L_delta = latent_gp_cholesky(x_delta, kernel_id, delta_sd[1], delta_length_scale);
-    }
+    if (use_discrepancy) delta_sd_original[1] = delta_sd[1] * units;
     // the linear predictor without the discrepancy GP
     vector[N] eta_rest = link_from_standardised(likelihood_id, f_std, y_center, y_scale) + h * beta;
-    tuple(vector[N], vector[N], vector[N]) at_points = latent_observation_quantities_rng(
-      likelihood_id, eta_rest, delta, L_delta, sd_obs, precision, y_real, y_int, trials, censoring,
-      lower_bound, upper_bound, y_center, y_scale, loo_rule);
+    tuple(vector[N], vector[N], vector[N]) at_points = latent_point_quantities_rng(
+      likelihood_id, eta_rest, delta, x_delta, kernel_id, delta_sd, delta_length_scale, sd_obs, precision,
+      y_real, y_int, trials, censoring, lower_bound, upper_bound, y_center, y_scale, loo_rule);
     log_lik = at_points.1;
     y_loo_mean = at_points.2;
     y_rep = at_points.3;
     delta_gp = units * delta;
 
     // functional theta on the grid and at the prediction points, given the points
-    theta_function_grid = theta_function_grid_rng(
-      theta_unit, functional_slot, theta_function_logit, x_fun, x_fun_grid, kernel_id, theta_function_sd,
-      theta_function_length_scale, theta_lower, theta_upper);
-    matrix[P, Q] theta_new_unit = theta_unit_rows_draw(
-      theta_unit, functional_slot, theta_function_logit, x_fun, x_fun_new, kernel_id, theta_function_sd,
-      theta_function_length_scale, functional_normals_rng(normals_new, F, P));
+    tuple(matrix[G, F], matrix[P, Q]) functional = functional_theta_quantities_rng(
+      theta_unit, functional_slot, theta_function_logit, x_fun, x_fun_grid, x_fun_new, kernel_id,
+      theta_function_sd, theta_function_length_scale, theta_lower, theta_upper, normals_new);
+    theta_function_grid = functional.1;
+    matrix[P, Q] theta_new_unit = functional.2;
     array[P] vector[D + Q] xt_new;
     for (i in 1:P) xt_new[i] = append_row(x_new[i], theta_new_unit[i]');
     // f at the new points given the runs and its latent values at the physical points

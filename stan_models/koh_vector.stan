@@ -73,10 +73,10 @@ transformed parameters {
     = discrepancy_length_scales(delta_input_length_scale, delta_relevance);
 }
 model {
-  noise_sd ~ normal(0, 1);
-  delta_sd ~ normal(0, 0.5);
-  delta_input_length_scale ~ discrepancy_length_scale();
-  delta_relevance ~ covariate_relevance();
+  noise_sd ~ observation_noise_sd();                 // half-normal(0, 1)
+  delta_sd ~ discrepancy_sd();                       // half-normal(0, 0.5)
+  delta_input_length_scale ~ discrepancy_length_scale();  // inverse gamma(3, 1)
+  delta_relevance ~ covariate_relevance();           // half-normal(0, 2)
   beta ~ normal(0, beta_prior_sd);
   if (!prior_only) {
     vector[N] resid = y - experiment_simulator(X, experiment, theta, theta_experiment, y_center, y_scale)

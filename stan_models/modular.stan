@@ -13,6 +13,7 @@ functions {
 #include loo.stan
 #include priors.stan
 #include scaling.stan
+#include given_normals.stan
 }
 data {
   int<lower=1> N;                       // number of physical observations
@@ -45,8 +46,7 @@ data {
   array[P] vector[D] x_new;             // simulator inputs of the prediction points, scaled to [0, 1]
   array[P] vector[D_delta] x_delta_new; // discrepancy inputs of the prediction points, scaled to [0, 1]
   matrix[P, H] h_new;                   // mean terms at the prediction points, scaled like h
-  int<lower=0> P_normals;               // P = the draws at the prediction points use normals_new, 0 = Stan's RNG
-  matrix[P_normals, 2] normals_new;     // standard normals for those draws; column 1: simulator, 2: discrepancy
+#include prediction_normals_data.stan
 }
 transformed data {
   array[M] vector[D + Q] xt_sim;
@@ -60,7 +60,7 @@ transformed data {
   // the runs factorises into an x part (data here) and a theta part (theta_factor).
   matrix[N, N] K_obs = ard_cov(x, kernel_id, emulator_sd, emulator_length_scale[1:D]);
   matrix[N, M] K_obs_sim_x = gp_exp_quad_cov(x, x_sim, emulator_sd, emulator_length_scale[1:D]);
-  if (P_normals != 0 && P_normals != P) reject("P_normals must be 0 or P = ", P, "; got ", P_normals);
+  check_given_normals(P_normals, P);
 }
 parameters {
   vector<lower=0, upper=1>[Q] theta_unit;                // theta rescaled to [0, 1]
@@ -79,11 +79,11 @@ transformed parameters {
   real rho = estimate_rho ? rho_free[1] : 1.0;
 }
 model {
-  noise_sd ~ normal(0, 1);
-  delta_sd ~ normal(0, 0.5);
-  delta_input_length_scale ~ discrepancy_length_scale();
-  delta_relevance ~ covariate_relevance();
-  rho_free ~ normal(1, 0.25);
+  noise_sd ~ observation_noise_sd();                 // half-normal(0, 1)
+  delta_sd ~ discrepancy_sd();                       // half-normal(0, 0.5)
+  delta_input_length_scale ~ discrepancy_length_scale();  // inverse gamma(3, 1)
+  delta_relevance ~ covariate_relevance();           // half-normal(0, 2)
+  rho_free ~ koh_scale();                            // normal(1, 0.25), rho > 0
   beta ~ normal(0, beta_prior_sd);
   if (!prior_only) {
     matrix[N, M] K_obs_sim = kernel_id == 1

@@ -22,6 +22,7 @@ functions {
 #include hsgp.stan
 #include priors.stan
 #include scaling.stan
+#include given_normals.stan
 }
 data {
   int<lower=1> N;                       // number of physical observations
@@ -57,8 +58,7 @@ data {
   array[P] vector[D_delta] x_delta_new; // discrepancy inputs of the prediction points, scaled to [0, 1]
   matrix[P, H] h_new;                   // mean terms at the prediction points, scaled like h
   matrix[P, G] emulator_weights_new;    // the emulator mean's weights at the prediction points
-  int<lower=0> B_normals;               // B + R = the basis weights' draws use basis_normals, 0 = Stan's RNG
-  vector[B_normals] basis_normals;      // standard normals for those draws
+#include basis_normals_data.stan
 }
 transformed data {
   int R = emulator_error_rank;
@@ -68,7 +68,7 @@ transformed data {
   matrix[N, W] basis = append_col(phi[:, 1:B_delta], emulator_error_basis);
   matrix[W, N] basis_t = basis';
   matrix[W, W] basis_t_basis = crossprod(basis);
-  if (B_normals != 0 && B_normals != B + R) reject("B_normals must be 0 or B + R = ", B + R, "; got ", B_normals);
+  check_given_normals(B_normals, B + R);
   // mean = columns * coefficients(theta, rho, beta): the residual's sums from these
   matrix[N, 1 + G + H] columns = append_col(append_col(rep_vector(1, N), emulator_weights), h);
   matrix[1 + G + H, 1 + G + H] columns_t_columns = crossprod(columns);
@@ -95,11 +95,11 @@ transformed parameters {
 }
 model {
   // theta_unit is uniform on [0, 1]: the bounds are the prior support.
-  noise_sd ~ normal(0, 1);
-  delta_sd ~ normal(0, 0.5);
-  delta_input_length_scale ~ discrepancy_length_scale();
-  delta_relevance ~ covariate_relevance();
-  rho_free ~ normal(1, 0.25);
+  noise_sd ~ observation_noise_sd();                 // half-normal(0, 1)
+  delta_sd ~ discrepancy_sd();                       // half-normal(0, 0.5)
+  delta_input_length_scale ~ discrepancy_length_scale();  // inverse gamma(3, 1)
+  delta_relevance ~ covariate_relevance();           // half-normal(0, 2)
+  rho_free ~ koh_scale();                            // normal(1, 0.25), rho > 0
   beta ~ normal(0, beta_prior_sd);
   if (!prior_only) {
     vector[1 + G + H] coefficients

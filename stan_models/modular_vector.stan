@@ -115,15 +115,16 @@ transformed parameters {
   for (e in 1:E) theta_experiment[e] = theta_from_unit(theta_exp_unit[e], theta_exp_lower, theta_exp_upper);
 }
 model {
-  noise_sd ~ normal(0, 1);
-  delta_sd ~ normal(0, 0.5);
-  delta_input_length_scale ~ discrepancy_length_scale();
-  delta_relevance ~ covariate_relevance();
+  noise_sd ~ observation_noise_sd();                 // half-normal(0, 1)
+  delta_sd ~ discrepancy_sd();                       // half-normal(0, 0.5)
+  delta_input_length_scale ~ discrepancy_length_scale();  // inverse gamma(3, 1)
+  delta_relevance ~ covariate_relevance();           // half-normal(0, 2)
   beta ~ normal(0, beta_prior_sd);
-  weight_gp_mean_free ~ normal(0, 1);  // emulator.stan's priors; the weights have unit variance
-  weight_gp_sd_free ~ normal(0, 1);
-  for (c in 1:(joint ? C : 0)) weight_gp_length_scale_free[c] ~ emulator_length_scale();
-  weight_gp_nugget_free ~ normal(0, 0.05);
+  // emulator.stan's priors; the weights have unit variance
+  weight_gp_mean_free ~ emulator_mean();             // normal(0, 1)
+  weight_gp_sd_free ~ emulator_sd();                 // half-normal(0, 1)
+  for (c in 1:(joint ? C : 0)) weight_gp_length_scale_free[c] ~ emulator_length_scale();  // inverse gamma(2, 1)
+  weight_gp_nugget_free ~ emulator_nugget();         // half-normal(0, 0.05)
   if (!prior_only) {
     tuple(matrix[E, C], array[C] matrix[E, E]) w;
     if (joint) {

@@ -52,12 +52,14 @@ def gq():
                 resid=RESID.tolist(), unit=[0, 0.5, 1], lo=[-1, 0, 10], hi=[1, 2, 20],
                 A_restrict=A_RESTRICT.tolist(), ridge=RIDGE, X_sim=X_SIM.tolist(),
                 theta_sim=THETA_SIM.tolist(), theta_lo=THETA_LO.tolist(), theta_hi=THETA_HI.tolist(),
-                z_draw=Z_DRAW.tolist(), **OBSERVATIONS)
+                z_draw=Z_DRAW.tolist(), given_count=2, needed_count=2, **OBSERVATIONS)
     harness = flatten(HARNESS)
     compile_programs([harness])  # stancal's build: no debug information, and no 5-minute HTTP timeout
     model = stan.build(harness.code, data=data, random_seed=1)
     fit = model.fixed_param(num_samples=1, num_chains=1)
-    return {name: np.asarray(fit[name])[..., 0] for name in fit.param_names}
+    out = {name: np.asarray(fit[name])[..., 0] for name in fit.param_names}
+    out["_data"] = data
+    return out
 
 
 def test_squared_exponential(gq):
@@ -214,9 +216,13 @@ def _observation_density(k: int, i: int, eta: float) -> float:
 def test_latent_loo_integrates_the_left_out_discrepancy(gq):
     # reference: the GP conditional of delta_i given the others by brute force,
     # and the integral over it by adaptive scipy quadrature
+    K = se(X2, X2) + 0.01 * np.eye(4)
+    check_latent_loo(K, gq["latent_loo_lik"], gq["latent_loo_mean"], range(1, 5))
+
+
+def check_latent_loo(K, loo_lik, loo_mean, likelihoods):
     from scipy.integrate import quad
 
-    K = se(X2, X2) + 0.01 * np.eye(4)
     delta = RESID[:4]
     y_center, y_scale = 0.2, 1.5
     for i in range(4):
@@ -224,16 +230,201 @@ def test_latent_loo_integrates_the_left_out_discrepancy(gq):
         weights = np.linalg.solve(K[np.ix_(rest, rest)], K[rest, i])
         m, s = weights @ delta[rest], np.sqrt(K[i, i] - K[rest, i] @ weights)
         eta = OBSERVATIONS["eta"][i]
-        for k in range(1, 5):
+        for k in likelihoods:
             density, _ = quad(lambda u: _observation_density(k, i, eta + m + s * u) * stats.norm.pdf(u),
                               -12, 12, epsabs=0, epsrel=1e-11, limit=200)
             expected = np.log(density) - (np.log(y_scale) if k == 1 and i == 0 else 0)
             # 20 nodes; the hardest case, a zero count under a wide conditional, is off by 3e-7
-            np.testing.assert_allclose(gq["latent_loo_lik"][k - 1, i], expected, rtol=1e-6,
+            np.testing.assert_allclose(loo_lik[k - 1, i], expected, rtol=1e-6,
                                        err_msg=f"likelihood {k}, observation {i}")
             inverse_link = {1: lambda e: y_center + y_scale * e, 2: np.exp, 3: np.exp,
                             4: lambda e: 1 / (1 + np.exp(-e))}[k]
             mean, _ = quad(lambda u: inverse_link(eta + m + s * u) * stats.norm.pdf(u), -12, 12,
                            epsabs=0, epsrel=1e-11)
-            np.testing.assert_allclose(gq["latent_loo_mean"][k - 1, i], mean, rtol=1e-6,
+            np.testing.assert_allclose(loo_mean[k - 1, i], mean, rtol=1e-6,
                                        err_msg=f"likelihood {k}, observation {i}")
+
+
+def restricted(K_ab, K_aU, K_Ub, K_UU, A, ridge=0.0):
+    """K_ab - K_aU A T^-1 A' K_Ub, T = A' K_UU A + ridge I + the jitter of restriction_cholesky."""
+    T = A.T @ K_UU @ A + ridge * np.eye(A.shape[1])
+    T += JITTER * np.mean(np.diag(A.T @ K_UU @ A)) * np.eye(A.shape[1])
+    return K_ab - K_aU @ A @ np.linalg.solve(T, A.T @ K_Ub)
+
+
+def test_restricted_gp_cov_at_points_and_new_points(gq):
+    A = A_RESTRICT
+    np.testing.assert_allclose(gq["restricted_K"], restricted(se(X1, X1), se(X1, X1), se(X1, X1), se(X1, X1), A),
+                               rtol=1e-7, atol=1e-10)
+    np.testing.assert_allclose(gq["restricted_K_cross"],
+                               restricted(se(X2, X1), se(X2, X1), se(X1, X1), se(X1, X1), A), rtol=1e-7, atol=1e-10)
+    np.testing.assert_allclose(gq["restricted_K_new"],
+                               restricted(se(X2, X2), se(X2, X1), se(X1, X2), se(X1, X1), A), rtol=1e-7, atol=1e-10)
+    # the same restriction as test_orthogonal_gp_covariance's
+    np.testing.assert_allclose(gq["restricted_K"], gq["orthogonal_cov"], rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(gq["unrestricted_K_cross"], se(X2, X1), rtol=1e-10)
+
+
+def test_priors(gq):
+    from scipy.stats import invgamma, norm
+
+    def n(x, mu, sd):
+        return norm.logpdf(np.atleast_1d(x), mu, sd).sum()
+
+    lsc = np.array([0.3, 0.7])
+    expected = [invgamma.logpdf(lsc, 3, scale=1).sum(), n([0.5, 2.0], 0, 2), invgamma.logpdf(lsc, 2, scale=1).sum(),
+                invgamma.logpdf(lsc, 3, scale=1).sum(), n(0.4, 0, 1), n([0.4, 0.9], 0, 1), n(0.3, 0, 0.5),
+                n(1.1, 1, 0.25), n(0.6, 0, 1), n([0.8, 2.0], 0, 1.5),
+                n(0.3, 0, 1), n([0.3, -1.2], 0, 1), n(0.5, 0, 1), n([0.5, 1.5], 0, 1), n(0.01, 0, 0.05),
+                n([0.01, 0.1], 0, 0.05)]
+    np.testing.assert_allclose(gq["priors"], expected, rtol=1e-10)
+
+
+HS_INDEX, HS_BOUNDARY, HS_LONGEST = np.array([[1, 1], [2, 1], [1, 3]]), np.array([1.5, 1.8]), np.array([0.5, 0.5])
+
+
+def hs_basis(x):
+    out = np.ones((len(x), len(HS_INDEX)))
+    for d, L in enumerate(HS_BOUNDARY):
+        out *= np.sin(np.pi * HS_INDEX[:, d] / (2 * L) * (x[:, [d]] - 0.5 + L)) / np.sqrt(L)
+    return out
+
+
+def hs_weight_sd(kernel):
+    from scipy.special import gammaln
+
+    ell = np.minimum(LS, HS_LONGEST)
+    w2 = ((ell * np.pi * HS_INDEX / (2 * HS_BOUNDARY)) ** 2).sum(1)
+    dims = 2
+    if kernel == "se":
+        density = SD**2 * np.prod(ell) * (2 * np.pi) ** (dims / 2) * np.exp(-0.5 * w2)
+    else:
+        nu = 2.5
+        density = (SD**2 * np.prod(ell) * 2**dims * np.pi ** (dims / 2)
+                   * np.exp(gammaln(nu + dims / 2) - gammaln(nu)) * (2 * nu) ** nu * (2 * nu + w2) ** -(nu + dims / 2))
+    return np.sqrt(density)
+
+
+def test_hsgp(gq):
+    phi = hs_basis(X1)
+    np.testing.assert_allclose(gq["hs_basis"], phi, rtol=1e-10)
+    np.testing.assert_allclose(gq["hs_sd_se"], hs_weight_sd("se"), rtol=1e-10)
+    np.testing.assert_allclose(gq["hs_sd_m52"], hs_weight_sd("m52"), rtol=1e-10)
+    for name, sd in (("hs_marginal", hs_weight_sd("se")), ("hs_marginal_sums", hs_weight_sd("m52"))):
+        cov = phi @ np.diag(sd**2) @ phi.T + 0.3 * np.eye(6)
+        np.testing.assert_allclose(gq[name], stats.multivariate_normal(np.zeros(6), cov).logpdf(RESID), rtol=1e-10)
+    # the weights' posterior draw from given normals: W (P^-1 W Phi' r / v + L'^-1 z), P = L L'
+    sd, z = hs_weight_sd("se"), np.array([0.1, -0.4, 0.7])
+    P = np.eye(3) + np.diag(sd) @ phi.T @ phi @ np.diag(sd) / 0.3
+    L = np.linalg.cholesky(P)
+    expected = sd * (np.linalg.solve(P, sd * (phi.T @ RESID)) / 0.3 + np.linalg.solve(L.T, z))
+    np.testing.assert_allclose(gq["hs_weights"], expected, rtol=1e-10)
+
+
+def test_hsgp_mirrors_python():
+    from stancal.numerics import hsgp
+
+    np.testing.assert_allclose(hsgp.basis(X1, HS_INDEX, HS_BOUNDARY), hs_basis(X1), rtol=1e-12)
+
+
+def test_chebyshev_tensor_basis(gq):
+    from numpy.polynomial import chebyshev
+
+    t1 = [chebyshev.chebval(2 * 0.3 - 1, np.eye(3)[k]) for k in range(3)]
+    t2 = [chebyshev.chebval(2 * 0.8 - 1, np.eye(2)[k]) for k in range(2)]
+    expected = np.kron(t1, t2)  # the first parameter's index varies slowest
+    np.testing.assert_allclose(gq["chebyshev"], expected, rtol=1e-12, atol=1e-15)
+    from stancal.numerics.scalable_emulator import chebyshev_basis
+
+    np.testing.assert_allclose(chebyshev_basis(np.array([[0.3, 0.8]]), (2, 1))[0], expected, rtol=1e-12, atol=1e-15)
+
+
+def test_independent_variance(gq):
+    np.testing.assert_allclose(gq["variance_known"], np.square([0.1, 0.2, 0.3]), rtol=1e-14)
+    np.testing.assert_allclose(gq["variance_one"], [0.25] * 3, rtol=1e-14)
+    np.testing.assert_allclose(gq["variance_per_experiment"], [0.25, 0.49, 0.25], rtol=1e-14)
+
+
+def test_experiment_simulator(gq):
+    theta2 = np.array([0.5, 2.0])[[0, 1, 0]]
+    f = np.exp(-THETA_SIM[0] * X_SIM[:, 0]) + theta2 * X_SIM[:, 1] ** 2
+    np.testing.assert_allclose(gq["experiment_f"], (f - 0.2) / 1.5, rtol=1e-12)
+
+
+def se_with(a, b, sd, ls):
+    d2 = (((a[:, None, :] - b[None, :, :]) / np.asarray(ls)) ** 2).sum(-1)
+    return sd**2 * np.exp(-0.5 * d2)
+
+
+def weights_reference(points, mean, sd, ls, alpha):
+    K_var = se(X1, X1) + 0.1 * np.eye(6)  # the variance runs x1 with se_sym's hyperparameters + 0.1
+    K_pv = se_with(points, X1, sd, ls)
+    return mean + K_pv @ alpha, se_with(points, points, sd, ls) - K_pv @ np.linalg.solve(K_var, K_pv.T)
+
+
+def test_component_weights(gq):
+    mean, cov = weights_reference(X2, 0.2, SD, LS, RESID)
+    np.testing.assert_allclose(gq["component_mean"], mean, rtol=1e-10)
+    np.testing.assert_allclose(gq["component_cov"], cov, rtol=1e-8, atol=1e-10)
+
+
+def test_weight_gp_factors(gq):
+    for c, (mean, sd, ls, nugget) in enumerate([(0.1, SD, LS, 0.05), (-0.2, 0.9, [0.5, 0.6], 0.1)]):
+        K = se_with(X1, X1, sd, ls) + (nugget**2 + JITTER * sd**2) * np.eye(6)
+        np.testing.assert_allclose(gq["factors_L"][c], np.linalg.cholesky(K), rtol=1e-10, atol=1e-12)
+        np.testing.assert_allclose(gq["factors_alpha"][:, c], np.linalg.solve(K, A_RESTRICT[:, c] - mean), rtol=1e-9)
+
+
+def test_experiment_weights(gq):
+    points = np.column_stack([X2[:, 0], np.full(4, 0.3)])
+    K_var = se(X1, X1) + 0.1 * np.eye(6)
+    for c, (mean, sd, ls) in enumerate([(0.2, SD, LS), (-0.1, 0.9, [0.5, 0.6])]):
+        K_pv = se_with(points, X1, sd, ls)
+        np.testing.assert_allclose(gq["experiment_means"][:, c], mean + K_pv @ A_RESTRICT[:, c], rtol=1e-10)
+        cov = se_with(points, points, sd, ls) - K_pv @ np.linalg.solve(K_var, K_pv.T)
+        np.testing.assert_allclose(gq["experiment_covs"][c], cov, rtol=1e-8, atol=1e-10)
+
+
+def test_signal_cov(gq):
+    exp_a, exp_b = np.array([1, 2, 1, 2]) - 1, np.array([2, 1, 1]) - 1
+    comp_a = np.array([[1, 0.5], [0.2, -1], [0.3, 0.3], [-0.7, 2]])
+    comp_b = np.array([[0.4, 1], [1, 0], [-0.5, 0.5]])
+    W = [np.array([[1, 0.3], [0.3, 2]]), np.array([[0.5, -0.1], [-0.1, 0.8]])]
+    expected = sum(np.outer(comp_a[:, c], comp_b[:, c]) * W[c][np.ix_(exp_a, exp_b)] for c in range(2))
+    expected = expected + se_with(X2, X1[:3], 0.7, [0.4, 0.6])
+    np.testing.assert_allclose(gq["signal"], expected, rtol=1e-10)
+
+
+def test_latent_program_pieces(gq):
+    np.testing.assert_allclose(gq["observation_parameters"], [0.7, 1, 4, 1], rtol=1e-14)
+    x_fun = X1[:3, :1]
+    values = np.array([0.2, -0.5, 1.0])
+    K = se_with(x_fun, x_fun, 0.9, [0.4]) + JITTER * 0.81 * np.eye(3)
+    np.testing.assert_allclose(gq["functional_prior_centred"],
+                               stats.multivariate_normal(np.zeros(3), K).logpdf(values), rtol=1e-10)  # level 0.5
+    np.testing.assert_allclose(gq["functional_prior_noncentred"], stats.norm.logpdf([0.3, -1.1, 0.6]).sum(),
+                               rtol=1e-10)
+    # at the new points: theta 1 stays scalar; theta 2 = logistic(GP draw given its values, normals column 3)
+    x_new = X2[:2, :1]
+    K_cross, K_new = se_with(x_new, x_fun, 0.9, [0.4]), se_with(x_new, x_new, 0.9, [0.4])
+    A = np.linalg.solve(K, K_cross.T)
+    cov = K_new - K_cross @ A + JITTER * np.mean(np.diag(K_new)) * np.eye(2)
+    draw = A.T @ values + np.linalg.cholesky(cov) @ np.array([0.3, -0.8])
+    np.testing.assert_allclose(gq["functional_new"][:, 0], 0.25, rtol=1e-14)
+    np.testing.assert_allclose(gq["functional_new"][:, 1], 1 / (1 + np.exp(-draw)), rtol=1e-8)
+    assert np.all((gq["functional_grid"] >= 10) & (gq["functional_grid"] <= 20))
+    # latent_point_quantities_rng: the latent LOO with delta's prior from latent_gp_cholesky
+    K_delta = se(X2, X2) + JITTER * SD**2 * np.eye(4)
+    check_latent_loo(K_delta, gq["point_loo_lik"], gq["point_loo_mean"], (1, 2))
+
+
+def test_given_normals_are_checked(gq):
+    import stan
+
+    harness = flatten(HARNESS)
+    with pytest.raises((RuntimeError, ValueError), match="must be 0 or 3; got 2"):
+        model = stan.build(harness.code, data={**gq["_data"], "needed_count": 3}, random_seed=1)
+        model.fixed_param(num_samples=1, num_chains=1)
+    for given in (0, 3):  # none given, or one per value needed
+        model = stan.build(harness.code, data={**gq["_data"], "given_count": given, "needed_count": 3},
+                           random_seed=1)

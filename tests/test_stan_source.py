@@ -1,3 +1,5 @@
+import re
+
 import pytest
 
 from stancal.problem.codes import Kernel
@@ -47,19 +49,95 @@ def test_circular_include(tmp_path):
         flatten(tmp_path / "a.stan")
 
 
-def test_kernel_codes_agree_with_stan():
-    text = (shipped_models_dir() / "functions" / "gp_kernels.stan").read_text()
-    assert f"{Kernel.SE.value} = squared exponential" in text
-    assert f"{Kernel.MATERN52.value} = Matern 5/2" in text
-    assert f"kernel_id == {Kernel.MATERN52.value}" in text
-    for name in ("koh.stan", "koh_emulator.stan", "modular.stan"):
-        program = (shipped_models_dir() / name).read_text()
-        assert f"{Kernel.SE.value} = squared exponential, {Kernel.MATERN52.value} = Matern 5/2" in program
+# Every integer code the Python side passes to Stan: its data name, the
+# Python codes, and the name the data line's comment gives each code.
+def integer_codes():
+    from stancal.problem.codes import NOISE_MODES, Censoring, Kernel, Likelihood
+    from stancal.problem.options import DISCREPANCIES
+
+    discrepancy_forms = {code: name for name, code in DISCREPANCIES.items() if name != "none"}
+    return {
+        "kernel_id": {k.value: k.name for k in Kernel},
+        "likelihood_id": {k.value: k.name for k in Likelihood},
+        "censoring": {k.value: k.name for k in Censoring},
+        "discrepancy_form": discrepancy_forms,
+        "noise_mode": {code: name for name, code in NOISE_MODES.items()},
+    }
 
 
-def test_every_data_line_has_a_comment():
+# how a data line's comment names each code, for the Python name
+COMMENT_NAMES = {
+    "SE": "squared exponential", "MATERN52": "Matern 5/2", "GAUSSIAN": "gaussian", "POISSON": "poisson",
+    "NEGBINOMIAL": "negbinomial", "BINOMIAL": "binomial", "OBSERVED": "observed", "LEFT": "left",
+    "RIGHT": "right", "INTERVAL": "interval", "gp": "GP", "orthogonal": "orthogonal GP",
+    "scaled": "scaled GP", "known": "known per value", "one": "one sd", "per_experiment": "one per experiment",
+}
+_DECLARATION = re.compile(
+    r"^\s*(?:array\[[^\]]*\]\s*)?int<lower=(-?\d+),\s*upper=(-?\d+)>\s+(\w+);\s*//(.*)$")
+_COMPARISON = re.compile(r"\b(\w+)(?:\[\w+\])?\s*(==|!=|<=|>=|<|>)\s*(\d+)\b")
+
+
+def flat_programs(tmp_path):
+    simulator = tmp_path / "sim.stan"
+    simulator.write_text("// simulator\n")
+    programs = sorted(shipped_models_dir().glob("*.stan"))
+    assert len(programs) == 10
+    return {p.name: flatten(p, aliases={"simulator.stan": simulator}).code for p in programs}
+
+
+def data_block(code: str) -> str:
+    start = code.index("\ndata {")
+    return code[start : code.index("\n}", start)]
+
+
+def test_integer_code_declarations_agree_with_python(tmp_path):
+    codes = integer_codes()
+    declared = {name: 0 for name in codes}
+    for program, code in flat_programs(tmp_path).items():
+        for line in data_block(code).splitlines():
+            match = _DECLARATION.match(line)
+            if not match or match.group(3) not in codes:
+                continue
+            lower, upper, name, comment = int(match.group(1)), int(match.group(2)), match.group(3), match.group(4)
+            expected = codes[name]
+            assert (lower, upper) == (min(expected), max(expected)), f"{program}: {name} bounds"
+            assert set(expected) == set(range(lower, upper + 1)), f"{program}: {name} codes not contiguous"
+            for value, python_name in expected.items():
+                assert f"{value} = {COMMENT_NAMES[python_name]}" in comment, f"{program}: {name} = {value}"
+            declared[name] += 1
+        # every code a program declares is read from the data with its bounds
+        for name in codes:
+            if re.search(rf"\b{name}\b", data_block(code)):
+                assert re.search(rf"int<lower=-?\d+,\s*upper=-?\d+>\s+{name};", data_block(code)), (
+                    f"{program}: {name} declared without both bounds")
+    # kernel_id in every program but modular_vector (squared exponential only), the others where used
+    assert declared == {"kernel_id": 9, "likelihood_id": 2, "censoring": 2, "discrepancy_form": 1,
+                        "noise_mode": 2}
+
+
+def test_integer_code_comparisons_use_python_codes(tmp_path):
+    codes = integer_codes()
+    texts = {p.name: p.read_text() for p in (shipped_models_dir() / "functions").glob("*.stan")}
+    texts.update(flat_programs(tmp_path))
+    compared = {name: set() for name in codes}
+    for source, text in texts.items():
+        for line in text.splitlines():
+            for name, _, value in _COMPARISON.findall(line.split("//")[0]):
+                if name in codes:
+                    assert int(value) in codes[name], f"{source}: {name} compared with {value}: {line.strip()}"
+                    compared[name].add(int(value))
+    # the functions branch on each code they handle
+    assert {Kernel.MATERN52.value} <= compared["kernel_id"]
+    for name in ("likelihood_id", "censoring", "discrepancy_form", "noise_mode"):
+        assert compared[name], name
+
+
+def test_every_data_line_has_a_comment(tmp_path):
+    # the flat program: declarations included into the data block (the PyStan normals) count too
+    simulator = tmp_path / "sim.stan"
+    simulator.write_text("// simulator\n")
     for spec in MODELS.values():
-        text = spec.path.read_text()
+        text = flatten(spec.path, aliases={"simulator.stan": simulator}).code
         block = text[text.index("\ndata {") + 7 : text.index("\n}", text.index("\ndata {"))]
         for line in block.splitlines():
             if line.strip():

@@ -34,6 +34,11 @@ matrix theta_unit_rows(vector theta_unit, array[] int functional_slot, matrix lo
 
 /**
  * Rows of unit-scale theta in original units.
+ *
+ * @param unit_rows theta on [0, 1], one row per point (or one shared row)
+ * @param lower_bound lower bounds of theta, original units
+ * @param upper_bound upper bounds of theta, original units
+ * @return theta in original units, the same rows
  */
 matrix theta_rows_original(matrix unit_rows, vector lower_bound, vector upper_bound) {
   matrix[rows(unit_rows), cols(unit_rows)] out;
@@ -48,6 +53,13 @@ matrix theta_rows_original(matrix unit_rows, vector lower_bound, vector upper_bo
  * sampler's parameters: themselves when centred, else logit(level) + L z.
  *
  * @param raw the parameters (n x F): the logit values, or their standard normals z
+ * @param centred 1 = raw are the logit values, 0 = their standard normals
+ * @param theta_unit every theta on [0, 1]; a functional theta's level
+ * @param functional_slot 0 = scalar theta, k = the k-th functional one
+ * @param x_fun the distinct values of the functional inputs, scaled to [0, 1]
+ * @param kernel_id 1 = squared exponential, 2 = Matern 5/2
+ * @param marginal_sd one GP marginal sd per functional theta, logit scale
+ * @param length_scale one GP's length scales per functional theta
  * @return the logit values g_k at the distinct points (n x F)
  */
 matrix functional_logit_values(matrix raw, int centred, vector theta_unit, array[] int functional_slot,
@@ -71,7 +83,10 @@ matrix functional_logit_values(matrix raw, int centred, vector theta_unit, array
  * @param logit_values g_k at the distinct functional-input values (n x F)
  * @param theta_unit levels of all parameters; the GP mean of g_k is logit(level)
  * @param x_fun the distinct functional-input values, on the unit cube
- * @param marginal_sd, length_scale one GP per functional theta
+ * @param marginal_sd one GP per functional theta
+ * @param length_scale one GP per functional theta
+ * @param functional_slot 0 = scalar theta, k = the k-th functional one
+ * @param kernel_id 1 = squared exponential, 2 = Matern 5/2
  * @return log density
  */
 real functional_theta_lpdf(matrix logit_values, vector theta_unit, array[] int functional_slot,
@@ -93,6 +108,16 @@ real functional_theta_lpdf(matrix logit_values, vector theta_unit, array[] int f
  * One posterior draw of theta_j(x) on the unit scale at new points, given
  * its logit values at the distinct points, from standard normals z (one per
  * new point).
+ *
+ * @param logit_values theta_j's logit (unit scale) at x_fun
+ * @param level the functional theta's level on [0, 1] (its mean's inverse logit)
+ * @param x_fun the distinct values of the functional inputs, scaled to [0, 1]
+ * @param x_new the new points
+ * @param kernel_id 1 = squared exponential, 2 = Matern 5/2
+ * @param marginal_sd its GP's marginal sd, logit scale
+ * @param length_scale its GP's length scales, one per functional input
+ * @param z standard normals, one per value drawn
+ * @return theta_j on [0, 1] at the new points
  */
 vector functional_theta_predict(vector logit_values, real level, array[] vector x_fun,
                                 array[] vector x_new, int kernel_id, real marginal_sd,
@@ -107,6 +132,14 @@ vector functional_theta_predict(vector logit_values, real level, array[] vector 
  * repeated.
  *
  * @param z standard normals: column k for the k-th functional theta, one row per new point
+ * @param theta_unit every theta on [0, 1]; a functional theta's level
+ * @param functional_slot 0 = scalar theta, k = the k-th functional one
+ * @param logit_values N_fun x F logit of each functional theta (unit scale) at x_fun
+ * @param x_fun the distinct values of the functional inputs, scaled to [0, 1]
+ * @param x_new the new points
+ * @param kernel_id 1 = squared exponential, 2 = Matern 5/2
+ * @param marginal_sd one GP marginal sd per functional theta, logit scale
+ * @param length_scale one GP's length scales per functional theta
  * @return theta on the unit scale, one row per new point
  */
 matrix theta_unit_rows_draw(vector theta_unit, array[] int functional_slot, matrix logit_values,
@@ -127,6 +160,9 @@ matrix theta_unit_rows_draw(vector theta_unit, array[] int functional_slot, matr
  * Standard normals for the functional theta at the prediction points:
  * columns 3 to 2 + F of the given ones (see prediction_normals_rng).
  *
+ * @param given P x columns given standard normals, or 0 x columns
+ * @param F the number of functional theta
+ * @param n the number of values
  * @return P x F standard normals
  */
 matrix functional_normals_rng(matrix given, int F, int n) {
@@ -138,6 +174,10 @@ matrix functional_normals_rng(matrix given, int F, int n) {
 /**
  * The functional theta's columns of unit-scale rows, in original units.
  *
+ * @param unit_rows theta on [0, 1], one row per point (or one shared row)
+ * @param functional_slot 0 = scalar theta, k = the k-th functional one
+ * @param lower_bound lower bounds of theta, original units
+ * @param upper_bound upper bounds of theta, original units
  * @return one column per functional theta (rows(unit_rows) x F)
  */
 matrix functional_columns_original(matrix unit_rows, array[] int functional_slot,
@@ -154,6 +194,16 @@ matrix functional_columns_original(matrix unit_rows, array[] int functional_slot
  * One posterior draw of each functional theta on its grid, original units,
  * for the theta(x) curves of the report.
  *
+ * @param theta_unit every theta on [0, 1]; a functional theta's level
+ * @param functional_slot 0 = scalar theta, k = the k-th functional one
+ * @param logit_values N_fun x F logit of each functional theta (unit scale) at x_fun
+ * @param x_fun the distinct values of the functional inputs, scaled to [0, 1]
+ * @param x_fun_grid the grid of functional inputs
+ * @param kernel_id 1 = squared exponential, 2 = Matern 5/2
+ * @param marginal_sd one GP marginal sd per functional theta, logit scale
+ * @param length_scale one GP's length scales per functional theta
+ * @param theta_lower lower bounds of theta, original units
+ * @param theta_upper upper bounds of theta, original units
  * @return one column per functional theta, one row per grid point
  */
 matrix theta_function_grid_rng(vector theta_unit, array[] int functional_slot, matrix logit_values,

@@ -47,6 +47,9 @@ vector gp_prior_draw(matrix K, vector z) {
 /**
  * n fresh standard normals from Stan's RNG (none for n = 0: Stan Math's
  * vectorised normal_rng crashes the process on an empty vector).
+ *
+ * @param n the number of values
+ * @return n standard normals from Stan's RNG
  */
 vector std_normals_rng(int n) {
   if (n == 0) {

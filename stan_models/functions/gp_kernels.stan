@@ -74,7 +74,8 @@ array[] real discrepancy_length_scales(array[] real input_length_scale, array[] 
  *
  * @param xt_sim emulator inputs of the runs, (x, theta) on the unit cube
  * @param kernel_id 1 = squared exponential, 2 = Matern 5/2
- * @param emulator_sd, emulator_length_scale emulator GP hyperparameters
+ * @param emulator_sd emulator GP hyperparameters
+ * @param emulator_length_scale emulator GP hyperparameters
  * @param emulator_nugget standard deviation of the runs' nugget
  * @return covariance matrix, size(xt_sim) x size(xt_sim)
  */

@@ -96,7 +96,9 @@ real hsgp_marginal_lpdf(vector r, matrix phi_t, matrix phi_t_phi, vector weight_
  * @param rtr r' r
  * @param phi_t_r Phi' r
  * @param n number of observations
- * @param phi_t_phi, weight_sd, noise_var as in hsgp_marginal_lpdf
+ * @param phi_t_phi as in hsgp_marginal_lpdf
+ * @param weight_sd as in hsgp_marginal_lpdf
+ * @param noise_var as in hsgp_marginal_lpdf
  * @return log density
  */
 real hsgp_marginal_from_sums(real rtr, vector phi_t_r, int n, matrix phi_t_phi, vector weight_sd,
@@ -115,7 +117,10 @@ real hsgp_marginal_from_sums(real rtr, vector phi_t_r, int n, matrix phi_t_phi, 
  * hsgp_marginal_lpdf, c = weight_sd .* (Phi' r).
  *
  * @param r residual y - mean
- * @param phi_t, phi_t_phi, weight_sd, noise_var as in hsgp_marginal_lpdf
+ * @param phi_t as in hsgp_marginal_lpdf
+ * @param phi_t_phi as in hsgp_marginal_lpdf
+ * @param weight_sd as in hsgp_marginal_lpdf
+ * @param noise_var as in hsgp_marginal_lpdf
  * @param z B standard normals
  * @return the weights, B
  */

@@ -8,10 +8,12 @@
  * @param xt_obs emulator inputs of the physical points at the current theta
  * @param x_delta discrepancy inputs of the physical points
  * @param kernel_id 1 = squared exponential, 2 = Matern 5/2
- * @param emulator_sd, emulator_length_scale emulator GP hyperparameters
+ * @param emulator_sd emulator GP hyperparameters
+ * @param emulator_length_scale emulator GP hyperparameters
  * @param emulator_nugget standard deviation of the runs' jitter
  * @param rho KOH scale: zeta = rho * f + delta
- * @param delta_sd, delta_length_scale discrepancy GP hyperparameters
+ * @param delta_sd discrepancy GP hyperparameters
+ * @param delta_length_scale discrepancy GP hyperparameters
  *        (empty arrays for no discrepancy)
  * @param noise_sd measurement noise standard deviation
  * @return covariance matrix of size M + N, with the jitter (add_jitter) of the emulator's variance
@@ -45,12 +47,19 @@ matrix koh_joint_cov(array[] vector xt_sim, array[] vector xt_obs,
  *
  * @param resid [y_sim; y_obs] minus their prior means
  * @param L_joint Cholesky factor of koh_joint_cov(...)
- * @param xt_sim, xt_obs as in koh_joint_cov
+ * @param xt_sim as in koh_joint_cov
+ * @param xt_obs as in koh_joint_cov
  * @param x_delta discrepancy inputs of the physical points
  * @param xt_new emulator inputs of the new points at the current theta
  * @param x_delta_new discrepancy inputs of the new points
  * @param other parameters as in koh_joint_cov
  * @param z standard normals, size 2P: f's, then delta's
+ * @param kernel_id 1 = squared exponential, 2 = Matern 5/2
+ * @param emulator_sd the emulator GP's marginal sd
+ * @param emulator_length_scale the emulator GP's length scales: inputs first, then theta
+ * @param rho the Kennedy-O'Hagan scale on the simulator
+ * @param delta_sd the discrepancy GP's marginal sd (an empty array: no discrepancy)
+ * @param delta_length_scale the discrepancy GP's length scales, one per discrepancy input
  * @return [f_new; delta_new] minus their prior means, size 2P
  */
 vector koh_joint_predict(vector resid, matrix L_joint, array[] vector xt_sim,
@@ -89,7 +98,18 @@ vector koh_joint_predict(vector resid, matrix L_joint, array[] vector xt_sim,
  * @param prior_only 1 = ignore the physical data
  * @param xt_sim, xt_obs, x_delta, xt_new, x_delta_new, other parameters
  *        as in koh_joint_predict
- * @param z_f, z_delta standard normals for f and for delta, one per new point
+ * @param z_f standard normals for f and for delta, one per new point
+ * @param z_delta standard normals for f and for delta, one per new point
+ * @param xt_obs emulator inputs (x, theta on the unit cube) of the physical points
+ * @param x_delta discrepancy inputs of the physical points
+ * @param xt_new emulator inputs of the prediction points
+ * @param x_delta_new discrepancy inputs of the prediction points
+ * @param kernel_id 1 = squared exponential, 2 = Matern 5/2
+ * @param emulator_sd the emulator GP's marginal sd
+ * @param emulator_length_scale the emulator GP's length scales: inputs first, then theta
+ * @param rho the Kennedy-O'Hagan scale on the simulator
+ * @param delta_sd the discrepancy GP's marginal sd (an empty array: no discrepancy)
+ * @param delta_length_scale the discrepancy GP's length scales, one per discrepancy input
  * @return matrix with one row per new point: column 1 = f minus its prior
  *         mean, column 2 = delta
  */
@@ -116,14 +136,32 @@ matrix koh_joint_draw(vector resid, matrix L_joint, int prior_only,
  * (koh_emulator.stan, modular.stan) share: with the emulator's
  * hyperparameters given, the joint model's conditionals are exact.
  *
- * @param y_sim, y standardised outputs of the runs and of the physical points
+ * @param y_sim standardised outputs of the runs and of the physical points
+ * @param y standardised outputs of the runs and of the physical points
  * @param xt_sim emulator inputs of the runs
- * @param x, x_delta simulator and discrepancy inputs of the physical points
- * @param h, beta discrepancy mean terms at the physical points and their coefficients
- * @param x_new, x_delta_new, h_new the same at the prediction points
+ * @param x simulator and discrepancy inputs of the physical points
+ * @param x_delta simulator and discrepancy inputs of the physical points
+ * @param h discrepancy mean terms at the physical points and their coefficients
+ * @param beta discrepancy mean terms at the physical points and their coefficients
+ * @param x_new the same at the prediction points
+ * @param x_delta_new the same at the prediction points
+ * @param h_new the same at the prediction points
  * @param normals_new standard normals for the draws at the prediction points
  *        (prediction_normals_rng): column 1 for f, column 2 for delta
  * @param other parameters as in koh_joint_cov; y_center, y_scale as in the programs
+ * @param theta_unit every theta on [0, 1]; a functional theta's level
+ * @param prior_only 1 = draws from the prior (the data ignored)
+ * @param kernel_id 1 = squared exponential, 2 = Matern 5/2
+ * @param emulator_mean the emulator GP's constant mean
+ * @param emulator_sd the emulator GP's marginal sd
+ * @param emulator_length_scale the emulator GP's length scales: inputs first, then theta
+ * @param emulator_nugget the emulator's nugget sd (the runs' noise)
+ * @param rho the Kennedy-O'Hagan scale on the simulator
+ * @param delta_sd the discrepancy GP's marginal sd (an empty array: no discrepancy)
+ * @param delta_length_scale the discrepancy GP's length scales, one per discrepancy input
+ * @param noise_sd observation noise sd, standardised units
+ * @param y_center original-scale y = y_center + y_scale * y: the centre
+ * @param y_scale original-scale y = y_center + y_scale * y: the scale
  * @return (log_lik, y_loo_mean, y_rep, delta_gp, delta_gp_mean at the physical
  *         points; f_new, delta_new, zeta_new at the prediction points), original units
  */

@@ -7,6 +7,12 @@
 /**
  * Cholesky factor of a latent GP's covariance at the points, with the
  * jitter (add_jitter) that keeps it positive definite where points repeat.
+ *
+ * @param x the points
+ * @param kernel_id 1 = squared exponential, 2 = Matern 5/2
+ * @param marginal_sd the GP's marginal sd
+ * @param length_scale the GP's length scales, one per input
+ * @return lower Cholesky factor, size(x) x size(x)
  */
 matrix latent_gp_cholesky(array[] vector x, int kernel_id, real marginal_sd,
                           array[] real length_scale) {
@@ -16,6 +22,13 @@ matrix latent_gp_cholesky(array[] vector x, int kernel_id, real marginal_sd,
 
 /**
  * GP values at the points from standard normals z.
+ *
+ * @param x the points
+ * @param kernel_id 1 = squared exponential, 2 = Matern 5/2
+ * @param marginal_sd the GP's marginal sd
+ * @param length_scale the GP's length scales, one per input
+ * @param z standard normals, one per value drawn
+ * @return the GP's values at the points, L z
  */
 vector latent_gp(array[] vector x, int kernel_id, real marginal_sd,
                  array[] real length_scale, vector z) {
@@ -25,6 +38,15 @@ vector latent_gp(array[] vector x, int kernel_id, real marginal_sd,
 /**
  * One draw of a latent GP at new points given its values at the points,
  * from standard normals z (one per new point).
+ *
+ * @param values the GP's values at the points
+ * @param x the points
+ * @param x_new the new points
+ * @param kernel_id 1 = squared exponential, 2 = Matern 5/2
+ * @param marginal_sd the GP's marginal sd
+ * @param length_scale the GP's length scales, one per input
+ * @param z standard normals, one per value drawn
+ * @return the GP's values at the new points
  */
 vector latent_gp_predict(vector values, array[] vector x, array[] vector x_new, int kernel_id,
                          real marginal_sd, array[] real length_scale, vector z) {
@@ -39,9 +61,14 @@ vector latent_gp_predict(vector values, array[] vector x, array[] vector x_new, 
  * The runs carry the nugget; f at the physical points does not.
  *
  * @param L_sim Cholesky factor of the runs' covariance, nugget included
- * @param xt_sim, y_sim emulator inputs (x, theta on the unit cube) and standardised outputs of the runs
+ * @param xt_sim emulator inputs (x, theta on the unit cube) and standardised outputs of the runs
+ * @param y_sim emulator inputs (x, theta on the unit cube) and standardised outputs of the runs
  * @param xt_obs emulator inputs of the physical points at their theta
  * @param z standard normals, one per physical point
+ * @param kernel_id 1 = squared exponential, 2 = Matern 5/2
+ * @param emulator_mean the emulator GP's constant mean
+ * @param emulator_sd the emulator GP's marginal sd
+ * @param emulator_length_scale the emulator GP's length scales: inputs first, then theta
  * @return f at the physical points, standardised like y_sim
  */
 vector emulator_latent(matrix L_sim, array[] vector xt_sim, vector y_sim, array[] vector xt_obs,
@@ -65,13 +92,19 @@ vector emulator_latent(matrix L_sim, array[] vector xt_sim, vector y_sim, array[
  * @param f_link_new the simulator at the prediction points, model scale
  * @param mean_terms_new the discrepancy's mean terms h_new * beta at the prediction points, model scale
  * @param delta the latent discrepancy GP at the physical points, model scale
- * @param x_delta, x_delta_new discrepancy inputs of the physical and the prediction points
- * @param delta_sd, delta_length_scale the discrepancy's hyperparameters (empty: none)
+ * @param x_delta discrepancy inputs of the physical and the prediction points
+ * @param x_delta_new discrepancy inputs of the physical and the prediction points
+ * @param delta_sd the discrepancy's hyperparameters (empty: none)
+ * @param delta_length_scale the discrepancy's hyperparameters (empty: none)
  * @param normals_new standard normals for the draws at the prediction points
  *        (prediction_normals_rng): column 2 for delta
- * @param sd_obs, precision the Gaussian noise sd and negative binomial precision
+ * @param sd_obs the Gaussian noise sd and negative binomial precision
+ * @param precision the Gaussian noise sd and negative binomial precision
  * @param trials_new binomial trials of a new observation at each prediction point
  * @param units discrepancy units (discrepancy_units)
+ * @param kernel_id 1 = squared exponential, 2 = Matern 5/2
+ * @param y_center original-scale y = y_center + y_scale * y: the centre
+ * @param y_scale original-scale y = y_center + y_scale * y: the scale
  * @return (f_new, delta_new, zeta_new, y_new), original units
  */
 tuple(vector, vector, vector, vector) latent_prediction_quantities_rng(

@@ -31,6 +31,13 @@ tuple(vector, vector) normal_quadrature(int n) {
 /**
  * First and second derivatives in eta of log p(y | eta) for the count and
  * binomial observation models; all three are concave in eta.
+ *
+ * @param likelihood_id 1 = gaussian, 2 = poisson, 3 = negbinomial, 4 = binomial
+ * @param eta linear predictor on the model scale
+ * @param phi negative binomial precision, Var = mu + mu^2 / phi (else unused)
+ * @param y the count (poisson, negbinomial) or successes (binomial)
+ * @param trials binomial trials (unused otherwise)
+ * @return [d/deta, d2/deta2] of log p(y | eta)
  */
 vector count_log_lik_derivatives(int likelihood_id, real eta, real phi, int y, int trials) {
   if (likelihood_id == 2) {
@@ -53,6 +60,14 @@ vector count_log_lik_derivatives(int likelihood_id, real eta, real phi, int y, i
  * the rule for large counts.
  *
  * @param rule normal_quadrature(n)
+ * @param likelihood_id 1 = gaussian, 2 = poisson, 3 = negbinomial, 4 = binomial
+ * @param eta linear predictor on the model scale
+ * @param m mean of the normal the discrepancy at the point has
+ * @param s sd of that normal
+ * @param phi negative binomial precision, Var = mu + mu^2 / phi (else unused)
+ * @param y the count (poisson, negbinomial) or successes (binomial)
+ * @param trials binomial trials (unused otherwise)
+ * @return log of the integral of p(y | eta + delta) N(delta | m, s^2)
  */
 real integrated_count_log_lik(int likelihood_id, real eta, real m, real s, real phi, int y, int trials,
                               tuple(vector, vector) rule) {
@@ -83,6 +98,17 @@ real integrated_count_log_lik(int likelihood_id, real eta, real m, real s, real 
  * @param delta the latent discrepancy at the points, model scale
  * @param L_delta Cholesky factor of its prior covariance; 0 x 0 without a discrepancy
  * @param rule normal_quadrature(n)
+ * @param likelihood_id 1 = gaussian, 2 = poisson, 3 = negbinomial, 4 = binomial
+ * @param noise_sd observation noise sd, standardised units
+ * @param phi negative binomial precision, Var = mu + mu^2 / phi (else unused)
+ * @param y_real gaussian: standardised output (unused where censored or not gaussian)
+ * @param y_int counts or successes (unused for gaussian)
+ * @param trials binomial trials (unused otherwise)
+ * @param censoring 0 = observed, 1 = left, 2 = right, 3 = interval, per point
+ * @param lower_bound censoring lower bounds, standardised like y_real
+ * @param upper_bound censoring upper bounds, standardised like y_real
+ * @param y_center original-scale y = y_center + y_scale * y: the centre
+ * @param y_scale original-scale y = y_center + y_scale * y: the scale
  * @return (log_lik, loo_mean)
  */
 tuple(vector, vector) latent_loo(int likelihood_id, vector eta_rest, vector delta, matrix L_delta,
@@ -125,6 +151,18 @@ tuple(vector, vector) latent_loo(int likelihood_id, vector eta_rest, vector delt
  * @param delta the latent discrepancy GP at the points, model scale
  * @param L_delta Cholesky factor of its prior covariance; 0 x 0 without a discrepancy
  * @param other arguments as in observation_log_lik and latent_loo
+ * @param likelihood_id 1 = gaussian, 2 = poisson, 3 = negbinomial, 4 = binomial
+ * @param sd_obs gaussian observation sd (else unused)
+ * @param precision negative binomial precision (else unused)
+ * @param y_real gaussian: standardised output (unused where censored or not gaussian)
+ * @param y_int counts or successes (unused for gaussian)
+ * @param trials binomial trials (unused otherwise)
+ * @param censoring 0 = observed, 1 = left, 2 = right, 3 = interval, per point
+ * @param lower_bound censoring lower bounds, standardised like y_real
+ * @param upper_bound censoring upper bounds, standardised like y_real
+ * @param y_center original-scale y = y_center + y_scale * y: the centre
+ * @param y_scale original-scale y = y_center + y_scale * y: the scale
+ * @param rule normal quadrature nodes and weights (normal_quadrature)
  * @return (log p(y_i | delta_-i, parameters), E(y_i | delta_-i, parameters), replicated data)
  */
 tuple(vector, vector, vector) latent_observation_quantities_rng(

@@ -19,7 +19,11 @@
  * @param y_real gaussian: standardised output (unused where censored)
  * @param y_int counts or successes (unused for gaussian)
  * @param trials binomial trials (unused otherwise)
- * @param censoring, lower_bound, upper_bound censoring code and standardised bounds per point
+ * @param censoring censoring code and standardised bounds per point
+ * @param lower_bound censoring code and standardised bounds per point
+ * @param upper_bound censoring code and standardised bounds per point
+ * @param likelihood_id 1 = gaussian, 2 = poisson, 3 = negbinomial, 4 = binomial
+ * @param eta linear predictor on the model scale
  * @return log p(y_i | eta_i), one per point
  */
 vector observation_log_lik(int likelihood_id, vector eta, real noise_sd, real phi,
@@ -54,6 +58,13 @@ vector observation_log_lik(int likelihood_id, vector eta, real noise_sd, real ph
  * Replicated observations given the linear predictor; gaussian ones on the
  * standardised scale. The log mean is capped at 20 (5e8 counts) because
  * Stan's count RNGs refuse larger means, which only prior draws reach.
+ *
+ * @param likelihood_id 1 = gaussian, 2 = poisson, 3 = negbinomial, 4 = binomial
+ * @param eta linear predictor on the model scale
+ * @param noise_sd observation noise sd, standardised units
+ * @param phi negative binomial precision, Var = mu + mu^2 / phi (else unused)
+ * @param trials binomial trials (unused otherwise)
+ * @return one replicated observation per point (gaussian: standardised)
  */
 vector observation_rng(int likelihood_id, vector eta, real noise_sd, real phi,
                        array[] int trials) {
@@ -81,6 +92,10 @@ vector observation_rng(int likelihood_id, vector eta, real noise_sd, real phi,
  *
  * @param f simulator output on the response scale, original units
  * @param X the points, for the message
+ * @param likelihood_id 1 = gaussian, 2 = poisson, 3 = negbinomial, 4 = binomial
+ * @param y_center original-scale y = y_center + y_scale * y: the centre
+ * @param y_scale original-scale y = y_center + y_scale * y: the scale
+ * @return the simulator on the model scale, one per point
  */
 vector simulator_model_scale(int likelihood_id, vector f, matrix X, real y_center, real y_scale) {
   if (likelihood_id == 1) return (f - y_center) / y_scale;
@@ -102,6 +117,12 @@ vector simulator_model_scale(int likelihood_id, vector f, matrix X, real y_cente
 /**
  * From the standardised emulator scale to the model scale: unchanged for
  * gaussian (its model scale is standardised), link units otherwise.
+ *
+ * @param likelihood_id 1 = gaussian, 2 = poisson, 3 = negbinomial, 4 = binomial
+ * @param f_std the emulator's output, standardised like the runs
+ * @param y_center original-scale y = y_center + y_scale * y: the centre
+ * @param y_scale original-scale y = y_center + y_scale * y: the scale
+ * @return the emulator on the model scale
  */
 vector link_from_standardised(int likelihood_id, vector f_std, real y_center, real y_scale) {
   return likelihood_id == 1 ? f_std : y_center + y_scale * f_std;
@@ -109,6 +130,12 @@ vector link_from_standardised(int likelihood_id, vector f_std, real y_center, re
 
 /**
  * The mean response in original units from the model scale.
+ *
+ * @param likelihood_id 1 = gaussian, 2 = poisson, 3 = negbinomial, 4 = binomial
+ * @param eta linear predictor on the model scale
+ * @param y_center original-scale y = y_center + y_scale * y: the centre
+ * @param y_scale original-scale y = y_center + y_scale * y: the scale
+ * @return the mean response in original units
  */
 vector response_scale(int likelihood_id, vector eta, real y_center, real y_scale) {
   if (likelihood_id == 1) return y_center + y_scale * eta;
@@ -119,6 +146,10 @@ vector response_scale(int likelihood_id, vector eta, real y_center, real y_scale
 /**
  * Original units per model-scale unit of the discrepancy: y_scale for
  * gaussian (standardised), 1 on a link scale.
+ *
+ * @param likelihood_id 1 = gaussian, 2 = poisson, 3 = negbinomial, 4 = binomial
+ * @param y_scale original-scale y = y_center + y_scale * y: the scale
+ * @return y_scale for gaussian, 1 otherwise
  */
 real discrepancy_units(int likelihood_id, real y_scale) {
   return likelihood_id == 1 ? y_scale : 1.0;
@@ -128,6 +159,12 @@ real discrepancy_units(int likelihood_id, real y_scale) {
  * Pointwise log-likelihood in original units: the densities of exact
  * Gaussian rows were taken on the standardised scale (censored rows are
  * probabilities and need no change).
+ *
+ * @param likelihood_id 1 = gaussian, 2 = poisson, 3 = negbinomial, 4 = binomial
+ * @param log_lik pointwise log-likelihood on the model scale
+ * @param censoring 0 = observed, 1 = left, 2 = right, 3 = interval, per point
+ * @param y_scale original-scale y = y_center + y_scale * y: the scale
+ * @return the pointwise log-likelihood in original units
  */
 vector log_lik_original_units(int likelihood_id, vector log_lik, array[] int censoring,
                               real y_scale) {
@@ -142,6 +179,12 @@ vector log_lik_original_units(int likelihood_id, vector log_lik, array[] int cen
 
 /**
  * Observations drawn on the model scale, in original units.
+ *
+ * @param likelihood_id 1 = gaussian, 2 = poisson, 3 = negbinomial, 4 = binomial
+ * @param y observations on the model scale (observation_rng)
+ * @param y_center original-scale y = y_center + y_scale * y: the centre
+ * @param y_scale original-scale y = y_center + y_scale * y: the scale
+ * @return the observations in original units
  */
 vector observations_original_units(int likelihood_id, vector y, real y_center, real y_scale) {
   return likelihood_id == 1 ? y_center + y_scale * y : y;

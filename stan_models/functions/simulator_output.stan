@@ -5,7 +5,8 @@
  *
  * @param X inputs, one row per point, original units
  * @param theta calibration parameters, original units
- * @param y_center, y_scale the standardisation applied to y
+ * @param y_center the standardisation applied to y
+ * @param y_scale the standardisation applied to y
  * @return (simulator(X, theta) - y_center) / y_scale
  */
 vector standardized_simulator(matrix X, vector theta, real y_center, real y_scale) {
@@ -32,7 +33,10 @@ vector standardized_simulator(matrix X, vector theta, real y_center, real y_scal
  *
  * @param X inputs, one row per point, original units
  * @param theta calibration parameters, original units
- * @param theta_lower, theta_upper the theta box
+ * @param theta_lower the theta box
+ * @param theta_upper the theta box
+ * @param y_center original-scale y = y_center + y_scale * y: the centre
+ * @param y_scale original-scale y = y_center + y_scale * y: the scale
  * @return matrix of d f(x_r, theta) / d theta_j, rows(X) x rows(theta)
  */
 matrix simulator_theta_derivatives(matrix X, vector theta, vector theta_lower, vector theta_upper,
@@ -55,6 +59,17 @@ matrix simulator_theta_derivatives(matrix X, vector theta, vector theta_lower, v
  * The weights A of the functionals a restricted GP is conditioned on
  * (restricted_gp.stan): diag(w) * df/dtheta at the quadrature nodes for the
  * orthogonal GP, the identity over the N physical points for the scaled GP.
+ *
+ * @param orthogonal 1 = orthogonal GP, 0 = scaled GP
+ * @param X_quad quadrature nodes on the input box, original units
+ * @param w_quad quadrature weights, summing to 1
+ * @param theta calibration parameters, original units
+ * @param theta_lower lower bounds of theta, original units
+ * @param theta_upper upper bounds of theta, original units
+ * @param y_center original-scale y = y_center + y_scale * y: the centre
+ * @param y_scale original-scale y = y_center + y_scale * y: the scale
+ * @param N the number of physical points
+ * @return A, U x functionals (R x Q orthogonal, N x N scaled)
  */
 matrix restriction_map(int orthogonal, matrix X_quad, vector w_quad, vector theta,
                        vector theta_lower, vector theta_upper, real y_center, real y_scale,
@@ -70,6 +85,12 @@ matrix restriction_map(int orthogonal, matrix X_quad, vector w_quad, vector thet
  * The user's simulator at points that may each have their own theta,
  * standardised like y: one call when theta is shared (one row), one call
  * per point otherwise.
+ *
+ * @param X inputs, one row per point, original units
+ * @param theta_rows theta per point, original units (one row: shared by all points)
+ * @param y_center original-scale y = y_center + y_scale * y: the centre
+ * @param y_scale original-scale y = y_center + y_scale * y: the scale
+ * @return the standardised simulator, one value per row of X
  */
 vector simulator_at_rows(matrix X, matrix theta_rows, real y_center, real y_scale) {
   if (rows(theta_rows) == 1) {

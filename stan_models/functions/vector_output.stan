@@ -12,8 +12,11 @@
  * @param points (x_e, theta, theta_e) of each experiment, unit cube
  * @param xt_runs (x, theta) of each run, unit cube
  * @param alpha K^-1 (run weights - mean), over every run
- * @param xt_variance, L_variance the variance runs and the Cholesky factor of their covariance
- * @param mean, sd, length_scale the component's hyperparameters
+ * @param xt_variance the variance runs and the Cholesky factor of their covariance
+ * @param L_variance the variance runs and the Cholesky factor of their covariance
+ * @param mean the component's hyperparameters
+ * @param sd the component's hyperparameters
+ * @param length_scale the component's hyperparameters
  * @return (weight means at the experiments, their covariance)
  */
 tuple(vector, matrix) component_weights(array[] vector points, array[] vector xt_runs, vector alpha,
@@ -32,7 +35,10 @@ tuple(vector, matrix) component_weights(array[] vector points, array[] vector xt
  *
  * @param xt_runs (x, theta) of each run, unit cube
  * @param run_weights each run's component weights
- * @param mean, sd, length_scale, nugget per component, the weight GP's hyperparameters
+ * @param mean per component, the weight GP's hyperparameters
+ * @param sd per component, the weight GP's hyperparameters
+ * @param length_scale per component, the weight GP's hyperparameters
+ * @param nugget per component, the weight GP's hyperparameters
  * @return (per component, the runs' Cholesky factor; K^-1 (weights - mean), runs x components)
  */
 tuple(array[] matrix, matrix) weight_gp_factors(array[] vector xt_runs, matrix run_weights, vector mean,
@@ -54,9 +60,15 @@ tuple(array[] matrix, matrix) weight_gp_factors(array[] vector xt_runs, matrix r
  *
  * @param x each experiment's inputs; theta_unit, theta_exp_unit shared and
  *        per-experiment parameters, all on the unit cube
- * @param xt_runs, alpha every run; per component, K^-1 (weights - mean)
- * @param xt_variance, L_variance the variance runs; per component, their covariance's Cholesky factor
- * @param emulator_mean, emulator_sd, emulator_length_scale stage 1, per component
+ * @param xt_runs every run; per component, K^-1 (weights - mean)
+ * @param alpha every run; per component, K^-1 (weights - mean)
+ * @param xt_variance the variance runs; per component, their covariance's Cholesky factor
+ * @param L_variance the variance runs; per component, their covariance's Cholesky factor
+ * @param emulator_mean stage 1, per component
+ * @param emulator_sd stage 1, per component
+ * @param emulator_length_scale stage 1, per component
+ * @param theta_unit every theta on [0, 1]; a functional theta's level
+ * @param theta_exp_unit per-experiment parameters on the unit cube
  * @return (weight means, experiments x components; per component, the
  *         weights' covariance between experiments)
  */
@@ -86,11 +98,16 @@ tuple(matrix, array[] matrix) experiment_weights(array[] vector x, vector theta_
  * the basis mean does not give: the emulator's weight uncertainty through
  * the components, plus the discrepancy GP over (inputs, output index).
  *
- * @param experiment_a, components_a, x_delta_a rows a: their experiment,
+ * @param experiment_a rows a: their experiment,
+ * @param components_a rows a: their experiment,
+ * @param x_delta_a rows a: their experiment,
  *        the basis components at their index, (inputs, index) on the unit cube
- * @param experiment_b, components_b, x_delta_b the same for rows b
+ * @param experiment_b the same for rows b
+ * @param components_b the same for rows b
+ * @param x_delta_b the same for rows b
  * @param weight_cov per component, the weights' covariance between experiments
- * @param delta_sd, delta_length_scale the discrepancy (size 0: none)
+ * @param delta_sd the discrepancy (size 0: none)
+ * @param delta_length_scale the discrepancy (size 0: none)
  * @return covariance, rows a x rows b
  */
 matrix signal_cov(array[] int experiment_a, matrix components_a, array[] vector x_delta_a,

@@ -9,7 +9,8 @@
  * @param experiment each row's experiment
  * @param theta shared parameters, original units
  * @param theta_experiment per experiment, its own parameters (size 0 each: none)
- * @param y_center, y_scale the standardisation applied to y
+ * @param y_center the standardisation applied to y
+ * @param y_scale the standardisation applied to y
  * @return (simulator(X, theta) - y_center) / y_scale
  */
 vector experiment_simulator(matrix X, array[] int experiment, vector theta, array[] vector theta_experiment,

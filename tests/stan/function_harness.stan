@@ -15,6 +15,21 @@ vector simulator(matrix X, vector theta) {
 #include observation_model.stan
 #include latent_loo.stan
 #include functional_theta.stan
+#include latent_koh.stan
+#include priors.stan
+#include hsgp.stan
+#include chebyshev.stan
+#include vector_noise.stan
+#include vector_output.stan
+#include vector_simulator.stan
+#include given_normals.stan
+/**
+ * One coordinate of each point, as 1-vectors.
+ *
+ * @param x the points
+ * @param k the coordinate
+ * @return x[i][k] as a 1-vector per point
+ */
 array[] vector coordinate(array[] vector x, int k) {
   array[size(x)] vector[1] out;
   for (i in 1:size(x)) out[i] = x[i][k:k];
@@ -46,6 +61,13 @@ data {
   vector[2] theta_lo;
   vector[2] theta_hi;
   vector[n2] z_draw;                    // standard normals for a conditional draw
+  int<lower=0> given_count;             // check_given_normals(given_count, needed_count)
+  int<lower=0> needed_count;
+}
+transformed data {
+  check_given_normals(given_count, needed_count);
+  array[3, 2] int hs_index = {{1, 1}, {2, 1}, {1, 3}};  // Hilbert-space basis functions
+  vector[2] hs_boundary = [1.5, 1.8]';
 }
 generated quantities {
   matrix[n1, n2] se_cross = ard_cross_cov(x1, x2, 1, sd_, ls);
@@ -114,6 +136,110 @@ generated quantities {
                                                    rule);
       latent_loo_lik[k] = out.1';
       latent_loo_mean[k] = out.2';
+    }
+  }
+  // the discrepancy's covariances at x1 and x2, orthogonal to two functionals at the nodes U = x1
+  matrix[n1, n1] restricted_K;
+  matrix[n2, n1] restricted_K_cross;
+  matrix[n2, n2] restricted_K_new;
+  {
+    tuple(matrix[n1, n1], matrix[n2, n1], matrix[n2, n2]) K_all
+      = restricted_gp_cov(x1, x2, x1, A_restrict, 1, sd_, ls, 0);
+    restricted_K = K_all.1;
+    restricted_K_cross = K_all.2;
+    restricted_K_new = K_all.3;
+  }
+  // unrestricted: A without rows
+  matrix[n2, n1] unrestricted_K_cross = restricted_gp_cov(x1, x2, x1[1:0], rep_matrix(0, 0, 2), 1, sd_, ls, 0).2;
+  // every prior of priors.stan at given values (full densities: called as _lpdf)
+  vector[16] priors = [discrepancy_length_scale_lpdf({0.3, 0.7}), covariate_relevance_lpdf({0.5, 2.0}),
+                       emulator_length_scale_lpdf({0.3, 0.7}), functional_length_scale_lpdf([0.3, 0.7]'),
+                       observation_noise_sd_lpdf(0.4), observation_noise_sd_lpdf({0.4, 0.9}),
+                       discrepancy_sd_lpdf({0.3}), koh_scale_lpdf({1.1}),
+                       overdispersion_lpdf({0.6}),
+                       functional_sd_lpdf([0.8, 2.0]'), emulator_mean_lpdf(0.3), emulator_mean_lpdf([0.3, -1.2]'),
+                       emulator_sd_lpdf(0.5), emulator_sd_lpdf([0.5, 1.5]'), emulator_nugget_lpdf(0.01),
+                       emulator_nugget_lpdf([0.01, 0.1]')]';
+  // Hilbert-space GP: basis at x1, weight sds (length scales capped at 0.5), marginal density, weights
+  matrix[n1, 3] hs_basis = hsgp_basis(x1, hs_index, hs_boundary);
+  vector[3] hs_sd_se = hsgp_weight_sd(hs_index, hs_boundary, 1, sd_, ls, {0.5, 0.5});
+  vector[3] hs_sd_m52 = hsgp_weight_sd(hs_index, hs_boundary, 2, sd_, ls, {0.5, 0.5});
+  real hs_marginal = hsgp_marginal_lpdf(resid | hs_basis', crossprod(hs_basis), hs_sd_se, 0.3);
+  real hs_marginal_sums = hsgp_marginal_from_sums(dot_self(resid), hs_basis' * resid, n1, crossprod(hs_basis),
+                                                  hs_sd_m52, 0.3);
+  vector[3] hs_weights = hsgp_weights(resid, hs_basis', crossprod(hs_basis), hs_sd_se, 0.3, [0.1, -0.4, 0.7]');
+  // Chebyshev tensor basis: degree 2 in theta 1, 1 in theta 2
+  vector[6] chebyshev = chebyshev_tensor_basis([0.3, 0.8]', {2, 1});
+  // vector outputs: independent variances per noise mode, for experiments {1, 2, 1}
+  vector[3] variance_known = independent_variance(0, [0.1, 0.2, 0.3]', {0.5, 0.7}, {1, 2, 1});
+  vector[3] variance_one = independent_variance(1, [0.1, 0.2, 0.3]', {0.5}, {1, 2, 1});
+  vector[3] variance_per_experiment = independent_variance(2, [0.1, 0.2, 0.3]', {0.5, 0.7}, {1, 2, 1});
+  // the simulator above per experiment: theta 1 shared, theta 2 each experiment's own
+  vector[3] experiment_f = experiment_simulator(X_sim, {1, 2, 1}, theta_sim[1:1], {[0.5]', [2.0]'}, 0.2, 1.5);
+  // weight GPs: one component's weights at x2 given runs x1 (alpha = resid) and variance runs x1
+  vector[n2] component_mean;
+  matrix[n2, n2] component_cov;
+  {
+    tuple(vector[n2], matrix[n2, n2]) w = component_weights(x2, x1, resid, x1,
+                                                            cholesky_decompose(add_diag(se_sym, 0.1)), 0.2, sd_, ls);
+    component_mean = w.1;
+    component_cov = w.2;
+  }
+  // two components' run factors with runs x1 and weights A_restrict
+  array[2] matrix[n1, n1] factors_L;
+  matrix[n1, 2] factors_alpha;
+  {
+    tuple(array[2] matrix[n1, n1], matrix[n1, 2]) f = weight_gp_factors(
+      x1, A_restrict, [0.1, -0.2]', [sd_, 0.9]', {ls, {0.5, 0.6}}, [0.05, 0.1]');
+    factors_L = f.1;
+    factors_alpha = f.2;
+  }
+  // four experiments at x2's first coordinate with shared theta 0.3, two components
+  matrix[n2, 2] experiment_means;
+  array[2] matrix[n2, n2] experiment_covs;
+  {
+    array[n2] vector[0] none;
+    matrix[n1, n1] L_var = cholesky_decompose(add_diag(se_sym, 0.1));
+    tuple(matrix[n2, 2], array[2] matrix[n2, n2]) e = experiment_weights(
+      coordinate(x2, 1), [0.3]', none, x1, A_restrict, x1, {L_var, L_var}, [0.2, -0.1]', [sd_, 0.9]',
+      {ls, {0.5, 0.6}});
+    experiment_means = e.1;
+    experiment_covs = e.2;
+  }
+  matrix[4, 3] signal = signal_cov({1, 2, 1, 2}, [[1, 0.5], [0.2, -1], [0.3, 0.3], [-0.7, 2]], x2,
+                                   {2, 1, 1}, [[0.4, 1], [1, 0], [-0.5, 0.5]], x1[1:3],
+                                   {[[1, 0.3], [0.3, 2]], [[0.5, -0.1], [-0.1, 0.8]]}, {0.7}, {0.4, 0.6});
+  // latent programs' shared pieces
+  vector[4] observation_parameters = [observation_sd(1, {0.7}), observation_sd(3, {0.7}),
+                                      negbinomial_precision(3, {0.5}), negbinomial_precision(1, {0.5})]';
+  // functional theta 2 at three distinct points (x1[1:3]'s first coordinate), theta 1 scalar
+  real functional_prior_centred = functional_theta_prior_lpdf(
+    [[0.2], [-0.5], [1.0]] | [[9.0], [9.0], [9.0]], 1, [0.25, 0.5]', {0, 1}, coordinate(x1[1:3], 1), 1,
+    [0.9]', {[0.4]'});
+  real functional_prior_noncentred = functional_theta_prior_lpdf(
+    [[0.2], [-0.5], [1.0]] | [[0.3], [-1.1], [0.6]], 0, [0.25, 0.5]', {0, 1}, coordinate(x1[1:3], 1), 1,
+    [0.9]', {[0.4]'});
+  matrix[n2, 1] functional_grid;
+  matrix[2, 2] functional_new;
+  {
+    tuple(matrix[n2, 1], matrix[2, 2]) q = functional_theta_quantities_rng(
+      [0.25, 0.5]', {0, 1}, [[0.2], [-0.5], [1.0]], coordinate(x1[1:3], 1), coordinate(x2, 1),
+      coordinate(x2[1:2], 1), 1, [0.9]', {[0.4]'}, [0, 10]', [1, 20]', [[0, 0, 0.3], [0, 0, -0.8]]);
+    functional_grid = q.1;
+    functional_new = q.2;
+  }
+  // latent_point_quantities_rng's deterministic parts: the latent LOO with delta's prior at x2
+  // (latent_gp_cholesky: the jitter, no nugget), gaussian and poisson
+  matrix[2, 4] point_loo_lik;
+  matrix[2, 4] point_loo_mean;
+  {
+    tuple(vector[20], vector[20]) rule = normal_quadrature(20);
+    for (k in 1:2) {
+      tuple(vector[4], vector[4], vector[4]) out = latent_point_quantities_rng(
+        k, eta, resid[1:4], x2, 1, {sd_}, ls, 0.7, 3.5, y_real, y_int, trials, censoring, lower_bound,
+        upper_bound, 0.2, 1.5, rule);
+      point_loo_lik[k] = out.1';
+      point_loo_mean[k] = out.2';
     }
   }
 }
