@@ -103,7 +103,7 @@ def test_programs_compile_side_by_side_quietly_into_the_cache(capfd):
     import httpstan.cache
 
     from stancal.stan.backends.pystan_backend import PyStanBackend
-    from stancal.stan.backends.pystan_compile import model_name, stored_module, is_compiled
+    from stancal.stan.backends.pystan_compile import is_compiled, model_name, stored_module
     from stancal.stan.source import FlatProgram
 
     programs = [FlatProgram(f"parameters {{ real {name}; }}\nmodel {{ {name} ~ std_normal(); }}\n",

@@ -27,8 +27,8 @@ def test_ball_drop_predicts_the_quadratic_drag_reality_from_a_linear_drag_simula
     drop time, plus the example's mean reading delay of 0.005 s, at 90 % or
     more of the prediction heights from 5 to 20 m for each ball, and its mean is within
     0.02 s of it everywhere (the times are 1.2 to 3.6 s). R-hat <= 1.01."""
-    from stancal.problem.config import load_config
     from stancal.fitting.vector_calibrate import calibrate_vector
+    from stancal.problem.config import load_config
 
     physics = _physics()
     problem = load_config(BALL_DROP / "config.toml")

@@ -19,7 +19,8 @@ def run(*args, cwd=None):
 @pytest.fixture(scope="module")
 def cli_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("cli") / "out"
-    done = run("calibrate", COOLING / "config.toml", "--out", out, "--chains", 2,
+    # 4 chains: at 2 x (300 + 300) theta's R-hat was 1.018
+    done = run("calibrate", COOLING / "config.toml", "--out", out, "--chains", 4,
                "--warmup", 300, "--draws", 300, "--seed", 4, "--backend", "pystan")
     return done, out
 
@@ -27,7 +28,7 @@ def cli_run(tmp_path_factory):
 def test_calibrate_writes_the_report_folder(cli_run):
     done, out = cli_run
     assert done.returncode == 0, done.stderr
-    # 2 x 300 draws: checks the folder's files and fields; the summary's own diagnostics must still pass
+    # checks the folder's files and fields; the summary's own diagnostics must pass too
     assert_healthy_summary(json.loads((out / "summary.json").read_text())["diagnostics"])
     summary = json.loads((out / "summary.json").read_text())
     assert summary["method"] == "koh" and summary["backend"] == "pystan"

@@ -31,7 +31,7 @@ def flaky(counter: str, fail_times: int) -> int:
     path.write_text(str(calls))
     if calls <= fail_times:
         raise ValueError(f"row {calls} is bad")
-    warnings.warn(f"fitted after {calls} calls", UserWarning)
+    warnings.warn(f"fitted after {calls} calls", UserWarning, stacklevel=2)
     return calls
 
 
@@ -148,7 +148,7 @@ def test_gap_on_a_cluster_that_loses_a_worker_matches_the_local_run(cooling_gap,
     local = cooling_gap[0]
     assert [c["name"] for c in on_cluster["candidates"]] == [c["name"] for c in local["candidates"]]
     assert on_cluster["failed"] == []
-    for there, here in zip(on_cluster["candidates"], local["candidates"]):
+    for there, here in zip(on_cluster["candidates"], local["candidates"], strict=False):
         for key in ("elpd_diff", "elpd_diff_se"):
             assert there[key] == pytest.approx(here[key], rel=1e-9, abs=1e-9), (here["name"], key)
         assert there["shrinkage"]["mean"] == pytest.approx(here["shrinkage"]["mean"], rel=1e-9)

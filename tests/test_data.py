@@ -18,7 +18,7 @@ def runs(n=6):
 
 
 def make(**kw):
-    args = dict(physical=physical(), inputs=["x"], output="y", theta={"k": (0, 1)})
+    args = {"physical": physical(), "inputs": ["x"], "output": "y", "theta": {"k": (0, 1)}}
     args.update(kw)
     return CalibrationData(**args)
 

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 import xarray as xr
 
-from stancal.results.diagnostics import check_sampler
 from stancal.fitting.inits import spread_theta_inits
+from stancal.results.diagnostics import check_sampler
 from stancal.results.modes import find_modes
 
 rng = np.random.default_rng(0)

@@ -12,8 +12,8 @@ import pytest
 from conftest import ROOT, assert_healthy, fit, no_stancal_warnings
 
 import stancal
-from stancal.problem.design import latin_hypercube_with_corners
 from stancal.problem.codes import Censoring, Likelihood
+from stancal.problem.design import latin_hypercube_with_corners
 from stancal.stan.source import shipped_models_dir
 
 COUNTS = ROOT / "case_studies" / "detector_counts"
@@ -197,7 +197,7 @@ def test_counts_case_study_from_runs():
     # at 0.9 also left R-hat 1.015): allowed up to 1 %, and the answer is
     # checked against the exact-simulator fit below. 4 chains: 2 x 800 draws
     # left R-hat 1.015 on delta's length scale on a freshly compiled module
-    sampling = dict(draws=800, adapt_delta=0.95, chains=4)
+    sampling = {"draws": 800, "adapt_delta": 0.95, "chains": 4}
     result = fit(data, **sampling)
     assert result.method == "koh_latent_emulator"
     assert_healthy(result, divergences=32)
@@ -250,7 +250,8 @@ def test_binomial_with_a_cheap_simulator():
     physical = pd.DataFrame({"t": t, "c0": 0.9, "n": 30, "alive": rng.binomial(30, p)})
     data = stancal.CalibrationData(physical, ["t", "c0"], "alive", {"k": (0.01, 0.5)},
                                    likelihood="binomial", trials="n")
-    result = fit(data, simulator=CENSORED / "simulator.stan")
+    # adapt_delta 0.95, as the sampler's advice says: at 0.9, 2 of 800 transitions diverged
+    result = fit(data, simulator=CENSORED / "simulator.stan", adapt_delta=0.95)
     assert_healthy(result)
     low, high = interval(result, "k")
     assert low < decay.K_TRUE < high
@@ -264,13 +265,13 @@ def test_binomial_with_a_cheap_simulator():
 # ---- censored ----------------------------------------------------------------
 
 def censored_data(frame: pd.DataFrame, bounds: bool = True) -> stancal.CalibrationData:
-    extra = dict(lower="lower", upper="upper") if bounds else {}
+    extra = {"lower": "lower", "upper": "upper"} if bounds else {}
     return stancal.CalibrationData(frame, ["t", "c0"], "concentration", {"k": (0.01, 0.5)}, **extra)
 
 
 def fit_censoring_three_ways(frame: pd.DataFrame, seed: int) -> dict[str, stancal.CalibrationResult]:
     """Same program (koh_latent) and settings for the censored and naive fits."""
-    options = dict(simulator=CENSORED / "simulator.stan", method="koh_latent", discrepancy="none", seed=seed)
+    options = {"simulator": CENSORED / "simulator.stan", "method": "koh_latent", "discrepancy": "none", "seed": seed}
     fits = {"censored": fit(censored_data(frame), **options)}
     for name, naive in decay.naive_frames(frame).items():
         fits[name] = fit(censored_data(naive, bounds=False), **options)
@@ -340,8 +341,9 @@ def beam_data(runs: bool = False) -> stancal.CalibrationData:
 
 @pytest.fixture(scope="session")
 def functional_fit():
+    # adapt_delta 0.95, as the sampler's advice says: at 0.9, 3 of 800 transitions diverged
     return fit(beam_data(), simulator=BEAM / "simulator.stan", functional=["E"],
-               functional_inputs=["temperature"])
+               functional_inputs=["temperature"], adapt_delta=0.95)
 
 
 def band_coverage(result) -> float:
@@ -402,8 +404,8 @@ def noisy_beam_data(noise_sd: float = 1.0, points: int = 20, seed: int = 1) -> s
                                    ["load"], "deflection", {"E": beam.E_BOUNDS}, covariates=["temperature"])
 
 
-NOISY_BEAM_SETTINGS = dict(simulator=BEAM / "simulator.stan", functional=["E"], functional_inputs=["temperature"],
-                           chains=4, warmup=500, draws=500)
+NOISY_BEAM_SETTINGS = {"simulator": BEAM / "simulator.stan", "functional": ["E"], "functional_inputs": ["temperature"],
+                           "chains": 4, "warmup": 500, "draws": 500}
 
 
 @pytest.fixture(scope="session")
@@ -433,9 +435,8 @@ def test_both_parametrizations_of_functional_theta_give_one_posterior(non_centre
 
 
 def test_a_struggling_functional_fit_is_told_the_other_parametrization():
-    from stancal.results.diagnostics import Diagnostics
-    from stancal.problem.functional import parametrization_advice
     from stancal.problem.options import ModelOptions
+    from stancal.results.diagnostics import Diagnostics, parametrization_advice
 
     healthy = Diagnostics(0, 2000, 1.004, "theta", 800.0, 800.0, "theta", 0, [])
     funnel = Diagnostics(4, 2000, 1.03, "theta_function_sd", 115.0, 300.0, "theta_function_sd", 1409, [])

@@ -50,13 +50,13 @@ def edited_koh(folder):
     code = (ROOT / "stan_models" / "koh.stan").read_text()
     edits = [
         ("  vector[H] beta;                                        // mean-term coefficients, standardised units\n",
-         "  vector[H] beta;                                        // mean-term coefficients, standardised units\n"
-         "  real<lower=0> noise_sd_hot;                            // noise sd of the hot starts, standardised\n"),
+         ("  vector[H] beta;                                        // mean-term coefficients, standardised units\n"
+         "  real<lower=0> noise_sd_hot;                            // noise sd of the hot starts, standardised\n")),
         ("  beta ~ normal(0, beta_prior_sd);\n",
          "  beta ~ normal(0, beta_prior_sd);\n  noise_sd_hot ~ normal(0, 1);\n"),
         ("  if (!prior_only) {\n",
-         "  if (!prior_only) {\n    vector[N] noise_var = rep_vector(square(noise_sd), N);\n"
-         "    for (i in 1:N) if (X[i, 2] > 75) noise_var[i] = square(noise_sd_hot);\n"),
+         ("  if (!prior_only) {\n    vector[N] noise_var = rep_vector(square(noise_sd), N);\n"
+         "    for (i in 1:N) if (X[i, 2] > 75) noise_var[i] = square(noise_sd_hot);\n")),
         ("add_jitter(add_diag(K, square(noise_sd)), square(delta_sd[1]))));",
          "add_jitter(add_diag(K, noise_var), square(delta_sd[1]))));"),
     ]

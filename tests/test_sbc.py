@@ -5,11 +5,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
-from stancal.reporting.sbc_report import write_sbc_report
-
 from conftest import COOLING, cooling_data
+
 from stancal.diagnosing.sbc_ranks import fractional_ranks, rank_of, uniformity
+from stancal.reporting.sbc_report import write_sbc_report
 
 
 def test_rank_counts_the_draws_below_the_truth():
@@ -27,9 +26,9 @@ def test_uniform_ranks_pass_and_overconfident_ones_are_rejected():
     assert not uniformity(fractional_ranks(uniform, draws, rng)).rejected
     truth, narrow = rng.normal(size=sims), rng.normal(size=(sims, draws)) * 0.5
     overconfident = [rank_of(t, draws_s) for t, draws_s in
-                     zip(truth, narrow + rng.normal(size=(sims, 1)))]
+                     zip(truth, narrow + rng.normal(size=(sims, 1)), strict=False)]
     assert uniformity(fractional_ranks(np.array(overconfident), draws, rng)).p_value < 0.01
-    biased = [rank_of(t, d) for t, d in zip(truth, rng.normal(size=(sims, draws)) + truth[:, None] + 0.5)]
+    biased = [rank_of(t, d) for t, d in zip(truth, rng.normal(size=(sims, draws)) + truth[:, None] + 0.5, strict=False)]
     assert uniformity(fractional_ranks(np.array(biased), draws, rng)).p_value < 0.01
 
 
@@ -57,8 +56,8 @@ def test_sbc_passes_koh_and_flags_a_likelihood_with_the_wrong_noise_scale(tmp_pa
     # health is not asserted per fit: only each simulation's ranks travel back from the workers
     # (the library keeps no per-fit diagnostics in SBCResult); uniform ranks are the check here
     data = cooling_data(seed=7)
-    settings = dict(simulator=COOLING / "simulator.stan", method="koh", discrepancy="none", simulations=60,
-                    draws_per_fit=50, seed=5, warmup=200)
+    settings = {"simulator": COOLING / "simulator.stan", "method": "koh", "discrepancy": "none", "simulations": 60,
+                    "draws_per_fit": 50, "seed": 5, "warmup": 200}
     good = simulation_based_calibration(data, out_dir=tmp_path / "good", **settings)
     print({n: round(t.p_value, 3) for n, t in good.tests.items()})
     assert not any(t.rejected for t in good.tests.values()) and not good.failed

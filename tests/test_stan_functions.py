@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from stancal.stan.backends.pystan_compile import compile_programs
 from stancal.numerics.kernels import ard_cross_cov
 from stancal.problem.codes import Kernel
+from stancal.stan.backends.pystan_compile import compile_programs
 from stancal.stan.source import flatten
 
 HARNESS = Path(__file__).parent / "stan" / "function_harness.stan"
@@ -19,9 +19,9 @@ RESID = rng.standard_normal(6)
 A_RESTRICT = rng.standard_normal((6, 2))
 RIDGE = 0.3
 # one observation per censoring code (observed, left, right, interval), and counts
-OBSERVATIONS = dict(eta=[0.3, -1.2, 2.0, 0.1], y_real=[0.5, 0, 0, 0], y_int=[3, 0, 12, 7],
-                    trials=[5, 4, 20, 9], censoring=[0, 1, 2, 3], lower_bound=[0, 0, 1.5, -0.4],
-                    upper_bound=[0, -0.8, 0, 0.9])
+OBSERVATIONS = {"eta": [0.3, -1.2, 2.0, 0.1], "y_real": [0.5, 0, 0, 0], "y_int": [3, 0, 12, 7],
+                    "trials": [5, 4, 20, 9], "censoring": [0, 1, 2, 3], "lower_bound": [0, 0, 1.5, -0.4],
+                    "upper_bound": [0, -0.8, 0, 0.9]}
 X_SIM = rng.uniform(0.5, 2.0, size=(3, 2))
 THETA_SIM, THETA_LO, THETA_HI = np.array([0.7, 1.3]), np.array([0.1, -1.0]), np.array([2.0, 3.0])
 Z_DRAW = rng.standard_normal(4)
@@ -231,7 +231,8 @@ def check_latent_loo(K, loo_lik, loo_mean, likelihoods):
         m, s = weights @ delta[rest], np.sqrt(K[i, i] - K[rest, i] @ weights)
         eta = OBSERVATIONS["eta"][i]
         for k in likelihoods:
-            density, _ = quad(lambda u: _observation_density(k, i, eta + m + s * u) * stats.norm.pdf(u),
+            density, _ = quad(lambda u, k=k, i=i, c=eta + m, s=s: _observation_density(k, i, c + s * u)
+                              * stats.norm.pdf(u),
                               -12, 12, epsabs=0, epsrel=1e-11, limit=200)
             expected = np.log(density) - (np.log(y_scale) if k == 1 and i == 0 else 0)
             # 20 nodes; the hardest case, a zero count under a wide conditional, is off by 3e-7
@@ -239,7 +240,7 @@ def check_latent_loo(K, loo_lik, loo_mean, likelihoods):
                                        err_msg=f"likelihood {k}, observation {i}")
             inverse_link = {1: lambda e: y_center + y_scale * e, 2: np.exp, 3: np.exp,
                             4: lambda e: 1 / (1 + np.exp(-e))}[k]
-            mean, _ = quad(lambda u: inverse_link(eta + m + s * u) * stats.norm.pdf(u), -12, 12,
+            mean, _ = quad(lambda u, g=inverse_link, c=eta + m, s=s: g(c + s * u) * stats.norm.pdf(u), -12, 12,
                            epsabs=0, epsrel=1e-11)
             np.testing.assert_allclose(loo_mean[k - 1, i], mean, rtol=1e-6,
                                        err_msg=f"likelihood {k}, observation {i}")

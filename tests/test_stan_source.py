@@ -92,7 +92,7 @@ def data_block(code: str) -> str:
 
 def test_integer_code_declarations_agree_with_python(tmp_path):
     codes = integer_codes()
-    declared = {name: 0 for name in codes}
+    declared = dict.fromkeys(codes, 0)
     for program, code in flat_programs(tmp_path).items():
         for line in data_block(code).splitlines():
             match = _DECLARATION.match(line)

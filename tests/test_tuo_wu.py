@@ -47,7 +47,7 @@ def test_koh_on_tuo_wu(koh_tuo_wu):
     assert sum(weights) == pytest.approx(1)
     # the mixture's CDF at the reported quantiles, computed from each mode's draws
     for q in ("q05", "q50", "q95"):
-        cdf = sum(w * np.mean(theta[m.chains] <= summary[q]) for w, m in zip(weights, result.modes))
+        cdf = sum(w * np.mean(theta[m.chains] <= summary[q]) for w, m in zip(weights, result.modes, strict=False))
         assert cdf == pytest.approx(int(q[1:]) / 100, abs=0.01), q
     # the posterior predictive still tracks the true process (Tuo & Wu 2018)
     table = result.predict()

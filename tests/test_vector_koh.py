@@ -9,7 +9,7 @@ import json
 import numpy as np
 import pandas as pd
 import pytest
-from conftest import ROOT, assert_healthy, assert_healthy_summary
+from conftest import ROOT, assert_gap_summary_healthy, assert_healthy
 from test_vector_outputs import long_experiments
 
 from stancal.problem.vector_data import VectorCalibrationData
@@ -121,8 +121,8 @@ def test_held_out_values_are_scored_with_their_own_noise():
 
 
 def assert_wind_gap_healthy(gap):
-    for fit in (gap["baseline"], *gap["candidates"]):
-        assert_healthy_summary(fit["diagnostics"])
+    """The baseline and the draught variant (the claims rest on them); the decoys' trouble reported."""
+    assert_gap_summary_healthy(gap, claims=("forced_convection",))
 
 
 @pytest.fixture(scope="session")
@@ -131,8 +131,9 @@ def wind_gap(tmp_path_factory):
     from stancal.cli import main
 
     out = tmp_path_factory.mktemp("wind_gap")
+    # 2 x (300 + 500): at 2 x (300 + 300) a fit's R-hat was 1.013
     assert main(["gap", str(WIND / "config.toml"), "--out", str(out), "--chains", "2", "--warmup", "300",
-                 "--draws", "300", "--seed", "1"]) == 0
+                 "--draws", "500", "--seed", "1"]) == 0
     return json.loads((out / "gap.json").read_text()), out
 
 
@@ -180,8 +181,8 @@ def test_koh_vector_covers_the_cooling_curves_truth():
     """Proof 1 for koh: the shipped cooling curves (six ragged cool-downs,
     a probe offset each, known noise, a GP discrepancy), 4 x (1000 + 1000):
     the 90 % intervals cover k, Ta and every offset; R-hat <= 1.01."""
-    from stancal.problem.config import load_config
     from stancal.fitting.vector_calibrate import calibrate_vector
+    from stancal.problem.config import load_config
 
     problem = load_config(CURVES / "config.toml")
     result = calibrate_vector(problem.data, simulator=problem.simulator, chains=4, warmup=1000, draws=1000,

@@ -211,7 +211,7 @@ def _log_density(stan_data: dict, emulator, theta_unit: np.ndarray) -> float:
 
 
 def _grid_moments(stan_data, emulator, centre, half_width, points=61):
-    axes = [np.clip(np.linspace(c - h, c + h, points), 0, 1) for c, h in zip(centre, half_width)]
+    axes = [np.clip(np.linspace(c - h, c + h, points), 0, 1) for c, h in zip(centre, half_width, strict=False)]
     grid = np.array(np.meshgrid(*axes, indexing="ij")).reshape(2, -1).T
     log_p = np.array([_log_density(stan_data, emulator, theta) for theta in grid])
     weight = np.exp(log_p - log_p.max())
@@ -306,8 +306,8 @@ def test_many_runs_condition_the_weights_covariance_on_a_subset_that_only_widens
     prior's."""
     from scipy import linalg
 
-    from stancal.numerics.scalable_emulator import se_correlation, run_covariance
     from stancal.fitting.stage_one import fit_vector_emulator
+    from stancal.numerics.scalable_emulator import run_covariance, se_correlation
     from stancal.numerics.vector_emulator import VectorEmulator
 
     data = vector_data(runs=long_runs(300, 5))
@@ -316,7 +316,7 @@ def test_many_runs_condition_the_weights_covariance_on_a_subset_that_only_widens
     subset = VectorEmulator.fit(data.basis, xt, data.run_outputs, seed=1, variance_runs=60)
     assert len(subset.variance_runs) == 60 and len(full.variance_runs) == 300
     points = np.random.default_rng(2).uniform(size=(25, xt.shape[1]))
-    for exact, approximate in zip(full.components, subset.components):
+    for exact, approximate in zip(full.components, subset.components, strict=False):
         h = exact.hyperparameters
         cross = h.sd**2 * se_correlation(points, xt, h.length_scale)
         factor = linalg.cho_factor(run_covariance(xt, h), lower=True)
@@ -331,8 +331,8 @@ def test_many_runs_condition_the_weights_covariance_on_a_subset_that_only_widens
 def test_the_posterior_keeps_one_noise_sd_or_one_per_experiment():
     """noise = 'one' is a scalar per draw; 'per_experiment' has the
     experiment dimension, even with a single experiment."""
-    from stancal.results.vector_result import vector_datatree
     from stancal.problem.options import VectorOptions
+    from stancal.results.vector_result import vector_datatree
 
     data = vector_data(physical=long_experiments(1, experiments=1))
     rows = pd.DataFrame({"exp": "shot0", "t": [1.0, 2.0]})

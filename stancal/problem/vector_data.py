@@ -13,10 +13,10 @@ import pandas as pd
 from stancal.problem.data import (
     Parameter,
     Scaling,
-    numeric_columns,
-    require_columns,
     bounds_of,
+    numeric_columns,
     parameters_from_bounds,
+    require_columns,
     require_runs_within_bounds,
     warn_outside_runs,
 )
