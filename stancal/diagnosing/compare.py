@@ -16,7 +16,7 @@ from stancal.diagnosing.scoring import psis_score
 from stancal.fitting.calibrate import calibrate, model_options
 from stancal.fitting.cluster import FitFailure, FitRunner, FitTask, fit_runner
 from stancal.fitting.l2 import l2_result
-from stancal.fitting.plan import Plan, plan_scalar, require_gaussian
+from stancal.fitting.plan import Plan, model_keywords, plan_scalar, require_gaussian
 from stancal.fitting.seeds import command_seed, fit_seed
 from stancal.numerics.quadrature import Quadrature, input_box_quadrature
 from stancal.problem.data import CalibrationData
@@ -87,25 +87,25 @@ def _method_fit(name: str, **options: Any) -> MethodFit:
     return MethodFit(name, calibrate(**options), time.perf_counter() - started)
 
 
-# calibrate()'s keywords that describe the model, not the sampler
-_MODEL_KEYWORDS = ("kernel", "estimate_rho", "mean_formula", "mean_intercept", "scaled_lambda", "functional",
-                   "functional_inputs", "functional_parametrization", "approximation", "basis_functions",
-                   "boundary_factor")
-
-
-def _plans(data: CalibrationData, simulator, methods: tuple[str, ...],
-           model: dict[str, Any]) -> dict[str, Plan | str]:
+def _plans(data: CalibrationData, simulator, methods: tuple[str, ...], model: dict[str, Any],
+           program) -> dict[str, Plan | str]:
     """Each compared estimator's plan, or why it cannot run on this problem;
     a projection of the default fit needs no plan of its own when that fit
     is compared too."""
     plans: dict[str, Plan | str] = {}
+    # the problem's default fit: what it cannot do is an error, as in calibrate
+    default = plan_scalar(data, simulator, None, model_options(**model), program)
     for name in methods:
         estimator = ESTIMATORS[name]
         if estimator.projects and DEFAULT_ESTIMATOR in methods:
             continue
+        if name == DEFAULT_ESTIMATOR:
+            plans[name] = default
+            continue
         try:
             plans[name] = plan_scalar(data, simulator, L2 if estimator.projects else estimator.method,
-                                      model_options(discrepancy=estimator.discrepancy, **model))
+                                      model_options(**{**model, "discrepancy": estimator.discrepancy
+                                                       or model.get("discrepancy")}), program)
         except ValueError as err:  # an estimator this problem cannot run
             plans[name] = str(err)
     return plans
@@ -127,10 +127,10 @@ def compare_methods(data: CalibrationData, *, simulator: str | Path | None = Non
     require_gaussian("the method comparison", data)
     quadrature = input_box_quadrature(data)
     seed = command_seed(seed)
-    model = {k: calibrate_options.pop(k) for k in _MODEL_KEYWORDS if k in calibrate_options}
+    model = model_keywords(calibrate_options, vector=False)
     fits: dict[str, MethodFit] = {}
     tasks: list[FitTask] = []
-    for name, plan in _plans(data, simulator, methods, model).items():
+    for name, plan in _plans(data, simulator, methods, model, calibrate_options.pop("program", None)).items():
         if isinstance(plan, str):
             fits[name] = MethodFit(name, None, skipped=plan)
             continue

@@ -52,7 +52,7 @@ from stancal.diagnosing.scoring import (
 )
 from stancal.fitting.calibrate import calibrate
 from stancal.fitting.cluster import FitFailure, FitRunner, FitTask, fit_runner
-from stancal.fitting.plan import Plan, make_plan, model_keywords
+from stancal.fitting.plan import Plan, make_plan, model_keywords, plan_scalar
 from stancal.fitting.seeds import command_seed, fit_seed
 from stancal.fitting.stopwatch import Stopwatch
 from stancal.fitting.vector_calibrate import calibrate_vector
@@ -202,7 +202,12 @@ def check_candidates(data: CalibrationData | VectorCalibrationData, candidates: 
             continue
         if not Path(c.stan).is_file():
             raise CandidateError(f"candidate '{c.name}': Stan file not found: {c.stan}")
-        variant_data(data, c)
+        variant = variant_data(data, c)
+        if plan is not None and not isinstance(data, VectorCalibrationData):
+            try:  # the baseline's model on the variant's data: what it cannot do is named now
+                plan_scalar(variant, c.stan, None, plan.options)
+            except ValueError as err:
+                raise CandidateError(f"candidate '{c.name}': {err}") from None
         try:
             backend.check(variant_program(data, c, plan))
         except StanProgramError as err:
@@ -255,7 +260,8 @@ def diagnose_gap(
     # one plan for every fit: K-fold's smaller training sets keep the baseline's program and
     # approximation, and every fit has a constant in the discrepancy mean, so that no
     # candidate term wins by standing in for the discrepancy's overall level
-    plan = make_plan(data, simulator, method, **model_keywords(calibrate_options, vector))
+    plan = make_plan(data, simulator, method, calibrate_options.pop("program", None),
+                     **model_keywords(calibrate_options, vector))
     plan = replace(plan, options=replace(plan.options, mean_formula=None, mean_intercept=True))
     stan_backend = get_backend(calibrate_options.get("backend"))
     check_candidates(data, candidates, stan_backend, plan)

@@ -3,6 +3,7 @@ plan -> stage 1 -> sample -> post-fit checks (Kennedy & O'Hagan 2001)."""
 
 from __future__ import annotations
 
+import inspect
 import logging
 from dataclasses import dataclass
 from pathlib import Path
@@ -31,6 +32,17 @@ logger = logging.getLogger("stancal")
 
 _DIAGNOSED = ["theta", "noise_sd", "delta_sd", "delta_length_scale", "delta_relevance", "rho", "beta", "phi",
               "theta_function_sd", *EMULATOR_HYPERPARAMETERS]
+
+
+# calibrate()'s model keywords and their defaults: a plan replaces them
+_MODEL_DEFAULTS = {name: p.default for name, p in inspect.signature(model_options).parameters.items()}
+
+
+def _plan_alone(**given) -> None:
+    """A plan replaces the simulator, method, program and model keywords: giving both is an error."""
+    clashing = sorted(k for k, v in given.items() if v not in (None, (), []))
+    if clashing:
+        raise ValueError(f"give either a plan or {', '.join(clashing)}: the plan already holds them")
 
 
 @dataclass
@@ -161,7 +173,10 @@ def calibrate(
     ``plan``: a plan made earlier (stancal.fitting.plan), which then replaces
     ``simulator``, ``method``, ``program`` and the model's options.
     """
-    if plan is None:
+    if plan is not None:
+        _plan_alone(simulator=simulator, method=method, program=program, **{
+            k: v for k, v in locals().items() if k in _MODEL_DEFAULTS and v != _MODEL_DEFAULTS[k]})
+    else:
         options = model_options(discrepancy, kernel, estimate_rho, mean_formula, mean_intercept, scaled_lambda,
                                 functional, functional_inputs, functional_parametrization, approximation,
                                 basis_functions, boundary_factor)
@@ -178,7 +193,7 @@ def calibrate(
     flat = programs[-1]
     fit, options, messages = _sample_checked(
         lambda options: _sample(stan_backend, flat, data, plan, options, fit_points, emulator, prior, sampler),
-        data, plan, emulator, chosen_by_user=bool(basis_functions))
+        data, plan, emulator, chosen_by_user=plan.basis_given)
     result = CalibrationResult(
         idata=fit.tree, data=data, method=plan.name, backend=stan_backend.name, options=options, program=flat,
         timing={"compile_s": fit.sample.compile_seconds,

@@ -29,6 +29,7 @@ class Plan:
     simulator: Path | None = None
     user_program: Path | None = None
     l2: bool = False
+    basis_given: bool = False  # the Hilbert-space basis is the user's: checked, never rebuilt
 
     @property
     def name(self) -> str:
@@ -110,12 +111,13 @@ def plan_scalar(data: CalibrationData, simulator: str | Path | None = None, meth
     base = _requested(data, simulator, None if l2 else method, "scalar")
     chosen = _latent_version(base, latent_reason(data, options), options) or _scalable_version(data, base, options)
     _check_options(chosen, options)
+    basis_given = bool(options.basis_functions)
     if chosen.approximation == "hsgp":
         options = replace(options, approximation="hsgp")
         if not options.basis_functions:
             basis = first_basis(options.kernel, data.discrepancy_inputs)
             options = replace(options, basis_functions=basis.counts, boundary_factor=basis.boundary_factors)
-    return Plan(chosen, options, _path(simulator), _path(program), l2)
+    return Plan(chosen, options, _path(simulator), _path(program), l2, basis_given)
 
 
 def plan_vector(data: VectorCalibrationData, simulator: str | Path | None = None, method: str | None = None,
