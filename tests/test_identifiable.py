@@ -22,8 +22,9 @@ import tuo_wu  # noqa: E402
 
 TUO_WU = ROOT / "case_studies" / "tuo_wu"
 SEEDS = (1, 2, 3, 4, 5)
-# 1,600 draws to project per seed; at 4 x (300 + 150) theta's R-hat within a mode was 1.025
-SETTINGS = {"chains": 4, "warmup": 300, "draws": 400}
+# 3,200 draws to project per seed; R-hat within a mode was 1.025 at 4 x (300 + 150) and
+# 1.026 (delta's length scale) at 4 x (300 + 400)
+SETTINGS = {"chains": 4, "warmup": 400, "draws": 800}
 
 
 @pytest.fixture(scope="module")
@@ -212,12 +213,12 @@ def exact_comparison(exact_cooling_data, tmp_path_factory):
     data = stancal.CalibrationData(exact_cooling_data.physical, ["t", "T0"], "temperature",
                                    {"k": (0.01, 0.2)})
     out = tmp_path_factory.mktemp("compare")
-    # 4 chains: at 2 x (300 + 300) koh's R-hat exceeded 1.01. The effective sample size stays
-    # below the library's bar of 100 per chain in the orthogonal fit's tail (319 of 400): expected
-    # at these settings, and every method's health is asserted by the tests
+    # koh's R-hat was above 1.01 at 2 x (300 + 300) and 1.014 at 4 x (300 + 300). The effective
+    # sample size may stay below the library's bar of 100 per chain in the orthogonal fit's tail
+    # (319 of 400 at 4 x 300): allowed here, as every method's health is asserted by the tests
     with no_stancal_warnings(allow="effective sample size down to"):
         comparison = compare_methods(data, simulator=COOLING / "simulator.stan", seed=3,
-                                     out_dir=out, chains=4, warmup=300, draws=300)
+                                     out_dir=out, chains=4, warmup=300, draws=700)
     return comparison, out
 
 
@@ -246,8 +247,8 @@ def test_every_method_recovers_an_exact_simulator(exact_comparison):
 
 def test_l2_from_simulator_runs_uses_the_emulator(exact_cooling_data):
     """Without a Stan simulator, L2 projects koh_emulator's zeta onto the emulator's mean."""
-    # 4 x (300 + 300): at 2 x (300 + 150) the emulator mean's R-hat was 1.027
-    result = fit(exact_cooling_data, method="l2", chains=4, warmup=300, draws=300)
+    # the emulator mean's R-hat was 1.027 at 2 x (300 + 150) and 1.0106 at 4 x (300 + 300)
+    result = fit(exact_cooling_data, method="l2", chains=4, warmup=400, draws=700)
     assert_healthy(result)
     assert result.l2["base_method"] == "koh_emulator"
     s = result.theta_summary()["k"]
