@@ -57,8 +57,9 @@ def _parser() -> argparse.ArgumentParser:
     for command in (cal, gap):
         command.add_argument("--method", choices=list(dict.fromkeys([*method_names("scalar"), *method_names("vector"),
                                                                       *([L2] if command is cal else [])])))
-    cal.add_argument("--adapt-delta", type=float, default=0.9,
-                     help="the sampler's target acceptance; raise it (0.95, 0.99) when transitions diverge")
+    for command in (cal, gap, comp):
+        command.add_argument("--adapt-delta", type=float, default=0.9,
+                             help="the sampler's target acceptance; raise it (0.95, 0.99) when transitions diverge")
     cal.add_argument("--discrepancy", choices=list(DISCREPANCIES),
                      help="gp (KOH), orthogonal (Plumlee 2017), scaled (S-GaSP) or none")
     comp.add_argument("--methods", nargs="+", choices=METHODS, default=list(METHODS))
@@ -98,8 +99,8 @@ def run_gap(args: argparse.Namespace) -> dict:
                                 **({} if vector else {"approximation": args.approximation
                                                       or model.get("approximation", "auto")}),
                                 chains=args.chains, warmup=args.warmup, draws=args.draws,
-                                seed=args.seed, backend=args.backend, out_dir=args.out,
-                                kfold=args.kfold, scheduler=args.scheduler)
+                                adapt_delta=args.adapt_delta, seed=args.seed, backend=args.backend,
+                                out_dir=args.out, kfold=args.kfold, scheduler=args.scheduler)
     summary = write_gap_report(analysis, args.out)
     write = write_vector_calibration if vector else write_calibration
     write(analysis.baseline, args.out / "baseline",
@@ -167,7 +168,8 @@ def run_compare(args: argparse.Namespace) -> dict:
         warnings.simplefilter("always")
         comparison = compare_methods(problem.data, simulator=problem.simulator,
                                      methods=tuple(args.methods), chains=args.chains,
-                                     warmup=args.warmup, draws=args.draws, seed=args.seed,
+                                     warmup=args.warmup, draws=args.draws, adapt_delta=args.adapt_delta,
+                                     seed=args.seed,
                                      backend=args.backend, out_dir=args.out, scheduler=args.scheduler,
                                      **model)
     for fit in comparison.fits:

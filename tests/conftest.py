@@ -82,17 +82,17 @@ def assert_healthy(result, divergences: int = 0, treedepth_share: float = 0.05) 
     assert not d.low_bfmi_chains, f"the library flags low E-BFMI in chains {d.low_bfmi_chains}"
 
 
-def assert_gap_summary_healthy(summary: dict, claims: tuple[str, ...]) -> None:
+def assert_gap_summary_healthy(summary: dict, claims: tuple[str, ...], divergences: int = 0) -> None:
     """A `stancal gap` run's gap.json: the baseline and the candidates named in
     ``claims`` (the fits a test's claims rest on) pass the health bar; every
     other candidate's trouble is reported in its own warnings, never hidden.
     (Decoy candidates that stand in for the discrepancy's level or share a
     ridge with it are hard to sample: the cooling humidity decoy's fit had
     R-hat 1.10 and 145 of 1,400 divergences at 2 x (400 + 700).)"""
-    assert_healthy_summary(summary["baseline"]["diagnostics"])
+    assert_healthy_summary(summary["baseline"]["diagnostics"], divergences)
     for c in summary["candidates"]:
         if c["name"] in claims:
-            assert_healthy_summary(c["diagnostics"])
+            assert_healthy_summary(c["diagnostics"], divergences)
         else:
             assert_trouble_reported(c["diagnostics"])
 
@@ -169,8 +169,9 @@ def modular_fit(exact_cooling_data):
 
 # more draws for the cheap simulator keep Pareto k estimates steady
 # R-hat of 1.01 needs a few thousand draws here: at 2 x (400 + 700) the baseline's R-hat was 1.017,
-# at 4 x (400 + 400) the quadratic loss variant's 1.012
-COOLING_SAMPLING = {"chains": 4, "warmup": 500, "draws": 1000, "seed": 3}
+# at 4 x (400 + 400) the quadratic loss variant's 1.012; at adapt_delta 0.9 the baseline had 3
+# divergences of 4,000 and the humidity decoy 24
+COOLING_SAMPLING = {"chains": 4, "warmup": 500, "draws": 1000, "adapt-delta": 0.95, "seed": 3}
 
 
 @pytest.fixture(scope="session")
