@@ -3,9 +3,8 @@ plan -> stage 1 -> sample -> post-fit checks (Kennedy & O'Hagan 2001)."""
 
 from __future__ import annotations
 
-import inspect
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
 
@@ -25,6 +24,7 @@ from stancal.problem.options import ModelOptions
 from stancal.results.diagnostics import parametrization_advice
 from stancal.results.result import CalibrationResult, build_datatree
 from stancal.stan.backends import get_backend
+from stancal.stan.registry import STAGE_ONE_SCALABLE
 from stancal.stan.source import FlatProgram
 from stancal.stan.standata import EMULATOR_HYPERPARAMETERS, build_stan_data, default_new_points, to_stan_json
 
@@ -34,13 +34,11 @@ _DIAGNOSED = ["theta", "noise_sd", "delta_sd", "delta_length_scale", "delta_rele
               "theta_function_sd", *EMULATOR_HYPERPARAMETERS]
 
 
-# calibrate()'s model keywords and their defaults: a plan replaces them
-_MODEL_DEFAULTS = {name: p.default for name, p in inspect.signature(model_options).parameters.items()}
-
-
-def _plan_alone(**given) -> None:
+def _plan_alone(options: ModelOptions, **files) -> None:
     """A plan replaces the simulator, method, program and model keywords: giving both is an error."""
-    clashing = sorted(k for k, v in given.items() if v not in (None, (), []))
+    defaults = model_options()
+    clashing = sorted([k for k, v in files.items() if v is not None]
+                      + [f.name for f in fields(options) if getattr(options, f.name) != getattr(defaults, f.name)])
     if clashing:
         raise ValueError(f"give either a plan or {', '.join(clashing)}: the plan already holds them")
 
@@ -89,7 +87,7 @@ def _sample_checked(sample_once, data: CalibrationData, plan: Plan, emulator: di
         if refit:
             fit = sample_once(options)
             _, _, messages = check_basis(fit.tree, data, options, chosen_by_user=True)
-    if "variance_theta" in emulator.get("hyperparameters", {}):  # the scalable emulator's plug-in covariance
+    if plan.program.stage_one == STAGE_ONE_SCALABLE:  # its covariance entered at one theta
         messages += check_emulator_variance(fit.tree, data, emulator, fit.stan_json)
     return fit, options, messages
 
@@ -173,14 +171,13 @@ def calibrate(
     ``plan``: a plan made earlier (stancal.fitting.plan), which then replaces
     ``simulator``, ``method``, ``program`` and the model's options.
     """
-    if plan is not None:
-        _plan_alone(simulator=simulator, method=method, program=program, **{
-            k: v for k, v in locals().items() if k in _MODEL_DEFAULTS and v != _MODEL_DEFAULTS[k]})
-    else:
-        options = model_options(discrepancy, kernel, estimate_rho, mean_formula, mean_intercept, scaled_lambda,
-                                functional, functional_inputs, functional_parametrization, approximation,
-                                basis_functions, boundary_factor)
+    options = model_options(discrepancy, kernel, estimate_rho, mean_formula, mean_intercept, scaled_lambda,
+                            functional, functional_inputs, functional_parametrization, approximation,
+                            basis_functions, boundary_factor)
+    if plan is None:
         plan = plan_scalar(data, simulator, method, options, program)
+    else:
+        _plan_alone(options, simulator=simulator, method=method, program=program)
     programs = plan.stan_programs()
     stan_backend = get_backend(backend)
     stan_backend.compile(programs)

@@ -37,13 +37,13 @@ class Plan:
 
     def stan_programs(self) -> list[FlatProgram]:
         """The flat programs to compile: stage 1's, if it runs one, then the main one."""
-        aliases = {"simulator.stan": self.simulator} if self.simulator and self.program.simulator else {}
-        main = flatten(self.user_program or self.program.path, aliases=aliases)
         helper = STAGE_ONE_PROGRAM.get(self.program.stage_one or "")
-        return [flatten(PROGRAMS[helper].path), main] if helper else [main]
+        return [flatten(PROGRAMS[helper].path), self.main_program()] if helper else [self.main_program()]
 
     def main_program(self) -> FlatProgram:
-        return self.stan_programs()[-1]
+        """The program that samples: the user's copy or the shipped one, with the user's simulator."""
+        aliases = {"simulator.stan": self.simulator} if self.simulator and self.program.simulator else {}
+        return flatten(self.user_program or self.program.path, aliases=aliases)
 
     def with_simulator(self, simulator: Path) -> Plan:
         """The same model on a variant simulator written in Stan (the gap's candidates)."""

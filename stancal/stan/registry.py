@@ -60,9 +60,6 @@ class Program:
         path = Path(self.stan_file)
         return path if path.is_absolute() else shipped_models_dir() / path
 
-    def accepts(self, command: str) -> bool:
-        return command in self.commands
-
 
 _SCALAR = frozenset({GAP, COMPARE, SBC})
 _GAUSSIAN = (sd.common_data, sd.gaussian_outputs)
