@@ -59,38 +59,6 @@ def test_a_failed_fit_is_retried_once_then_named(scheduler, tmp_path, monkeypatc
     assert runner.progress.done == runner.progress.total == 3
 
 
-def test_concurrent_builds_of_one_program_build_it_once(tmp_path):
-    """Three processes ask for the same new program at once: one builds it
-    into the machine's store, the others wait for it; each then samples it
-    from an httpstan cache of its own."""
-    code = ("data { real mu; } parameters { real x; } model { x ~ normal(mu, 1); }\n"
-            f"// {time.time_ns()}: a program no cache holds\n")
-    script = f"""
-import logging, sys
-from pathlib import Path
-logging.basicConfig(level=logging.INFO, format="%(message)s")
-from stancal.stan.backends.pystan_compile import build_into_store, use_private_httpstan_cache
-from stancal.stan.backends import get_backend
-from stancal.stan.source import FlatProgram
-use_private_httpstan_cache(Path(sys.argv[1]))
-print(build_into_store(sys.stdin.read()))
-program = FlatProgram(code={code!r}, origin=())
-draws = get_backend("pystan").sample(program, {{"mu": 3.0}}, chains=1, warmup=200, draws=400, seed=1,
-                                     inits=None, adapt_delta=0.8, max_treedepth=10).draws["x"]
-print(float(draws.mean()))
-"""
-    environment = {**os.environ, "STANCAL_CACHE": str(tmp_path / "store")}
-    processes = [subprocess.Popen([sys.executable, "-c", script, str(tmp_path / f"httpstan{i}")], env=environment,
-                                  stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-                 for i in range(3)]
-    outputs = [p.communicate(code, timeout=600) for p in processes]
-    assert all(p.returncode == 0 for p in processes), [err[-2000:] for _, err in outputs]
-    assert sum(err.count("building ") for _, err in outputs) == 1
-    modules = {out.splitlines()[0] for out, _ in outputs}
-    assert len(modules) == 1 and Path(modules.pop()).is_file()
-    assert all(abs(float(out.splitlines()[1]) - 3.0) < 0.3 for out, _ in outputs)
-
-
 def _start(command: list[str], log: Path) -> subprocess.Popen:
     environment = {**os.environ, "DASK_DISTRIBUTED__WORKER__DAEMON": "False"}
     return subprocess.Popen(command, stdout=log.open("w"), stderr=subprocess.STDOUT, env=environment,

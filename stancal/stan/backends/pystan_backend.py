@@ -17,7 +17,14 @@ from typing import Any
 import numpy as np
 
 from stancal.stan.backends.base import SAMPLER_STATS, Draws, SampleOutput, StanRuntimeError, fresh_prediction_normals
-from stancal.stan.backends.pystan_compile import compile_programs, held_output, is_compiled, stanc
+from stancal.stan.backends.pystan_compile import (
+    STANC_TIMEOUT_S,
+    compile_programs,
+    ensure_private_httpstan_cache,
+    held_output,
+    stanc,
+    stored_module,
+)
 from stancal.stan.source import FlatProgram, StanProgramError
 
 logger = logging.getLogger("stancal")
@@ -84,7 +91,8 @@ def _program_info(code: str) -> dict[str, Any]:
     with tempfile.TemporaryDirectory(prefix="stancal_") as folder:
         path = Path(folder) / "program.stan"
         path.write_text(code)
-        done = subprocess.run([str(stanc), "--info", str(path)], capture_output=True, text=True, timeout=60)
+        done = subprocess.run([str(stanc), "--info", str(path)], capture_output=True, text=True,
+                              timeout=STANC_TIMEOUT_S)
     if done.returncode != 0:
         raise StanProgramError(done.stderr.strip())
     return json.loads(done.stdout)
@@ -98,6 +106,7 @@ class PyStanBackend:
 
         # compiled here rather than by stan.build, whose HTTP request to httpstan
         # times out after 5 minutes: a compile can take longer on a busy 2-core machine
+        ensure_private_httpstan_cache()
         self.compile([program])
         try:
             with held_output():
@@ -108,7 +117,7 @@ class PyStanBackend:
             raise StanRuntimeError(program.explain(str(err))) from None
 
     def compile(self, programs: list[FlatProgram]) -> None:
-        for program in {p.code: p for p in programs if not is_compiled(p.code)}.values():
+        for program in {p.code: p for p in programs if not stored_module(p.code).is_file()}.values():
             self.check(program, show_warnings=True)  # stanc's errors first, with the user's lines
         compile_programs(programs)
 
