@@ -20,7 +20,7 @@ from stancal.problem.options import APPROXIMATIONS, DISCREPANCIES, EXACT_SIZE_LI
 from stancal.problem.vector_data import VectorCalibrationData
 from stancal.reporting.report import write_calibration, write_vector_calibration
 from stancal.stan.backends import BACKENDS, StanRuntimeError, get_backend
-from stancal.stan.registry import L2, entry_methods, method_names
+from stancal.stan.registry import L2, PROGRAMS, commands_taking, entry_methods, method_names
 from stancal.stan.source import FlatProgram, StanProgramError
 
 logger = logging.getLogger("stancal")
@@ -110,17 +110,14 @@ def run_gap(args: argparse.Namespace) -> dict:
     return summary
 
 
-_NOT_FOR_VECTORS = {
-    "compare": "it compares the identifiable-calibration methods (L2, orthogonal, scaled), which are not built "
-               "for vector outputs yet",
-    "sbc": "simulation-based calibration is built for scalar outputs so far",
-}
-
-
 def _scalar_only(problem, command: str) -> None:
-    if isinstance(problem.data, VectorCalibrationData):
-        raise ConfigError(f"`stancal {command}` does not take a vector output: {_NOT_FOR_VECTORS[command]}; "
-                          f"`stancal calibrate` (koh, modular or koh_emulator) and `stancal gap` do")
+    """Refuse an output kind none of whose programs the command takes (the
+    registry's Program.commands)."""
+    output = "vector" if isinstance(problem.data, VectorCalibrationData) else "scalar"
+    if not commands_taking(command, output):
+        takers = sorted({p.output for p in PROGRAMS.values() if command in p.commands})
+        raise ConfigError(f"`stancal {command}` does not take a {output} output yet (it takes {' and '.join(takers)} "
+                          f"outputs); `stancal calibrate` and `stancal gap` do")
 
 
 def run_calibrate(args: argparse.Namespace) -> dict:

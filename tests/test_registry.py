@@ -65,3 +65,20 @@ def test_methods_and_their_hand_overs_come_from_the_rows(exact_cooling_data):
                                                                                    "koh_latent_emulator.stan"]
     with pytest.raises(ValueError, match="discrepancy 'orthogonal' needs method 'koh'"):
         plan_scalar(exact_cooling_data, None, "modular", stancal.fitting.plan.model_options("orthogonal"))
+
+
+def test_commands_take_the_outputs_their_programs_are_registered_for(tmp_path, capsys, monkeypatch):
+    """Which output kinds compare and sbc take comes from Program.commands: a
+    vector config is refused in one line; registering a vector program for
+    compare would lift the refusal (no list elsewhere says otherwise)."""
+    from stancal.cli import main
+    from stancal.stan.registry import COMPARE, commands_taking
+
+    config = COOLING.parent / "cooling_curves" / "config.toml"
+    assert main(["compare", str(config), "--out", str(tmp_path / "out")]) == 2
+    message = capsys.readouterr().err.strip().splitlines()[-1]
+    assert "`stancal compare` does not take a vector output yet" in message
+    assert not (tmp_path / "out").exists()
+    monkeypatch.setitem(PROGRAMS, "compare_vector",
+                        replace(PROGRAMS["koh_vector"], name="compare_vector", commands=frozenset({COMPARE})))
+    assert commands_taking(COMPARE, "vector") == ["compare_vector"]
