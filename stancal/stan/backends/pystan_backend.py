@@ -46,7 +46,7 @@ def _by_variable(flat: np.ndarray, model, leading: tuple[int, ...]) -> Draws:
     Stan does) -> variable name -> (*leading, *its shape)."""
     out: Draws = {}
     offset = 0
-    for name, shape in zip(model.param_names, model.dims, strict=False):
+    for name, shape in zip(model.param_names, model.dims, strict=True):
         size = int(np.prod(shape))
         block = flat[:, offset : offset + size].reshape(*leading, *reversed(shape))
         n = len(leading)
@@ -59,7 +59,7 @@ def _interior_point(model) -> dict[str, Any]:
     """0.1 for every variable: inside every constraint stancal's programs use,
     the Hilbert-space programs' upper bounds on length scales (0.19 at the
     least) among them (transform_inits reads the parameters and ignores the rest)."""
-    return {name: np.full(dims, 0.1).tolist() for name, dims in zip(model.param_names, model.dims, strict=False)}
+    return {name: np.full(dims, 0.1).tolist() for name, dims in zip(model.param_names, model.dims, strict=True)}
 
 
 @contextlib.contextmanager

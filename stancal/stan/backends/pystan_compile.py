@@ -271,7 +271,7 @@ def held_output():
                 os.dup2(held.fileno(), fd)
             yield
         except Exception:
-            for fd, copy in zip((1, 2), saved, strict=False):
+            for fd, copy in zip((1, 2), saved, strict=True):
                 os.dup2(copy, fd)
             held.seek(0)
             tail = (printed.getvalue() + held.read().decode(errors="replace")).strip().splitlines()[-20:]
@@ -279,7 +279,7 @@ def held_output():
                 logger.warning("before failing, it printed:\n%s", "\n".join(tail))
             raise
         finally:
-            for fd, copy in zip((1, 2), saved, strict=False):
+            for fd, copy in zip((1, 2), saved, strict=True):
                 os.dup2(copy, fd)
                 os.close(copy)
 
