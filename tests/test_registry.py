@@ -2,6 +2,8 @@
 registered under a new name, and nothing else, calibrates, predicts, saves,
 loads and runs in the gap diagnosis."""
 
+import subprocess
+import sys
 from dataclasses import replace
 
 import numpy as np
@@ -41,6 +43,14 @@ def test_a_registered_copy_calibrates_predicts_saves_loads_and_runs_in_gap(my_ko
     points = pd.DataFrame({"t": [5.0, 30.0], "T0": [70.0, 80.0]})
     predicted = mine.predict(points)
     pd.testing.assert_frame_equal(predicted, shipped.predict(points))
+    # the result carries its row: a process that never registered my_koh (a Dask worker) predicts with it
+    pd.to_pickle((mine, points), tmp_path / "mine.pkl")
+    script = ("import sys, pandas as pd; result, points = pd.read_pickle(sys.argv[1]); "
+              "result.predict(points).to_pickle(sys.argv[2])")
+    done = subprocess.run([sys.executable, "-c", script, tmp_path / "mine.pkl", tmp_path / "predicted.pkl"],
+                          capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr[-2000:]
+    pd.testing.assert_frame_equal(pd.read_pickle(tmp_path / "predicted.pkl"), predicted)
     loaded = stancal.load_result(mine.save(tmp_path / "mine.nc"))
     assert loaded.method == "my_koh"
     pd.testing.assert_frame_equal(loaded.predict(points), predicted)

@@ -33,7 +33,6 @@ from stancal.fitting.seeds import command_seed, fit_seed
 from stancal.problem.data import CalibrationData
 from stancal.results.result import CalibrationResult
 from stancal.stan.backends import get_backend
-from stancal.stan.registry import program
 from stancal.stan.standata import build_stan_data, to_stan_json
 
 PRIOR_THINNING = 5  # prior draws kept: every 5th of one long chain
@@ -96,7 +95,7 @@ def log_likelihood_at(fit: CalibrationResult, parameters: dict[str, np.ndarray],
     points = fit.idata["predictions_constant_data"].to_dataset().to_dataframe().reset_index(drop=True)
     options = replace(fit.options, functional_parametrization=functional_parametrization
                       or fit.options.functional_parametrization)
-    stan_data = build_stan_data(fit.data, program(fit.method).data, options, points,
+    stan_data = build_stan_data(fit.data, fit.row.data, options, points,
                                 emulator_hyperparameters=fit.emulator.get("hyperparameters"))
     draws = get_backend(fit.backend).generate_quantities(
         fit.program, to_stan_json(stan_data), {k: np.asarray(v)[None, None] for k, v in parameters.items()}, seed=1)

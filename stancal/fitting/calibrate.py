@@ -193,6 +193,7 @@ def calibrate(
         data, plan, emulator, chosen_by_user=plan.basis_given)
     result = CalibrationResult(
         idata=fit.tree, data=data, method=plan.name, backend=stan_backend.name, options=options, program=flat,
+        registry_row=plan.program,
         timing={"compile_s": fit.sample.compile_seconds,
                 "sample_s": fit.sample.sample_seconds + emulator.get("fit_s", 0.0)}, emulator=emulator)
     save_draws(result, out_dir)

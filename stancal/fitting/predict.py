@@ -11,7 +11,6 @@ from stancal.fitting.l2 import reproject
 from stancal.problem.codes import Likelihood
 from stancal.results.result import NEW_OBSERVATION, PREDICTED, interval_table
 from stancal.stan.backends import get_backend
-from stancal.stan.registry import program
 from stancal.stan.standata import build_stan_data, to_stan_json
 
 
@@ -27,7 +26,7 @@ def predict(result, new_points: pd.DataFrame | None = None, *, backend: str | No
         points = points.reset_index(drop=True)
     else:
         points = new_points.reset_index(drop=True)
-        stan_data = build_stan_data(result.data, program(result.method).data, result.options, points,
+        stan_data = build_stan_data(result.data, result.row.data, result.options, points,
                                     emulator_hyperparameters=result.emulator.get("hyperparameters"))
         params = {k: np.asarray(v) for k, v in result.idata["stan_parameters"].data_vars.items()}
         draws = get_backend(backend or result.backend).generate_quantities(
