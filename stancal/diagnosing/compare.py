@@ -126,7 +126,8 @@ def compare_methods(data: CalibrationData, *, simulator: str | Path | None = Non
     own seed), side by side on Dask (``scheduler``, see stancal.fitting.cluster). L2
     projects the KOH fit's zeta draws, so it adds no sampling when koh is also
     compared. Methods that cannot run on this problem, or whose fit failed
-    twice, are listed as skipped. ``calibrate_options`` go to every
+    twice, are listed as skipped. A rerun with the same ``out_dir`` reuses
+    the fits finished there (stancal.fitting.resume). ``calibrate_options`` go to every
     calibrate() call (chains, draws, kernel, ...)."""
     unknown = set(methods) - set(METHODS)
     if unknown:

@@ -253,8 +253,11 @@ def diagnose_gap(
     a local cluster, an address, "in-process", or a FitRunner; see
     stancal.fitting.cluster); each is written under ``out_dir`` as it finishes. A
     candidate whose fit fails twice is left out of the ranking and named in
-    ``failed``. ``calibrate_options`` (kernel, chains, warmup, draws,
-    backend, adapt_delta, ...) go to every fit.
+    ``failed``. A rerun with the same ``out_dir`` reuses the fits and refits
+    finished there with the same inputs (stancal.fitting.resume; scalar
+    outputs only so far: a vector result is not read back from its files).
+    ``calibrate_options`` (kernel, chains, warmup, draws, backend,
+    adapt_delta, ...) go to every fit.
     """
     vector = isinstance(data, VectorCalibrationData)
     if vector:

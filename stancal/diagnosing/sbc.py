@@ -160,6 +160,9 @@ def simulation_based_calibration(
     copy) while simulating from the method's own. Each fit keeps
     ``draws_per_fit`` draws, evenly thinned from 2 x draws_per_fit per chain.
     The fits run side by side on Dask (``scheduler``, see stancal.fitting.cluster).
+    Under ``out_dir``, each simulation's folder holds its fit, its truth and
+    the draws each truth was ranked among; a rerun with the same ``out_dir``
+    reuses the simulations finished there (stancal.fitting.resume).
     ``calibrate_options`` (chains, warmup, discrepancy, ...) go to every fit."""
     resume = Resume(out_dir, seed)  # a rerun into the same folder reuses the simulations it finished
     seed = resume.seed

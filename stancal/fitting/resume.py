@@ -195,7 +195,7 @@ class Resume:
         if written["fingerprint"] == prints:
             try:
                 return True, restore(task, folder, written["kept"])
-            except (OSError, ValueError, KeyError) as err:  # its files were removed or damaged since
+            except Exception as err:  # its files were removed or damaged since: whatever the reader raises
                 changed.append(f"{task.name} (its files cannot be read: {err})")
         else:
             inputs = sorted({*prints, *written["fingerprint"]} - {
