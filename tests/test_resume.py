@@ -69,11 +69,20 @@ def test_a_fit_with_other_inputs_runs_again_and_says_which(tmp_path, caplog):
     with caplog.at_level(logging.INFO, logger="stancal"):
         again = run_fakes(tmp_path, fake_tasks(tmp_path, seeds=(1, 5, 3)))
     assert CALLS == ["1"] and again == [1.5, 7.5, 4.5]
-    changed = [r.getMessage() for r in caplog.records if "inputs changed" in r.getMessage()]
-    assert changed == ["fitted again, their inputs changed since they were written: fit 1 (seed)"]
+    changed = [r.getMessage() for r in caplog.records if "fitting again" in r.getMessage()]
+    assert changed == ["fitting again what changed since it was written: fit 1 (seed)"]
     # the new record is the new fit's: a third run reuses all three
     run_fakes(tmp_path, fake_tasks(tmp_path, seeds=(1, 5, 3)))
     assert CALLS == []
+
+
+def test_a_record_whose_files_are_gone_runs_again(tmp_path, caplog):
+    run_fakes(tmp_path, fake_tasks(tmp_path))
+    (tmp_path / "2" / "draws.json").unlink()
+    with caplog.at_level(logging.INFO, logger="stancal"):
+        again = run_fakes(tmp_path, fake_tasks(tmp_path))
+    assert CALLS == ["2"] and again == [1.5, 3.0, 4.5]
+    assert "fit 2 (its files cannot be read: [Errno 2] No such file or directory" in caplog.text
 
 
 def test_a_failed_fit_leaves_no_record(tmp_path):

@@ -173,7 +173,7 @@ class Resume:
                     "function": task.function, "kwargs": task.kwargs, "folder": folder, "fingerprint": prints,
                     "keep": keep})))
         if changed:
-            logger.info("fitted again, their inputs changed since they were written: %s", _said(changed))
+            logger.info("fitting again what changed since it was written: %s", _said(changed))
         if len(todo) < len(tasks):
             logger.info("reused %d of %d fits finished earlier in %s", len(tasks) - len(todo), len(tasks), self.out)
         for (index, _), value in zip(todo, runner.map([task for _, task in todo]), strict=True):
@@ -196,7 +196,8 @@ class Resume:
             try:
                 return True, restore(task, folder, written["kept"])
             except Exception as err:  # its files were removed or damaged since: whatever the reader raises
-                changed.append(f"{task.name} (its files cannot be read: {err})")
+                reason = (str(err).strip().splitlines() or [type(err).__name__])[0]
+                changed.append(f"{task.name} (its files cannot be read: {reason})")
         else:
             inputs = sorted({*prints, *written["fingerprint"]} - {
                 k for k in prints if written["fingerprint"].get(k) == prints[k]})
