@@ -29,7 +29,9 @@ import numpy as np
 from stancal.diagnosing.sbc_ranks import Uniformity, fractional_ranks, rank_of, uniformity
 from stancal.fitting.calibrate import calibrate
 from stancal.fitting.cluster import FitFailure, FitRunner, FitTask, fit_runner
-from stancal.fitting.seeds import command_seed, fit_seed
+from stancal.fitting.plan import make_plan, model_keywords
+from stancal.fitting.resume import Resume, keep_whole, write_json
+from stancal.fitting.seeds import fit_seed
 from stancal.problem.data import CalibrationData
 from stancal.results.result import CalibrationResult
 from stancal.stan.backends import get_backend
@@ -37,6 +39,8 @@ from stancal.stan.standata import build_stan_data, to_stan_json
 
 PRIOR_THINNING = 5  # prior draws kept: every 5th of one long chain
 LOG_LIKELIHOOD = "log_likelihood"  # ranked beside the parameters (Modrák et al. 2023)
+TRUTH = "truth.json"  # in each simulation's folder: the values it was simulated from
+RANKED_DRAWS = "ranked_draws.json"  # and the thinned posterior draws they were ranked among
 
 
 @dataclass
@@ -115,17 +119,24 @@ def functional_parametrizations(calibrate_options: dict[str, Any]) -> tuple[str 
 
 def simulated_ranks(data: CalibrationData, truth: dict[str, float], truth_parameters: dict[str, np.ndarray],
                     draws_per_fit: int, prior_parametrization: str | None = None,
-                    **calibrate_options: Any) -> dict[str, int]:
+                    out_dir: str | Path | None = None, **calibrate_options: Any) -> dict[str, int]:
     """Fit one simulated data set and rank each true value among L evenly
     thinned posterior draws, and the log-likelihood at the truth among its
-    values at those draws (run where the fit runs: only ranks travel back)."""
-    fit = calibrate(data, **calibrate_options)
+    values at those draws (run where the fit runs: only ranks travel back).
+    In ``out_dir``, beside the fit: the truth (TRUTH) and the thinned draws
+    each was ranked among (RANKED_DRAWS), so that a rank can be checked."""
+    fit = calibrate(data, out_dir=out_dir, **calibrate_options)
     posterior = _scalars(fit.idata["posterior"].to_dataset())
-    ranks = {name: rank_of(value, _thinned(posterior[name], draws_per_fit))
-             for name, value in truth.items() if name in posterior}
-    ranks[LOG_LIKELIHOOD] = rank_of(log_likelihood_at(fit, truth_parameters, prior_parametrization),
-                                    _thinned(log_likelihood_draws(fit), draws_per_fit))
-    return ranks
+    at_truth = {name: value for name, value in truth.items() if name in posterior}
+    at_truth[LOG_LIKELIHOOD] = log_likelihood_at(fit, truth_parameters, prior_parametrization)
+    ranked = {name: _thinned(posterior[name], draws_per_fit) for name in at_truth if name != LOG_LIKELIHOOD}
+    ranked[LOG_LIKELIHOOD] = _thinned(log_likelihood_draws(fit), draws_per_fit)
+    if out_dir is not None:
+        write_json(Path(out_dir) / TRUTH, {"values": {k: float(v) for k, v in at_truth.items()},
+                                           "stan_parameters": {k: np.asarray(v).tolist()
+                                                               for k, v in truth_parameters.items()}})
+        write_json(Path(out_dir) / RANKED_DRAWS, {k: v.tolist() for k, v in ranked.items()})
+    return {name: rank_of(at_truth[name], draws) for name, draws in ranked.items()}
 
 
 def simulation_based_calibration(
@@ -148,8 +159,12 @@ def simulation_based_calibration(
     copy) while simulating from the method's own. Each fit keeps
     ``draws_per_fit`` draws, evenly thinned from 2 x draws_per_fit per chain.
     The fits run side by side on Dask (``scheduler``, see stancal.fitting.cluster).
+    Under ``out_dir``, each simulation's folder holds its fit, its truth and
+    the draws each truth was ranked among; a rerun with the same ``out_dir``
+    reuses the simulations finished there (stancal.fitting.resume).
     ``calibrate_options`` (chains, warmup, discrepancy, ...) go to every fit."""
-    seed = command_seed(seed)
+    resume = Resume(out_dir, seed)  # a rerun into the same folder reuses the simulations it finished
+    seed = resume.seed
     started = time.perf_counter()
     chains = calibrate_options.pop("chains", 2)
     warmup = calibrate_options.pop("warmup", 300)
@@ -161,6 +176,9 @@ def simulation_based_calibration(
         prior_options["functional_parametrization"] = prior_parametrization
     prior_fit = calibrate(data, simulator=simulator, method=method, prior=True, chains=1, warmup=warmup,
                           draws=PRIOR_THINNING * simulations, seed=seed, **prior_options)
+    # one plan for every fit (simulated data sets share the design): its programs' code is part of each
+    # fit's fingerprint
+    plan = make_plan(data, simulator, method, program, **model_keywords(calibrate_options, vector=False))
     prior = {k: _thinned(v, simulations) for k, v in _scalars(prior_fit.idata["prior"].to_dataset()).items()}
     prior_parameters = {k: _thinned(np.asarray(v).reshape(v.shape[0] * v.shape[1], *v.shape[2:]), simulations)
                         for k, v in prior_fit.idata["prior_stan_parameters"].data_vars.items()}
@@ -169,14 +187,13 @@ def simulation_based_calibration(
     tasks = [FitTask(f"simulation {s}", simulated_ranks, dict(
         data=data.with_output(replicated[s]), truth={name: float(v[s]) for name, v in prior.items()},
         truth_parameters={name: v[s] for name, v in prior_parameters.items()},
-        prior_parametrization=prior_parametrization,
-        draws_per_fit=draws_per_fit, simulator=simulator, method=method, program=program, chains=chains,
+        prior_parametrization=prior_parametrization, draws_per_fit=draws_per_fit, plan=plan, chains=chains,
         warmup=warmup, draws=per_chain, seed=fit_seed(seed, f"simulation {s}"),
         out_dir=None if out_dir is None else Path(out_dir) / "fits" / f"{s:04d}", **calibrate_options))
         for s in range(simulations)]
     with fit_runner(scheduler) as runner:
         runner.prepare([], calibrate_options.get("backend"))  # the prior's fit compiled the programs here
-        outcomes = runner.map(tasks)
+        outcomes = resume.map(runner, tasks, keep=keep_whole, restore=lambda task, folder, ranks: ranks)
     ranks: dict[str, list[int]] = {}
     failed = [s for s, outcome in enumerate(outcomes) if isinstance(outcome, FitFailure)]
     for outcome in outcomes:
