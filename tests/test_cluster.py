@@ -230,9 +230,11 @@ def test_a_killed_command_leaves_nothing_running(stop, tmp_path):
     workers and chain processes end within seconds and write nothing more
     (SIGKILL: the command itself cleans nothing up)."""
     config = _small_gap_problem(tmp_path / "problem")
-    out = tmp_path / "out"
+    out, temporary = tmp_path / "out", tmp_path / "tmp"
+    temporary.mkdir()
     run = subprocess.Popen(_gap_command(config, out, None, {**SMALL_SAMPLING, "draws": 100_000}),
-                           stdout=subprocess.DEVNULL, stderr=(tmp_path / "gap.log").open("w"), cwd=ROOT)
+                           stdout=subprocess.DEVNULL, stderr=(tmp_path / "gap.log").open("w"), cwd=ROOT,
+                           env={**os.environ, "TMPDIR": str(temporary)})
     command = psutil.Process(run.pid)
     deadline = time.time() + 300
     while not _workers_sampling(command) and run.poll() is None and time.time() < deadline:
@@ -252,3 +254,4 @@ def test_a_killed_command_leaves_nothing_running(stop, tmp_path):
     written = _files(out) if out.exists() else {}
     time.sleep(2)
     assert (_files(out) if out.exists() else {}) == written
+    assert list(temporary.glob("stancal-*")) == []  # the cluster's scratch folder (the workers' httpstan caches)

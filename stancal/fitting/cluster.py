@@ -41,6 +41,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import click
+
 from stancal.stan.backends import get_backend
 from stancal.stan.backends.base import end_when_orphaned
 from stancal.stan.source import FlatProgram
@@ -77,7 +79,7 @@ class FitFailure:
 # warning filters (_captured) and httpstan's cache of fits (cleared of the fits that
 # appeared while it sampled): two at once in one process would spoil each other's.
 # A worker with several threads (`dask worker`'s default) runs its fits one after another.
-_one_fit_at_a_time = threading.Lock()
+_one_fit_at_a_time = threading.RLock()  # re-entrant: a fit may run fits of its own in-process
 
 
 def _captured(function: Callable[..., Any], kwargs: dict[str, Any]) -> tuple[Any, list[tuple[str, type]]]:
@@ -100,11 +102,14 @@ def _prepare_worker(programs: list[FlatProgram], backend: str | None) -> None:
     get_backend(backend).compile(programs)
 
 
-def dask_setup(server) -> None:
+@click.command()
+@click.option("--scratch", required=True, help="the command's scratch folder")
+def dask_setup(server, scratch: str) -> None:
     """Preloaded by the local cluster's scheduler and workers (distributed's
     ``preload``): each ends when the command that started it is gone, as a
-    killed command cannot stop them itself."""
-    end_when_orphaned(os.getppid())
+    killed command cannot stop them itself, and removes the command's
+    scratch folder (the workers' httpstan caches), as it cannot either."""
+    end_when_orphaned(os.getppid(), clean_up=lambda: shutil.rmtree(scratch, ignore_errors=True))
 
 
 def _private_cache_plugin(scratch: Path | None):
@@ -185,10 +190,11 @@ class FitRunner:
             from distributed.deploy.subprocess import SubprocessCluster
 
             self._scratch = Path(tempfile.mkdtemp(prefix="stancal-cluster-"))
+            ending = {"preload_argv": ["--scratch", str(self._scratch)]}  # for dask_setup
             self._cluster = SubprocessCluster(n_workers=self.workers, threads_per_worker=1,
                                               worker_class="distributed.Worker", dashboard_address=":0",
-                                              scheduler_kwargs={"preload": [__name__]},
-                                              worker_kwargs={"memory_limit": 0, "preload": [__name__]})
+                                              scheduler_kwargs={"preload": [__name__], **ending},
+                                              worker_kwargs={"memory_limit": 0, "preload": [__name__], **ending})
             self.client = Client(self._cluster)
             self.client.wait_for_workers(self.workers)
         else:

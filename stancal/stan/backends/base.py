@@ -22,16 +22,19 @@ def cache_root() -> Path:
         return Path(os.environ["STANCAL_CACHE"])
     return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "stancal"
 
-def end_when_orphaned(parent: int, every: float = 0.5) -> None:
+def end_when_orphaned(parent: int, every: float = 0.5, clean_up: Callable[[], None] | None = None) -> None:
     """End this process within ``every`` seconds of its parent's end (the
-    process ``parent``, which started it). A process killed by a signal runs
-    no clean-up, so what it started would otherwise keep sampling and writing
-    (a chain's process, a local Dask cluster's scheduler and workers).
-    A thread checks the parent: an orphan is handed to another one."""
+    process ``parent``, which started it), after ``clean_up``. A process
+    killed by a signal runs no clean-up, so what it started would otherwise
+    keep sampling and writing (a chain's process, a local Dask cluster's
+    scheduler and workers). A thread checks the parent: an orphan is handed
+    to another one."""
     def watch() -> None:
         while os.getppid() == parent:
             time.sleep(every)
-        os._exit(1)  # no clean-up: this process's work belongs to a command that is gone
+        if clean_up is not None:
+            clean_up()
+        os._exit(1)  # nothing else: this process's work belongs to a command that is gone
 
     threading.Thread(target=watch, name="stancal-end-when-orphaned", daemon=True).start()
 
