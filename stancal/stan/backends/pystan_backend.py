@@ -76,8 +76,8 @@ _chain_pool: ProcessPoolExecutor | None = None
 
 def _chains_in_processes_that_end_with_this_one() -> None:
     """httpstan samples each chain in a process forked from this one (its
-    services_stub.executor; Stan's autodiff stack exists only in a process's
-    main thread, so a chain cannot run in a thread). Its processes outlive
+    services_stub.executor; a chain run in a thread of this process instead
+    crashed it, a segmentation fault with httpstan 4.17). Its processes outlive
     this one when it is killed, and multiprocessing refuses them to a
     daemonic process, such as a stock Dask worker (started by its nanny),
     for that reason. The pool put in its place here is the same (forked, as
