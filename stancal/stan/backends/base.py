@@ -22,6 +22,7 @@ def cache_root() -> Path:
         return Path(os.environ["STANCAL_CACHE"])
     return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "stancal"
 
+
 def end_when_orphaned(parent: int, every: float = 0.5, clean_up: Callable[[], None] | None = None) -> None:
     """End this process within ``every`` seconds of its parent's end (the
     process ``parent``, which started it), after ``clean_up``. A process
