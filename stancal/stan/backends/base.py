@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import os
+import threading
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -19,6 +21,24 @@ def cache_root() -> Path:
     if os.environ.get("STANCAL_CACHE"):
         return Path(os.environ["STANCAL_CACHE"])
     return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "stancal"
+
+
+def end_when_orphaned(parent: int, every: float = 0.5, clean_up: Callable[[], None] | None = None) -> None:
+    """End this process within ``every`` seconds of its parent's end (the
+    process ``parent``, which started it), after ``clean_up``. A process
+    killed by a signal runs no clean-up, so what it started would otherwise
+    keep sampling and writing (a chain's process, a local Dask cluster's
+    scheduler and workers). A thread checks the parent: an orphan is handed
+    to another one."""
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(every)
+        if clean_up is not None:
+            clean_up()
+        os._exit(1)  # nothing else: this process's work belongs to a command that is gone
+
+    threading.Thread(target=watch, name="stancal-end-when-orphaned", daemon=True).start()
+
 
 # Stan's sampler columns -> ArviZ sample_stats names
 SAMPLER_STATS = {

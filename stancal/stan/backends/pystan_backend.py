@@ -6,17 +6,28 @@ import contextlib
 import functools
 import json
 import logging
+import multiprocessing
+import os
+import signal
 import subprocess
 import sys
 import tempfile
 import time
 from collections.abc import Callable
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from stancal.stan.backends.base import SAMPLER_STATS, Draws, SampleOutput, StanRuntimeError, fresh_prediction_normals
+from stancal.stan.backends.base import (
+    SAMPLER_STATS,
+    Draws,
+    SampleOutput,
+    StanRuntimeError,
+    end_when_orphaned,
+    fresh_prediction_normals,
+)
 from stancal.stan.backends.pystan_compile import (
     STANC_TIMEOUT_S,
     compile_programs,
@@ -60,6 +71,36 @@ def _interior_point(model) -> dict[str, Any]:
     the Hilbert-space programs' upper bounds on length scales (0.19 at the
     least) among them (transform_inits reads the parameters and ignores the rest)."""
     return {name: np.full(dims, 0.1).tolist() for name, dims in zip(model.param_names, model.dims, strict=True)}
+
+
+def _chain_process_started(parent: int) -> None:
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # as httpstan's: Ctrl-C is the command's to handle
+    end_when_orphaned(parent)
+
+
+_chain_pool: ProcessPoolExecutor | None = None
+
+
+def _chains_in_processes_that_end_with_this_one() -> None:
+    """httpstan samples each chain in a process forked from this one (its
+    services_stub.executor; a chain run in a thread of this process instead
+    crashed it, a segmentation fault with httpstan 4.17). Its processes outlive
+    this one when it is killed, and multiprocessing refuses them to a
+    daemonic process, such as a stock Dask worker (started by its nanny),
+    for that reason. The pool put in its place here is the same (forked, as
+    many at a time), so the draws are the same, but each of its processes
+    ends when this one does (end_when_orphaned), which is what the rule
+    protects: so a daemonic process may start them."""
+    global _chain_pool
+    import httpstan.services_stub
+
+    process = multiprocessing.current_process()
+    if process.daemon:
+        process.daemon = False
+    if _chain_pool is None or httpstan.services_stub.executor is not _chain_pool:
+        _chain_pool = ProcessPoolExecutor(mp_context=multiprocessing.get_context("fork"),
+                                          initializer=_chain_process_started, initargs=(os.getpid(),))
+        httpstan.services_stub.executor = _chain_pool
 
 
 @contextlib.contextmanager
@@ -159,6 +200,7 @@ class PyStanBackend:
         }
         if inits is not None:
             kwargs["init"] = inits
+        _chains_in_processes_that_end_with_this_one()
         try:
             with _sampling_output(model.model_name):
                 fit = model.sample(**kwargs)
