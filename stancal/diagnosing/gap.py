@@ -54,7 +54,7 @@ from stancal.fitting.calibrate import calibrate
 from stancal.fitting.cluster import FitFailure, FitRunner, FitTask, fit_runner
 from stancal.fitting.plan import Plan, make_plan, model_keywords, plan_scalar
 from stancal.fitting.seeds import command_seed, fit_seed
-from stancal.fitting.stopwatch import Stopwatch
+from stancal.fitting.stopwatch import COMPILED_EARLIER, Stopwatch
 from stancal.fitting.vector_calibrate import calibrate_vector
 from stancal.problem.candidates import Candidate, CandidateError
 from stancal.problem.data import CalibrationData, DataError
@@ -277,10 +277,10 @@ def diagnose_gap(
     failed: list[FitFailure] = []
     with fit_runner(scheduler) as runner:
         # every program up front, side by side on the machine's cores, then on every worker
-        runner.prepare([*plan.stan_programs(), *(variant_program(data, c, plan) for c in candidates
-                                                 if c.kind == "variant")],
-                       calibrate_options.get("backend"))
-        clock.lap("compile")
+        compiled = runner.prepare([*plan.stan_programs(), *(variant_program(data, c, plan) for c in candidates
+                                                            if c.kind == "variant")],
+                                  calibrate_options.get("backend"))
+        clock.lap("compile" if compiled else COMPILED_EARLIER)
         fits = runner.map([task(label_name(c), c, data_for(c),
                                 None if vector else data_for(c).source.reset_index(drop=True),
                                 None if out is None else (out / "baseline" if c is None

@@ -237,11 +237,12 @@ def _compile_in_subprocess(program: FlatProgram) -> None:
                                f"failed:\n{tail}")
 
 
-def compile_programs(programs: list[FlatProgram]) -> None:
-    """Compile (or fetch from the store) the programs httpstan lacks, one per core at a time."""
+def compile_programs(programs: list[FlatProgram]) -> float:
+    """Compile (or fetch from the store) the programs httpstan lacks, one per core at a time.
+    Returns the seconds spent building: 0.0 when every program was built earlier."""
     todo = {p.code: p for p in programs if not is_compiled(p.code)}
     if not todo:
-        return
+        return 0.0
     building = [p for p in todo.values() if not stored_module(p.code).is_file()]
     workers = max(1, min(len(building), os.cpu_count() or 1))
     if building:
@@ -254,6 +255,8 @@ def compile_programs(programs: list[FlatProgram]) -> None:
         list(pool.map(_compile_in_subprocess, building))
     for code in todo:  # into this process's httpstan cache, which may be private to it
         _install(code, stored_module(code))
-    if building:
-        logger.info("compiled %d program%s in %.0f s", len(building), "s" if len(building) > 1 else "",
-                    time.perf_counter() - started)
+    if not building:
+        return 0.0
+    seconds = time.perf_counter() - started
+    logger.info("compiled %d program%s in %.0f s", len(building), "s" if len(building) > 1 else "", seconds)
+    return seconds
