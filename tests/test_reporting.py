@@ -133,7 +133,7 @@ def test_axes_carry_the_units_of_the_config(synthetic):
         pyplot().close(fig)
     fig = plot_theta(synthetic, units=UNITS)
     assert fig.axes[0].get_xlabel() == "k [1/min]"
-    assert "min" in fig.axes[0].get_ylabel()
+    assert fig.axes[0].get_ylabel() == "posterior density [min]"  # per 1/min
     pyplot().close(fig)
 
 
@@ -159,12 +159,18 @@ def test_importance_keeps_its_label_and_states_the_level():
     pyplot().close(fig)
 
 
-def test_main_effects_name_the_units():
+def test_main_effects_name_the_units_in_a_readable_grid():
     band = pd.DataFrame({"value": np.linspace(5, 60, 9), "mean": 0.1, "q05": -0.2, "q95": 0.4})
-    effect = SimpleNamespace(variable="t", categorical=False, band=lambda: band, regions=lambda: [])
-    fig = plot_main_effects(SimpleNamespace(main_effects={"t": effect}), units=UNITS, output="temperature")
-    assert fig.axes[0].get_xlabel() == "t [min]" and fig.axes[0].get_ylabel().endswith("[°C]")
+    levels = pd.DataFrame({"value": ["ana", "ben"], "mean": 0.1, "q05": -0.2, "q95": 0.4})
+    effects = {v: SimpleNamespace(variable=v, categorical=v == "operator", band=lambda v=v: levels if v == "operator"
+                                  else band, regions=lambda: []) for v in ("t", "T0", "humidity", "operator")}
+    fig = plot_main_effects(SimpleNamespace(main_effects=effects), units=UNITS, output="temperature")
+    assert [ax.get_xlabel() for ax in fig.axes] == ["t [min]", "T0 [°C]", "humidity [%]", "operator"]
+    assert fig.axes[0].get_ylabel().endswith("[°C]")
+    assert any("90 % band" in label for label in legend_texts(fig.axes[0]))
     assert outside_canvas(fig) == []
+    width, height = fig.get_size_inches()
+    assert width / height < 3  # where.png was 1584 x 396 px, four panels in a row
     pyplot().close(fig)
 
 

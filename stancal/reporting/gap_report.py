@@ -37,29 +37,38 @@ def plot_importance(location: GapLocation, path: Path | None = None):
 
 def plot_main_effects(location: GapLocation, path: Path | None = None, units: dict[str, str] | None = None,
                       output: str | None = None):
-    """E[delta | variable] with its 90 % band; shaded where the band excludes 0."""
+    """E[delta | variable] with its 90 % band, one panel per variable (two or
+    three to a row); shaded red where the band excludes 0."""
     plt = pyplot()
     effects = list(location.main_effects.values())
-    fig, axes = plt.subplots(1, len(effects), figsize=(max(5.5, 3.6 * len(effects)), 3.6), squeeze=False,
+    columns = min(len(effects), 2 if len(effects) <= 4 else 3)
+    rows = -(-len(effects) // columns)
+    fig, axes = plt.subplots(rows, columns, figsize=(max(5.5, 4.2 * columns), 3.2 * rows + 0.5), squeeze=False,
                              sharey=True, layout="constrained")
-    for ax, effect in zip(axes[0], effects, strict=False):
+    for ax, effect in zip(axes.ravel(), effects, strict=False):
         band = effect.band()
         if effect.categorical:
             x = np.arange(len(band))
             ax.errorbar(x, band["mean"], yerr=[band["mean"] - band.q05, band.q95 - band["mean"]],
-                        fmt="o", capsize=4, label=f"mean, {LEVEL} interval")
+                        fmt="o", capsize=4, color="C0")
             ax.set_xticks(x, [str(v) for v in band.value])
         else:
-            ax.fill_between(band.value, band.q05, band.q95, alpha=0.3, label=f"{LEVEL} band")
-            ax.plot(band.value, band["mean"], label="mean")
+            ax.fill_between(band.value, band.q05, band.q95, alpha=0.3, color="C0", lw=0)
+            ax.plot(band.value, band["mean"], color="C0")
             for region in effect.regions():
-                ax.axvspan(region["from"], region["to"], color="tab:red", alpha=0.12)
+                ax.axvspan(region["from"], region["to"], color="tab:red", alpha=0.12, lw=0)
         ax.axhline(0, color="grey", lw=1)
         ax.set_xlabel(axis_label(effect.variable, units))
-        ax.legend(fontsize=7)
+    for ax in axes.ravel()[len(effects):]:
+        ax.set_visible(False)
     unit = (units or {}).get(output or "")
-    axes[0][0].set_ylabel("discrepancy (reality − simulator)" + (f" [{unit}]" if unit else ""))
-    fig.suptitle("Where: discrepancy along each variable\n(red: credibly non-zero)", fontsize=10)
+    for row in axes:
+        row[0].set_ylabel("discrepancy\n(reality − simulator)" + (f" [{unit}]" if unit else ""))
+    # one legend for every panel, with proxies
+    axes[0][0].fill_between([], [], color="C0", alpha=0.3, lw=0, label=f"mean and {LEVEL} band")
+    axes[0][0].axvspan(np.nan, np.nan, color="tab:red", alpha=0.12, label="band excludes 0")
+    axes[0][0].legend(fontsize=7)
+    fig.suptitle("Where: the discrepancy along each variable (the others averaged)", fontsize=10)
     return finish(fig, path)
 
 

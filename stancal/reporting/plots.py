@@ -34,6 +34,16 @@ def _density(values: np.ndarray, low: float, high: float) -> tuple[np.ndarray, n
     return grid, gaussian_kde(values)(grid)
 
 
+def _per(units: dict[str, str] | None, name: str) -> str:
+    """The unit of a density over ``name``: " [min]" for 1/min, " [1/m]" for m."""
+    unit = (units or {}).get(name)
+    if not unit:
+        return ""
+    if unit.startswith("1/"):
+        return f" [{unit[2:]}]"
+    return f" [1/({unit})]" if any(c in unit for c in "/ ·*") else f" [1/{unit}]"
+
+
 def _posterior_view(values: np.ndarray, p) -> tuple[float, float]:
     """The posterior's own range, with a margin, inside the prior's box."""
     low, high = np.quantile(values, [0.001, 0.999])
@@ -67,8 +77,7 @@ def plot_theta(result: CalibrationResult, path: str | Path | None = None, units:
         ax.set_xlim(low, high)
         ax.set_ylim(bottom=0)
         ax.set_xlabel(axis_label(p.name, units))
-        unit = (units or {}).get(p.name)
-        ax.set_ylabel(f"posterior density [1/{unit}]" if unit else "posterior density")
+        ax.set_ylabel("posterior density" + _per(units, p.name))
         ax.legend(fontsize=7)
     fig.suptitle(f"θ posterior ({result.method})")
     return finish(fig, path)
@@ -247,7 +256,7 @@ def plot_vector_curves(result, path: str | Path | None = None, units: dict[str, 
     zeta = np.asarray(predictions["zeta"]).reshape(-1, *predictions["zeta"].shape[2:])
     f = np.asarray(predictions["f"]).reshape(-1, *predictions["f"].shape[2:])
     names = list(data.experiments.index)
-    columns = min(4, len(names))
+    columns = min(3, len(names)) if len(names) <= 9 else 4
     rows = -(-len(names) // columns)
     fig, axes = plt.subplots(rows, columns, figsize=(3.6 * columns, 2.9 * rows + 0.4), squeeze=False, sharey=True,
                              layout="constrained")

@@ -88,7 +88,7 @@ def write_vector_calibration(result, folder: Path, warning_messages: list[str],
                              units: dict[str, str] | None = None) -> dict:
     """summary.json, summary.csv, the curves per experiment, report.md and
     report.html of one vector-output calibration."""
-    from stancal.reporting.plots import plot_vector_curves
+    from stancal.reporting.plots import plot_theta, plot_vector_curves
 
     summary = result.to_summary_json()
     summary["warnings"] = warning_messages
@@ -97,13 +97,14 @@ def write_vector_calibration(result, folder: Path, warning_messages: list[str],
     table = result.summary()
     table.to_csv(folder / "summary.csv")
     plot_vector_curves(result, folder / "curves.png", units)
+    plot_theta(result, folder / "theta.png", units)
     basis = summary["basis"]
     lines = [
         f"# Calibration report ({summary['method']}, {summary['backend']})", "",
         *([f"Output basis: {basis['description']}; truncation error sd {basis['truncation_sd']:.3g}.", ""]
           if basis else ["The Stan simulator is evaluated at every measured value (no output basis).", ""]),
         *_parameters_and_sampler(summary, table),
-        "", "## Curves", "", "![curves per experiment](curves.png)", ""]
+        "", "## Figures", "", "![curves per experiment](curves.png)", "![theta](theta.png)", ""]
     (folder / "report.md").write_text("\n".join(lines))
     write_html(folder / "report.md")
     return summary
