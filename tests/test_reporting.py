@@ -50,9 +50,10 @@ class SyntheticResult:
         self.idata = {"posterior": {"theta": theta}}
         self.asked: list[pd.DataFrame] = []
 
-    def predict(self, new_points: pd.DataFrame | None = None) -> pd.DataFrame:
+    def predict(self, new_points: pd.DataFrame | None = None, max_draws: int | None = None) -> pd.DataFrame:
         points = self.data.source if new_points is None else new_points
         self.asked.append(points)
+        self.max_draws = max_draws
         t, T0 = points["t"].to_numpy(), points["T0"].to_numpy()
         f, zeta = newton(t, T0, 0.055), newton(t, T0, 0.05)
         table = points.reset_index(drop=True).copy()
@@ -67,7 +68,9 @@ def synthetic() -> SyntheticResult:
 
 
 def legend_texts(ax) -> list[str]:
-    return [t.get_text() for t in ax.get_legend().get_texts()]
+    """The texts of the axes' legend, or of its figure's legend."""
+    legend = ax.get_legend() or ax.figure.legends[0]
+    return [t.get_text() for t in legend.get_texts()]
 
 
 def outside_canvas(fig) -> list[str]:
@@ -96,6 +99,7 @@ def test_fit_draws_a_band_per_series_under_the_data(synthetic):
     # a curve, not the data points joined: zeta is predicted on a fine grid along t per series
     grid = synthetic.asked[-1]
     assert grid.groupby("T0")["t"].nunique().min() >= 20 > synthetic.data.physical["t"].nunique()
+    assert synthetic.max_draws is not None  # thinned: generated quantities cost a Stan call per draw
     pyplot().close(fig)
 
 

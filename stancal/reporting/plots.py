@@ -78,7 +78,8 @@ def plot_theta(result: CalibrationResult, path: str | Path | None = None, units:
         ax.set_ylim(bottom=0)
         ax.set_xlabel(axis_label(p.name, units))
         ax.set_ylabel("posterior density" + _per(units, p.name))
-        ax.legend(fontsize=7)
+    # one legend below the panels, where it covers no density
+    fig.legend(*axes[0][0].get_legend_handles_labels(), loc="outside lower center", ncols=3, fontsize=7)
     fig.suptitle(f"θ posterior ({result.method})")
     return finish(fig, path)
 

@@ -14,9 +14,11 @@ import pandas as pd
 # more series than this are no longer told apart by colour: the figure then
 # shows the predictions at the data points instead of curves
 MAX_SERIES = 6
-# prediction points over all series: generated quantities are rerun at every
-# posterior draw, so the cost grows with draws x points
-GRID_POINTS = 240
+# prediction points over all series, and posterior draws they are predicted
+# at: generated quantities are rerun per draw, at a cost that grows faster
+# than the points (koh_emulator on pipe_flow: 72 s for 600 draws x 240 points)
+GRID_POINTS = 160
+GRID_DRAWS = 200
 
 
 @dataclass
@@ -58,7 +60,7 @@ def _grid(data, along: str, series: list[tuple[dict, np.ndarray]]) -> pd.DataFra
     """GRID_POINTS along ``along`` over each series' range, covariates at the
     series' mean (numeric) or most frequent level (categorical)."""
     source = data.source.reset_index(drop=True)
-    size = max(20, GRID_POINTS // len(series))
+    size = max(25, GRID_POINTS // len(series))
     frames = []
     for s, (fixed, rows) in enumerate(series):
         values = source[along].iloc[rows]
@@ -94,5 +96,5 @@ def fit_curves(result, units: dict[str, str] | None = None) -> Curves:
     if series is None:
         return Curves(along, result.predict().assign(series=0), [""], "", False)
     grid = _grid(data, along, series)
-    table = result.predict(grid.drop(columns="series")).assign(series=grid["series"].to_numpy())
+    table = result.predict(grid.drop(columns="series"), max_draws=GRID_DRAWS).assign(series=grid["series"].to_numpy())
     return Curves(along, table, [_series_label(fixed, units) for fixed, _ in series], _held(data), True)
