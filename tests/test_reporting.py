@@ -287,3 +287,19 @@ def test_compile_reports_the_seconds_it_built_for(monkeypatch):
     monkeypatch.setattr(pystan_compile, "_install", lambda code, module: None)
     assert pystan_compile.compile_programs([program]) >= 0.2
     assert built == [program.code]
+
+
+def test_curves_of_a_fit_are_predicted_at_thinned_draws(koh_fit):
+    """The figures' curves come from generated quantities on a fine grid,
+    at GRID_DRAWS thinned draws: their bands agree with all 4,000 draws'."""
+    from stancal.reporting.series import GRID_DRAWS, fit_curves
+
+    curves = fit_curves(koh_fit, UNITS)
+    assert curves.on_grid and curves.labels == ["T0 = 60 °C", "T0 = 90 °C"]
+    assert curves.table.groupby("series")["t"].nunique().min() >= 25
+    points = curves.table[["t", "T0"]].iloc[::20]
+    full, thin = koh_fit.predict(points), koh_fit.predict(points, max_draws=GRID_DRAWS)
+    width = (full["zeta_q95"] - full["zeta_q05"]).to_numpy()
+    # the median of 200 draws is within about 0.1 posterior sd (0.03 band widths) of all draws'
+    assert np.all(np.abs(thin["zeta_q50"] - full["zeta_q50"]).to_numpy() < 0.25 * width)
+    assert np.all(np.abs(thin["y_q95"] - full["y_q95"]).to_numpy() < 0.5 * width)

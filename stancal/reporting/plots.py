@@ -72,8 +72,7 @@ def plot_theta(result: CalibrationResult, path: str | Path | None = None, units:
             inside = (grid >= q05) & (grid <= q95)
             ax.fill_between(grid[inside], density[inside], color=f"C{g}", alpha=0.3,
                             label=f"{LEVEL} interval" if g == 0 else None)
-        ax.axhline(1 / (p.upper - p.lower), color="grey", ls="--", lw=1,
-                   label=f"prior: uniform on [{p.lower:g}, {p.upper:g}]")
+        ax.axhline(1 / (p.upper - p.lower), color="grey", ls="--", lw=1, label="prior (uniform on θ's bounds)")
         ax.set_xlim(low, high)
         ax.set_ylim(bottom=0)
         ax.set_xlabel(axis_label(p.name, units))
