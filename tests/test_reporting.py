@@ -41,7 +41,7 @@ class SyntheticResult:
 
     method = "koh"
     modes: list = []
-    options = SimpleNamespace(discrepancy="gp", functional=())
+    options = SimpleNamespace(discrepancy="gp", functional=(), functional_inputs=())
 
     def __init__(self, physical: pd.DataFrame) -> None:
         self.data = stancal.CalibrationData(physical, ["t", "T0"], "temperature", {"k": (0.01, 0.2)},
@@ -303,3 +303,13 @@ def test_curves_of_a_fit_are_predicted_at_thinned_draws(koh_fit):
     # the median of 200 draws is within about 0.1 posterior sd (0.03 band widths) of all draws'
     assert np.all(np.abs(thin["zeta_q50"] - full["zeta_q50"]).to_numpy() < 0.25 * width)
     assert np.all(np.abs(thin["y_q95"] - full["y_q95"]).to_numpy() < 0.5 * width)
+
+
+def test_curves_run_along_the_input_of_a_functional_theta(synthetic):
+    """Reality varies along a functional theta's input (the beam's
+    temperature) even when it is a covariate: the curves run along it."""
+    from stancal.reporting.series import along_input, series_rows
+
+    assert along_input(synthetic.data) == "t"
+    assert along_input(synthetic.data, ("humidity",)) == "humidity"
+    assert series_rows(synthetic.data, "humidity") is None  # every (t, T0) its own series: too many

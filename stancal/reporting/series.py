@@ -37,9 +37,11 @@ def axis_label(name: str, units: dict[str, str] | None) -> str:
     return f"{name} [{units[name]}]" if units and units.get(name) else name
 
 
-def along_input(data) -> str:
-    """The simulator input with the most distinct values in the data (the first on a tie)."""
-    counts = {c: data.physical[c].nunique() for c in data.inputs}
+def along_input(data, functional_inputs: tuple[str, ...] | list[str] = ()) -> str:
+    """The simulator input, or input of a functional theta (which reality
+    varies along, like the beam's temperature), with the most distinct
+    values in the data (the first on a tie)."""
+    counts = {c: data.physical[c].nunique() for c in dict.fromkeys([*data.inputs, *functional_inputs])}
     return max(counts, key=counts.__getitem__)
 
 
@@ -65,15 +67,15 @@ def _grid(data, along: str, series: list[tuple[dict, np.ndarray]]) -> pd.DataFra
     for s, (fixed, rows) in enumerate(series):
         values = source[along].iloc[rows]
         frame = pd.DataFrame({along: np.linspace(values.min(), values.max(), size), **fixed})
-        for c in data.covariates:
+        for c in (c for c in data.covariates if c != along):
             column = source[c].iloc[rows]
             frame[c] = column.mode().iloc[0] if c in data.levels else column.mean()
         frames.append(frame.assign(series=s))
     return pd.concat(frames, ignore_index=True)
 
 
-def _held(data) -> str:
-    numeric = [c for c in data.covariates if c not in data.levels]
+def _held(data, along: str) -> str:
+    numeric = [c for c in data.covariates if c not in data.levels and c != along]
     categorical = [c for c in data.covariates if c in data.levels]
     parts = ([f"{', '.join(numeric)} at the series' mean"] if numeric else []) + \
         ([f"{', '.join(categorical)} at the series' most frequent level"] if categorical else [])
@@ -89,7 +91,7 @@ def fit_curves(result, units: dict[str, str] | None = None) -> Curves:
     curve per series. A single discrepancy input uses the fit's own grid;
     more series than MAX_SERIES use the fit's predictions at the data points."""
     data = result.data
-    along = along_input(data)
+    along = along_input(data, result.options.functional_inputs)
     series = series_rows(data, along)
     if len(data.discrepancy_inputs) == 1:
         return Curves(along, result.predict().assign(series=0), [""], "", True)
@@ -97,4 +99,4 @@ def fit_curves(result, units: dict[str, str] | None = None) -> Curves:
         return Curves(along, result.predict().assign(series=0), [""], "", False)
     grid = _grid(data, along, series)
     table = result.predict(grid.drop(columns="series"), max_draws=GRID_DRAWS).assign(series=grid["series"].to_numpy())
-    return Curves(along, table, [_series_label(fixed, units) for fixed, _ in series], _held(data), True)
+    return Curves(along, table, [_series_label(fixed, units) for fixed, _ in series], _held(data, along), True)
