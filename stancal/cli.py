@@ -101,10 +101,10 @@ def run_gap(args: argparse.Namespace) -> dict:
                                 chains=args.chains, warmup=args.warmup, draws=args.draws,
                                 adapt_delta=args.adapt_delta, seed=args.seed, backend=args.backend,
                                 out_dir=args.out, kfold=args.kfold, scheduler=args.scheduler)
-    summary = write_gap_report(analysis, args.out)
+    summary = write_gap_report(analysis, args.out, problem.units)
     write = write_vector_calibration if vector else write_calibration
     write(analysis.baseline, args.out / "baseline",
-          analysis.baseline.diagnostics.messages if analysis.baseline.diagnostics else [])
+          analysis.baseline.diagnostics.messages if analysis.baseline.diagnostics else [], problem.units)
     for message in _stancal_warnings(caught):
         print(f"warning: {message}", file=sys.stderr)
     return summary
@@ -145,7 +145,7 @@ def run_calibrate(args: argparse.Namespace) -> dict:
             result = calibrate(problem.data, simulator=problem.simulator, method=args.method or configured_method,
                                **sampler, **model)
     write = write_vector_calibration if vector else write_calibration
-    summary = write(result, args.out, _stancal_warnings(caught))
+    summary = write(result, args.out, _stancal_warnings(caught), problem.units)
     for message in summary["warnings"]:
         print(f"warning: {message}", file=sys.stderr)
     return summary
@@ -172,7 +172,7 @@ def run_compare(args: argparse.Namespace) -> dict:
     for fit in comparison.fits:
         if fit.result is not None:
             write_calibration(fit.result, args.out / fit.name,
-                              fit.result.diagnostics.messages if fit.result.diagnostics else [])
+                              fit.result.diagnostics.messages if fit.result.diagnostics else [], problem.units)
     summary = write_comparison(comparison, args.out)
     for message in _stancal_warnings(caught):
         print(f"warning: {message}", file=sys.stderr)

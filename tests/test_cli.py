@@ -46,7 +46,7 @@ def test_calibrate_writes_the_report_folder(cli_run):
     assert set(summary["diagnostics"]["warnings"]) <= set(summary["warnings"])  # reported, not hidden
     assert set(summary["diagnostics"]) >= {"divergences", "max_rhat", "min_ess_bulk"}
     assert set(summary["timing"]) == {"compile_s", "sample_s"}
-    for name in ("posterior.nc", "theta.png", "fit.png", "discrepancy.png", "report.md"):
+    for name in ("posterior.nc", "theta.png", "fit.png", "discrepancy.png", "report.md", "report.html"):
         assert (out / name).stat().st_size > 0, name
 
 

@@ -56,7 +56,7 @@ from stancal.fitting.plan import Plan, make_plan, model_keywords, plan_scalar
 from stancal.fitting.postfit import DRAWS_FILE
 from stancal.fitting.resume import Resume
 from stancal.fitting.seeds import fit_seed
-from stancal.fitting.stopwatch import Stopwatch
+from stancal.fitting.stopwatch import COMPILED_EARLIER, Stopwatch
 from stancal.fitting.vector_calibrate import calibrate_vector
 from stancal.problem.candidates import Candidate, CandidateError
 from stancal.problem.data import CalibrationData, DataError
@@ -291,10 +291,10 @@ def diagnose_gap(
     failed: list[FitFailure] = []
     with fit_runner(scheduler) as runner:
         # every program up front, side by side on the machine's cores, then on every worker
-        runner.prepare([*plan.stan_programs(), *(variant_program(data, c, plan) for c in candidates
-                                                 if c.kind == "variant")],
-                       calibrate_options.get("backend"))
-        clock.lap("compile")
+        compiled = runner.prepare([*plan.stan_programs(), *(variant_program(data, c, plan) for c in candidates
+                                                            if c.kind == "variant")],
+                                  calibrate_options.get("backend"))
+        clock.lap("compile" if compiled else COMPILED_EARLIER)
         fits = run(runner, [task(label_name(c), c, data_for(c),
                                  None if vector else data_for(c).source.reset_index(drop=True),
                                  folder(*home(c)))

@@ -251,9 +251,10 @@ def _with_projected_simulator(predictions, points: pd.DataFrame, theta: np.ndarr
                               delta_new=predictions["delta_new"].copy(data=zeta - f))
 
 
-def reproject(result, points: pd.DataFrame, draws: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-    """predict() of an L2 result: the simulator at each draw's projected theta."""
-    theta = np.asarray(result.idata["posterior"]["theta"])
+def reproject(result, points: pd.DataFrame, draws: dict[str, np.ndarray], step: int = 1) -> dict[str, np.ndarray]:
+    """predict() of an L2 result: the simulator at each draw's projected theta
+    (every ``step``-th draw of each chain, as predict thinned them)."""
+    theta = np.asarray(result.idata["posterior"]["theta"])[:, ::step]
     f = simulator_of(result)(points, theta.reshape(-1, theta.shape[-1]))
     f = f.reshape(*draws["zeta_new"].shape)
     return {**draws, "f_new": f, "delta_new": draws["zeta_new"] - f}

@@ -25,6 +25,7 @@ class Problem:
     simulator: Path | None
     model: dict[str, Any] = field(default_factory=dict)
     candidates: list[Candidate] = field(default_factory=list)  # for `stancal gap`
+    units: dict[str, str] = field(default_factory=dict)  # [units]: name -> unit, for the figures' axes
 
 
 _OBSERVATION_KEYS = {"likelihood", "trials", "lower", "upper"}  # go to CalibrationData
@@ -105,7 +106,7 @@ def load_config(path: str | Path) -> Problem:
         raise ConfigError("config: [simulator] needs 'stan' (a Stan simulator), 'runs' (a CSV of runs), or both")
     model = dict(raw.get("model", {}))
     if "output_index" in physical:
-        return _vector_problem(physical, simulator, theta, runs, stan, model, raw, base)
+        return _with_units(_vector_problem(physical, simulator, theta, runs, stan, model, raw, base), raw)
     unknown = set(model) - _MODEL_KEYS
     if unknown:
         raise ConfigError(f"config: unknown key(s) {sorted(unknown)} in [model]; known: {sorted(_MODEL_KEYS)}")
@@ -127,7 +128,28 @@ def load_config(path: str | Path) -> Problem:
         **observation,
     )
     candidates = _candidates(raw.get("candidates", {}), base)
-    return Problem(data=data, simulator=stan, model=model, candidates=candidates)
+    return _with_units(Problem(data=data, simulator=stan, model=model, candidates=candidates), raw)
+
+
+def _with_units(problem: Problem, raw: dict[str, Any]) -> Problem:
+    """[units]: name = "unit" for the inputs, covariates, output (and output
+    index) and theta, shown on the figures' axes. Optional; every name must
+    be one of the problem's."""
+    table = raw.get("units", {})
+    if not isinstance(table, dict):
+        raise ConfigError('config: [units] must be a table of name = "unit" lines, such as T = "°C"')
+    data = problem.data
+    names = {*data.inputs, *data.covariates, data.output, *data.theta_names,
+             *([*data.output_index, *(p.name for p in data.per_experiment)]
+               if isinstance(data, VectorCalibrationData) else [])}
+    for name, unit in table.items():
+        if name not in names:
+            raise ConfigError(f"config: [units] names '{name}', which is not an input, covariate, output or "
+                              f"theta of this problem; known: {sorted(names)}")
+        if not isinstance(unit, str):
+            raise ConfigError(f'config: [units] {name} must be a string such as "°C"; got {unit!r}')
+    problem.units = dict(table)
+    return problem
 
 
 def _vector_problem(physical: dict, simulator: dict, theta: dict, runs: pd.DataFrame | None, stan: Path | None,

@@ -214,7 +214,7 @@ class CalibrationResult:
 
     # ---- prediction ------------------------------------------------------
     def predict(self, new_points: pd.DataFrame | None = None, *, backend: str | None = None,
-                seed: int = 1) -> pd.DataFrame:
+                seed: int = 1, max_draws: int | None = None) -> pd.DataFrame:
         """zeta (the real process), f(x, theta) and delta at ``new_points``
         (columns: simulator inputs and covariates), with 5/50/95 % quantiles,
         plus ``y`` with measurement noise. Without ``new_points``, the points
@@ -222,7 +222,7 @@ class CalibrationResult:
         # imported here: rerunning Stan at new points is fitting's job, and a result holds data only
         from stancal.fitting.predict import predict
 
-        return predict(self, new_points, backend=backend, seed=seed)
+        return predict(self, new_points, backend=backend, seed=seed, max_draws=max_draws)
 
     # ---- persistence -----------------------------------------------------
     def _metadata(self) -> dict[str, Any]:

@@ -82,7 +82,7 @@ class SampleOutput:
     draws: Draws
     sample_stats: Draws  # lp, diverging, tree_depth, n_steps, step_size, energy, ...
     max_treedepth: int
-    compile_seconds: float
+    load_seconds: float  # loading the compiled program with the data (compiling came before, in compile)
     sample_seconds: float
     messages: list[str] = field(default_factory=list)
 
@@ -94,10 +94,11 @@ class StanBackend(Protocol):
         """Raise StanProgramError, with the user's file and line, if stanc rejects the program."""
         ...
 
-    def compile(self, programs: list[FlatProgram]) -> None:
+    def compile(self, programs: list[FlatProgram]) -> float:
         """Compile the programs that are not compiled yet (each once, however
         often it is listed), in parallel over the machine's cores, so that the
-        fits after it start at once."""
+        fits after it start at once. Returns the seconds spent compiling:
+        0.0 when every program came from a cache (compiled earlier)."""
         ...
 
     def sample(

@@ -157,10 +157,10 @@ class PyStanBackend:
         except RuntimeError as err:
             raise StanRuntimeError(program.explain(str(err))) from None
 
-    def compile(self, programs: list[FlatProgram]) -> None:
+    def compile(self, programs: list[FlatProgram]) -> float:
         for program in {p.code: p for p in programs if not stored_module(p.code).is_file()}.values():
             self.check(program, show_warnings=True)  # stanc's errors first, with the user's lines
-        compile_programs(programs)
+        return compile_programs(programs)
 
     @staticmethod
     def check(program: FlatProgram, show_warnings: bool = False) -> None:
@@ -222,7 +222,7 @@ class PyStanBackend:
             draws=draws_out,
             sample_stats=stats,
             max_treedepth=max_treedepth,
-            compile_seconds=compiled - started,
+            load_seconds=compiled - started,
             sample_seconds=finished - compiled,
         )
 

@@ -302,14 +302,15 @@ def _file_name(program: FlatProgram) -> str:
     return Path(program.origin[0][0]).name if program.origin else "the program"
 
 
-def compile_programs(programs: list[FlatProgram]) -> None:
+def compile_programs(programs: list[FlatProgram]) -> float:
     """Compile (or fetch from the store) the programs this process's httpstan
     cache lacks, one per core at a time. Another process compiling the same
-    program at the same moment is waited for, not repeated."""
+    program at the same moment is waited for, not repeated. Returns the
+    seconds spent building: 0.0 when every program was built earlier."""
     ensure_private_httpstan_cache()
     todo = {p.code: p for p in programs if not is_compiled(p.code)}
     if not todo:
-        return
+        return 0.0
     building = [p for p in todo.values() if not stored_module(p.code).is_file()]
     workers = max(1, min(len(building), os.cpu_count() or 1))
     if building:
@@ -325,3 +326,4 @@ def compile_programs(programs: list[FlatProgram]) -> None:
     for program, here in zip(building, built, strict=True):
         logger.info("%s %s in %.0f s", "compiled" if here else "another process compiled", _file_name(program),
                     time.perf_counter() - started)
+    return time.perf_counter() - started if building else 0.0
