@@ -20,6 +20,7 @@ from stancal.fitting.plan import Plan, model_keywords, plan_scalar, require_gaus
 from stancal.fitting.seeds import command_seed, fit_seed
 from stancal.numerics.quadrature import Quadrature, input_box_quadrature
 from stancal.problem.data import CalibrationData
+from stancal.problem.sampling import SamplerOptions
 from stancal.results.result import CalibrationResult
 from stancal.results.summaries import band
 from stancal.stan.registry import DEFAULT_ESTIMATOR, ESTIMATORS, L2
@@ -121,6 +122,7 @@ def compare_methods(data: CalibrationData, *, simulator: str | Path | None = Non
     compared. Methods that cannot run on this problem, or whose fit failed
     twice, are listed as skipped. ``calibrate_options`` go to every
     calibrate() call (chains, draws, kernel, ...)."""
+    SamplerOptions.from_keywords({**calibrate_options, "seed": seed})  # before anything is planned or compiled
     unknown = set(methods) - set(METHODS)
     if unknown:
         raise ValueError(f"unknown methods {sorted(unknown)}; choose from {', '.join(METHODS)}")
