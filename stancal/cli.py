@@ -273,8 +273,12 @@ def _one_line(err: Exception) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
+    with advice.spoken_to(advice.CLI):  # advice in messages names flags, config keys and report files
+        return _main(argv)
+
+
+def _main(argv: list[str] | None) -> int:
     args = _parser().parse_args(argv)
-    advice.set_audience(advice.CLI)  # advice in messages names flags and report files
     # stancal's own messages at INFO; other libraries' (setuptools prints each
     # g++ command of a compile) at WARNING
     logging.basicConfig(level=logging.WARNING, format="%(name)s: %(message)s")

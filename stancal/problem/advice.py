@@ -3,10 +3,13 @@
 0.95``), the config key or the report's file for a user of the command
 line. Every message that gives advice spells it through here, so that the
 advice fits whoever reads it; the command line says it is the reader once
-(``set_audience(CLI)``), and the fit runner carries the reader to the
+(``spoken_to(CLI)``), and the fit runner carries the reader to the
 processes that run the fits."""
 
 from __future__ import annotations
+
+import contextlib
+from collections.abc import Iterator
 
 PYTHON = "python"
 CLI = "cli"
@@ -35,6 +38,17 @@ def set_audience(audience: str) -> None:
 
 def audience() -> str:
     return _audience
+
+
+@contextlib.contextmanager
+def spoken_to(reader: str) -> Iterator[None]:
+    """Messages for ``reader`` within the block (the command line's run, a fit on a worker)."""
+    before = _audience
+    set_audience(reader)
+    try:
+        yield
+    finally:
+        set_audience(before)
 
 
 def option(name: str, value: object = None) -> str:

@@ -1,0 +1,145 @@
+"""The command line follows conventions: sampling options checked before
+anything, --help with text and defaults, paths relative to the caller's
+folder, progress shown, each sampler warning said once, by name, with
+advice the reader can act on."""
+
+import os
+import re
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from conftest import COOLING
+
+ROOT = Path(__file__).resolve().parent.parent
+COMMANDS = ("calibrate", "gap", "compare", "sbc", "compile")
+SAMPLING_COMMANDS = ("calibrate", "gap", "compare", "sbc")
+
+
+def cli(capsys, *args) -> tuple[int, str, str]:
+    """stancal in this process (an import of stancal costs seconds in a subprocess)."""
+    from stancal.cli import main
+
+    try:
+        code = main([str(a) for a in args])
+    except SystemExit as stop:  # --help
+        code = stop.code
+    captured = capsys.readouterr()
+    return code, captured.out, captured.err
+
+
+# ---- sampling options: one definition, checked before anything ----------------
+@pytest.mark.parametrize(("command", "flag", "value", "message"), [
+    ("calibrate", "--draws", -5, "--draws must be at least 1; got -5"),
+    ("calibrate", "--adapt-delta", 1.2, "--adapt-delta must lie strictly between 0 and 1; got 1.2"),
+    ("gap", "--chains", 0, "--chains must be at least 1; got 0"),
+    ("compare", "--max-treedepth", 0, "--max-treedepth must be at least 1; got 0"),
+    ("sbc", "--warmup", 0, "--warmup must be at least 1; got 0"),
+    ("sbc", "--seed", -1, "--seed must be at least 0; got -1"),
+])
+def test_a_bad_sampling_option_is_one_line_before_anything(capsys, tmp_path, command, flag, value, message):
+    out = tmp_path / "out"
+    # the config does not even exist: the option is checked before it is read
+    code, _, err = cli(capsys, command, tmp_path / "no_config.toml", "--out", out, flag, value)
+    assert code == 2, err
+    assert err.strip() == f"stancal: error: {message}"
+    assert not out.exists()  # nothing written
+
+
+@pytest.mark.parametrize("command", SAMPLING_COMMANDS)
+def test_every_sampling_command_takes_the_sampling_options(capsys, command):
+    from stancal.problem.sampling import NAMES
+
+    _, text, _ = cli(capsys, command, "--help")
+    for name in NAMES:
+        assert f"--{name.replace('_', '-')} " in text, f"{command} lacks --{name}"
+
+
+def test_python_callers_get_the_same_check_before_any_plan_or_compile(monkeypatch):
+    import stancal
+    from stancal.diagnosing import gap, sbc
+    from stancal.fitting import calibrate as calibrate_module
+    from stancal.problem.candidates import Candidate
+    from stancal.problem.config import load_config
+
+    def no_plan(*args, **kwargs):
+        raise AssertionError("planned or compiled before the sampler's options were checked")
+
+    monkeypatch.setattr(calibrate_module, "plan_scalar", no_plan)
+    monkeypatch.setattr(gap, "make_plan", no_plan)
+    data = load_config(COOLING / "config.toml").data
+    with pytest.raises(ValueError, match=r"^draws must be at least 1; got -5$"):
+        stancal.calibrate(data, draws=-5)
+    with pytest.raises(ValueError, match=r"^adapt_delta must lie strictly between 0 and 1; got 1$"):
+        stancal.calibrate(data, adapt_delta=1)
+    with pytest.raises(ValueError, match=r"^chains must be a whole number; got 2.5$"):
+        gap.diagnose_gap(data, [Candidate("h", formula="humidity")], chains=2.5)
+    with pytest.raises(ValueError, match=r"^max_treedepth must be at least 1; got 0$"):
+        stancal.compare_methods(data, max_treedepth=0)
+    with pytest.raises(ValueError, match=r"^draws x chains = 10 is fewer than the 100 draws per fit"):
+        sbc.simulation_based_calibration(data, draws=5)
+
+
+# ---- --help: text and a default for every option ------------------------------
+def _options(help_text: str) -> dict[str, str]:
+    """Each option's entry in a --help page: flags -> the rest of its text."""
+    section = help_text.split("options:", 1)[1]
+    entries, current = {}, None
+    for line in section.splitlines():
+        if re.match(r"^  -", line):
+            flags, _, rest = line.strip().partition("  ")
+            current = flags
+            entries[current] = rest.strip()
+        elif current and line.startswith(" " * 10):
+            entries[current] += " " + line.strip()
+    return entries
+
+
+@pytest.mark.parametrize("command", COMMANDS)
+def test_help_gives_every_option_text_and_its_default(capsys, command):
+    code, text, err = cli(capsys, command, "--help")
+    assert code == 0, err
+    options = _options(text)
+    assert len(options) > 2
+    for flags, text in options.items():
+        if flags.startswith("-h, --help"):
+            continue
+        words = re.sub(r"\((default: .*?|required)\)$", "", text).strip()
+        assert words, f"{command} {flags}: no help text"
+        assert re.search(r"default: |\(required\)$", text), f"{command} {flags}: no default stated: {text!r}"
+
+
+# ---- paths are the caller's ----------------------------------------------------
+@pytest.fixture
+def repository(tmp_path):
+    """A copy of the run script in a folder set up as ./run leaves it (a
+    venv whose stancal and python are this interpreter's), so that the test
+    runs the script without installing anything."""
+    repo = tmp_path / "repo"
+    (repo / ".venv" / "bin").mkdir(parents=True)
+    shutil.copy(ROOT / "run", repo / "run")
+    shutil.copy(ROOT / "pyproject.toml", repo / "pyproject.toml")
+    (repo / ".venv" / "bin" / "python").symlink_to(sys.executable)
+    stancal = repo / ".venv" / "bin" / "stancal"
+    stancal.write_text(f"#!/bin/sh\nexec {sys.executable} -m stancal.cli \"$@\"\n")
+    stancal.chmod(0o755)
+    (repo / ".venv" / ".stancal-installed").touch()
+    return repo
+
+
+def test_run_calibrate_reads_paths_from_the_callers_folder(repository, tmp_path):
+    caller = tmp_path / "elsewhere"
+    (caller / "study").mkdir(parents=True)
+    (caller / "study" / "config.toml").write_text("[physical\n")  # found, and read: its error is its content's
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    started = time.perf_counter()
+    done = subprocess.run([str(repository / "run"), "calibrate", "study/config.toml", "--out", "out"],
+                          cwd=caller, capture_output=True, text=True, env=env)
+    assert done.returncode == 2, done.stderr
+    assert done.stderr.strip().splitlines()[-1].startswith(
+        "stancal: error: config study/config.toml: not valid TOML"), done.stderr
+    assert not (caller / "out").exists() and not (repository / "out").exists()
+    assert time.perf_counter() - started < 60  # no compile, no sampling
