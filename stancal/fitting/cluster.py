@@ -36,6 +36,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from stancal.problem import advice
 from stancal.stan.backends import get_backend
 from stancal.stan.source import FlatProgram
 
@@ -71,10 +72,12 @@ class FitFailure:
         return f"{self.name} failed: {self.error}"
 
 
-def _captured(function: Callable[..., Any], kwargs: dict[str, Any]) -> tuple[Any, list[tuple[str, type]]]:
+def _captured(function: Callable[..., Any], kwargs: dict[str, Any],
+              reader: str = advice.PYTHON) -> tuple[Any, list[tuple[str, type]]]:
     """Run one task, keeping its warnings (sampler trouble, ...) to say them
-    where the command runs, not in a worker's log."""
-    with warnings.catch_warnings(record=True) as caught:
+    where the command runs, not in a worker's log; their advice is for
+    ``reader``, the command's (stancal.problem.advice)."""
+    with advice.spoken_to(reader), warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         value = function(**kwargs)
     return value, [(str(w.message), w.category) for w in caught]
@@ -226,8 +229,8 @@ class FitRunner:
                 values[index] = outcome
             else:
                 values[index], caught = outcome
-                for message, category in caught:
-                    warnings.warn(message, category, stacklevel=2)
+                for message, category in caught:  # said once, naming the fit it came from
+                    warnings.warn(f"{tasks[index].name}: {message}", category, stacklevel=2)
             self.progress.finished(tasks[index].name, isinstance(outcome, FitFailure))
         return values
 
@@ -235,7 +238,7 @@ class FitRunner:
         for index, task in enumerate(tasks):
             for attempt in range(RETRIES + 1):
                 try:
-                    yield index, _captured(task.function, task.kwargs)
+                    yield index, _captured(task.function, task.kwargs, advice.audience())
                     break
                 except Exception as error:  # one failed fit must not lose the others
                     if attempt == RETRIES:
@@ -246,7 +249,8 @@ class FitRunner:
     def _in_cluster(self, tasks: list[FitTask]) -> Iterator[tuple[int, Any]]:
         from distributed import as_completed
 
-        futures = {self.client.submit(_captured, task.function, task.kwargs, pure=False, retries=RETRIES,
+        futures = {self.client.submit(_captured, task.function, task.kwargs, advice.audience(), pure=False,
+                                      retries=RETRIES,
                                       key=f"{TASK_PREFIX}-{uuid.uuid4().hex}"): index
                    for index, task in enumerate(tasks)}
         for future in as_completed(list(futures)):

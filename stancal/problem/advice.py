@@ -63,9 +63,8 @@ def option(name: str, value: object = None) -> str:
 def config_key(table: str, key: str, value: object) -> str:
     """A model option: a keyword of calibrate() in Python, a key of the
     config's table on the command line."""
-    if _audience == CLI:
-        return f"{key} = {_toml(value)} in the config's [{table}] table"
-    return f"{key}={value!r}"
+    setting = f"{key} = {_toml(value)}"  # a keyword's value as Python and TOML both write it
+    return f"{setting} in the config's [{table}] table" if _audience == CLI else setting
 
 
 def place(what: str) -> str:
