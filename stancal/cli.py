@@ -228,11 +228,15 @@ def run_sbc(args: argparse.Namespace) -> dict:
     problem = load_config(args.config)
     _scalar_only(problem, "sbc")
     model = {k: v for k, v in problem.model.items() if k != "approximation"}
-    result = simulation_based_calibration(
-        problem.data, simulator=problem.simulator, simulations=args.sims, draws_per_fit=args.draws_per_fit,
-        level=args.level, out_dir=args.out, **sampler_options(args),
-        backend=args.backend, scheduler=args.scheduler, **model)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        result = simulation_based_calibration(
+            problem.data, simulator=problem.simulator, simulations=args.sims, draws_per_fit=args.draws_per_fit,
+            level=args.level, out_dir=args.out, **sampler_options(args),
+            backend=args.backend, scheduler=args.scheduler, **model)
     write_sbc_report(result, args.out)
+    for message in _stancal_warnings(caught):  # each naming its simulation
+        print(f"warning: {message}", file=sys.stderr)
     return result.to_json()
 
 

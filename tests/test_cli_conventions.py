@@ -9,8 +9,10 @@ import shutil
 import subprocess
 import sys
 import time
+import warnings
 from pathlib import Path
 
+import numpy as np
 import pytest
 from conftest import COOLING
 
@@ -143,3 +145,69 @@ def test_run_calibrate_reads_paths_from_the_callers_folder(repository, tmp_path)
         "stancal: error: config study/config.toml: not valid TOML"), done.stderr
     assert not (caller / "out").exists() and not (repository / "out").exists()
     assert time.perf_counter() - started < 60  # no compile, no sampling
+
+
+# ---- sampler warnings: once, by name, naming the fit, advice for the reader ----
+def test_a_sampler_warning_is_said_once_by_name_with_advice_for_the_command_line(capsys, caplog, tmp_path):
+    # 2 x (20 + 40) draws: far too short, so R-hat and ESS are reported (measured: both, at this seed)
+    code, _, err = cli(capsys, "calibrate", COOLING / "config.toml", "--out", tmp_path / "out", "--chains", 2,
+                       "--warmup", 20, "--draws", 40, "--seed", 3, "--backend", "pystan")
+    assert code == 0, err
+    warned = [line.removeprefix("warning: ") for line in err.splitlines() if line.startswith("warning: ")]
+    assert any("effective sample size" in w for w in warned), err
+    logged = [r.getMessage() for r in caplog.records if r.name == "stancal"]  # in-process, logs go to caplog
+    for message in warned:  # once: no log line repeats it
+        assert err.count(message) == 1 and message not in logged, f"said more than once: {message}"
+    sampler = [w for w in warned if re.match(r"(R-hat|effective sample size|\d+ of \d+ transitions)", w)]
+    assert sampler, err
+    for message in sampler:
+        assert "theta[" not in message and "result." not in message, message
+        assert re.search(r"--(warmup|draws|adapt-delta|max-treedepth) \d", message), message
+
+
+def test_warnings_name_parameters_as_the_config_does():
+    import numpy as np
+    import xarray as xr
+
+    from stancal.results.diagnostics import component_name
+
+    theta = xr.DataArray(np.zeros(2), dims=["theta_name"], coords={"theta_name": ["k", "omega"]})
+    assert component_name(theta.rename("theta"), 1) == "omega"
+    per_experiment = xr.DataArray(np.zeros((2, 1)), dims=["experiment", "experiment_theta_name"],
+                                  coords={"experiment": ["run 1", "run 2"], "experiment_theta_name": ["k"]})
+    assert component_name(per_experiment.rename("theta_experiment"), 1) == "k[run 2]"
+    scale = xr.DataArray(np.zeros(2), dims=["delta_input"], coords={"delta_input": ["t", "T0"]})
+    assert component_name(scale.rename("delta_length_scale"), 1) == "delta_length_scale[T0]"
+    assert component_name(xr.DataArray(0.0, name="noise_sd"), 0) == "noise_sd"
+
+
+def warn_like_a_fit() -> int:
+    """A fit whose sampler diverged 3 times: its checks' warnings, as check_fit says them."""
+    import xarray as xr
+    from stancal.results import diagnostics
+
+    rng = np.random.default_rng(1)
+    posterior = xr.Dataset({"theta": (("chain", "draw", "theta_name"), rng.normal(size=(4, 500, 1)))},
+                           coords={"theta_name": ["k"]})
+    diverging = np.zeros((4, 500), dtype=bool)
+    diverging[0, :3] = True
+    stats = xr.Dataset({"diverging": (("chain", "draw"), diverging),
+                        "energy": (("chain", "draw"), rng.normal(size=(4, 500))),
+                        "tree_depth": (("chain", "draw"), np.full((4, 500), 3))})
+    diagnostics.report(diagnostics.check_sampler(posterior, stats, 10, ["theta"]))
+    return 1
+
+
+@pytest.mark.parametrize(("reader", "advice_text"), [("cli", "--adapt-delta 0.95"), ("python", "adapt_delta=0.95")])
+def test_a_fit_runners_warnings_name_their_fit_and_suit_the_reader(reader, advice_text):
+    from stancal.fitting.cluster import IN_PROCESS, FitRunner, FitTask
+    from stancal.problem import advice
+
+    tasks = [FitTask("the baseline", warn_like_a_fit), FitTask("candidate 'humidity'", warn_like_a_fit)]
+    with advice.spoken_to(reader), warnings.catch_warnings(record=True) as caught, \
+            FitRunner(IN_PROCESS, progress=False) as runner:
+        warnings.simplefilter("always")
+        runner.map(tasks)
+    said = [str(w.message) for w in caught]
+    assert [m.split(": ", 1)[0] for m in said] == ["the baseline", "candidate 'humidity'"]
+    assert all(m.split(": ", 1)[1].startswith("3 of 2000 transitions diverged") and advice_text in m for m in said)

@@ -19,7 +19,7 @@ _audience = PYTHON  # per process: the command line sets it first thing
 
 # where the command line writes what a Python user finds on the result
 _CLI_PLACES = {
-    "modes": "the modes table in report.md (section \"Separate theta modes\") and summary.json (\"modes\")",
+    "modes": "\"modes\" in summary.json (report.md lists them when there are several)",
     "summary by mode": "summary.csv (one block per mode)",
 }
 _PYTHON_PLACES = {
