@@ -184,6 +184,7 @@ def test_warnings_name_parameters_as_the_config_does():
 def warn_like_a_fit() -> int:
     """A fit whose sampler diverged 3 times: its checks' warnings, as check_fit says them."""
     import xarray as xr
+
     from stancal.results import diagnostics
 
     rng = np.random.default_rng(1)

@@ -37,6 +37,7 @@ from pathlib import Path
 from typing import Any
 
 from stancal.problem import advice
+from stancal.stan import progress as stan_progress
 from stancal.stan.backends import get_backend
 from stancal.stan.source import FlatProgram
 
@@ -76,8 +77,9 @@ def _captured(function: Callable[..., Any], kwargs: dict[str, Any],
               reader: str = advice.PYTHON) -> tuple[Any, list[tuple[str, type]]]:
     """Run one task, keeping its warnings (sampler trouble, ...) to say them
     where the command runs, not in a worker's log; their advice is for
-    ``reader``, the command's (stancal.problem.advice)."""
-    with advice.spoken_to(reader), warnings.catch_warnings(record=True) as caught:
+    ``reader``, the command's (stancal.problem.advice). It shows no progress
+    of its own: the runner shows the fits done."""
+    with advice.spoken_to(reader), stan_progress.quiet(), warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         value = function(**kwargs)
     return value, [(str(w.message), w.category) for w in caught]

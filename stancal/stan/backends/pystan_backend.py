@@ -7,7 +7,6 @@ import functools
 import json
 import logging
 import subprocess
-import sys
 import tempfile
 import time
 from collections.abc import Callable
@@ -17,7 +16,8 @@ from typing import Any
 import numpy as np
 
 from stancal.stan.backends.base import SAMPLER_STATS, Draws, SampleOutput, StanRuntimeError, fresh_prediction_normals
-from stancal.stan.backends.pystan_compile import compile_programs, held_output, is_compiled, stanc
+from stancal.stan.backends.pystan_compile import compile_programs, held_output, is_compiled, program_file, stanc
+from stancal.stan.progress import progress_lines, sampling_progress
 from stancal.stan.source import FlatProgram, StanProgramError
 
 logger = logging.getLogger("stancal")
@@ -56,11 +56,11 @@ def _interior_point(model) -> dict[str, Any]:
 
 
 @contextlib.contextmanager
-def _sampling_output(model_name: str):
-    """PyStan's sampling output, tamed. In a terminal its progress bar stays;
-    otherwise (a log file, CI) its line per progress step and Stan's
-    informational messages are held back (shown if sampling fails), stancal
-    logs one line per fit instead. httpstan keeps every seeded fit's draws in
+def _sampling_output(model_name: str, label: str, total: int):
+    """PyStan's sampling output, tamed. Its progress lines drive stancal's
+    progress (stancal.stan.progress: a bar on a terminal, a compact log
+    elsewhere); Stan's informational messages and what else it prints are
+    held back (shown if sampling fails). httpstan keeps every seeded fit's draws in
     its cache, gigabytes over time, and would serve the same draws again for
     the same seed and data: the fits made here are deleted once read."""
     import httpstan.cache
@@ -68,7 +68,7 @@ def _sampling_output(model_name: str):
     fits = httpstan.cache.model_directory(model_name) / "fits"
     before = set(fits.glob("*")) if fits.is_dir() else set()
     try:
-        with contextlib.nullcontext() if sys.stderr.isatty() else held_output():
+        with sampling_progress(label, total) as progress, held_output(descriptors=False), progress_lines(progress):
             yield
     finally:
         for path in (set(fits.glob("*")) if fits.is_dir() else set()) - before:
@@ -151,7 +151,7 @@ class PyStanBackend:
         if inits is not None:
             kwargs["init"] = inits
         try:
-            with _sampling_output(model.model_name):
+            with _sampling_output(model.model_name, f"sampling {program_file(program)}", chains * (warmup + draws)):
                 fit = model.sample(**kwargs)
         except RuntimeError as err:
             raise StanRuntimeError(self._explain_failure(model, program, inits, err)) from None

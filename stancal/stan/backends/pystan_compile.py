@@ -23,11 +23,12 @@ import subprocess
 import sys
 import tempfile
 import time
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import ThreadPoolExecutor, as_completed
 from importlib.machinery import EXTENSION_SUFFIXES
 from pathlib import Path
 
 from stancal.stan.backends.base import StanRuntimeError, cache_root
+from stancal.stan.progress import ticking
 from stancal.stan.source import FlatProgram
 
 logger = logging.getLogger("stancal")
@@ -199,19 +200,23 @@ def release_private_httpstan_cache(folder: Path) -> None:
 
 
 @contextlib.contextmanager
-def held_output():
+def held_output(descriptors: bool = True):
     """Hold back what a build or a run prints: PyStan's stanc warnings about the flat
-    program (print) and g++'s pages of warnings (a subprocess writing to file
-    descriptors 1 and 2). Shown only if it fails."""
+    program and its messages while sampling (print, sys.stderr) and, with
+    ``descriptors``, g++'s pages of warnings (a subprocess writing to file
+    descriptors 1 and 2). Shown only if it fails. Sampling holds Python's
+    streams only, so that stancal's log lines (its progress among them) still
+    reach the terminal while a fit runs."""
     with tempfile.TemporaryFile(mode="w+b") as held, \
             contextlib.redirect_stdout(io.StringIO()) as printed, contextlib.redirect_stderr(printed):
-        saved = [os.dup(1), os.dup(2)]
+        fds = (1, 2) if descriptors else ()
+        saved = [os.dup(fd) for fd in fds]
         try:
-            for fd in (1, 2):
+            for fd in fds:
                 os.dup2(held.fileno(), fd)
             yield
         except Exception:
-            for fd, copy in zip((1, 2), saved, strict=False):
+            for fd, copy in zip(fds, saved, strict=True):
                 os.dup2(copy, fd)
             held.seek(0)
             tail = (printed.getvalue() + held.read().decode(errors="replace")).strip().splitlines()[-20:]
@@ -219,7 +224,7 @@ def held_output():
                 logger.warning("before failing, it printed:\n%s", "\n".join(tail))
             raise
         finally:
-            for fd, copy in zip((1, 2), saved, strict=False):
+            for fd, copy in zip(fds, saved, strict=True):
                 os.dup2(copy, fd)
                 os.close(copy)
 
@@ -237,6 +242,11 @@ def _compile_in_subprocess(program: FlatProgram) -> None:
                                f"failed:\n{tail}")
 
 
+def program_file(program: FlatProgram) -> str:
+    """The program's file name, for progress and messages."""
+    return Path(program.origin[0][0]).name if program.origin else "the program"
+
+
 def compile_programs(programs: list[FlatProgram]) -> None:
     """Compile (or fetch from the store) the programs httpstan lacks, one per core at a time."""
     todo = {p.code: p for p in programs if not is_compiled(p.code)}
@@ -248,10 +258,14 @@ def compile_programs(programs: list[FlatProgram]) -> None:
         logger.warning("Compiling %d Stan program%s with PyStan, %d at a time (%s); each takes two to "
                        "four minutes on a 2-core machine, once per machine.",
                        len(building), "s" if len(building) > 1 else "", workers,
-                       ", ".join(Path(p.origin[0][0]).name if p.origin else "?" for p in building))
+                       ", ".join(program_file(p) for p in building))
     started = time.perf_counter()
-    with ThreadPoolExecutor(max_workers=workers) as pool:  # each thread waits on one subprocess
-        list(pool.map(_compile_in_subprocess, building))
+    names = [f"{program_file(p)} ({i + 1}/{len(building)})" for i, p in enumerate(building)]
+    with ticking(names) as done, ThreadPoolExecutor(max_workers=workers) as pool:  # a thread waits on a subprocess
+        builds = {pool.submit(_compile_in_subprocess, p): name for p, name in zip(building, names, strict=True)}
+        for build in as_completed(builds):
+            build.result()  # a failure is raised here
+            done(builds[build])
     for code in todo:  # into this process's httpstan cache, which may be private to it
         _install(code, stored_module(code))
     if building:
