@@ -3,6 +3,8 @@ anything, --help with text and defaults, paths relative to the caller's
 folder, progress shown, each sampler warning said once, by name, with
 advice the reader can act on."""
 
+import contextlib
+import io
 import os
 import re
 import shutil
@@ -14,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import COOLING
+from conftest import COOLING, no_stancal_warnings
 
 ROOT = Path(__file__).resolve().parent.parent
 COMMANDS = ("calibrate", "gap", "compare", "sbc", "compile")
@@ -212,3 +214,101 @@ def test_a_fit_runners_warnings_name_their_fit_and_suit_the_reader(reader, advic
     said = [str(w.message) for w in caught]
     assert [m.split(": ", 1)[0] for m in said] == ["the baseline", "candidate 'humidity'"]
     assert all(m.split(": ", 1)[1].startswith("3 of 2000 transitions diverged") and advice_text in m for m in said)
+
+
+# ---- progress ------------------------------------------------------------------
+class Terminal(io.StringIO):
+    """A terminal stand-in that keeps what was drawn on it after stancal closes it."""
+
+    def close(self) -> None:
+        pass
+
+
+# what PyStan writes to sys.stderr while 2 chains of 100 + 100 iterations run (stan/model.py, a
+# stream without ANSI support: a newline, then the line), with Stan's messages among the lines
+PYSTAN_LINES = ["Sampling:   0%", "\n", "Sampling:   0%", "\n", "Sampling:   0% (1/400)", "\n",
+                "Sampling:  26% (102/400)", "\n", "Sampling:  50% (202/400)", "\n",
+                "Sampling:  75% (301/400)\n", "Sampling: 100% (400/400)", "\n",
+                "Sampling: 100% (400/400), done.", "\n", "Messages received during sampling:\n",
+                "  Gradient evaluation took 1e-05 seconds\n"]
+
+
+def test_pystans_progress_lines_drive_a_bar_on_a_terminal(monkeypatch):
+    from stancal.stan import progress
+
+    terminal = Terminal()
+    monkeypatch.setattr(progress, "terminal_stream", lambda: terminal)
+    held = io.StringIO()
+    with contextlib.redirect_stderr(held), progress.sampling_progress("sampling koh.stan", 400) as bar, \
+            progress.progress_lines(bar):
+        seen = []
+        for text in PYSTAN_LINES:
+            sys.stderr.write(text)
+            seen.append(bar.done)
+    assert seen[5] == 1 and seen[7] == 102 and seen[9] == 202 and bar.done == 400
+    assert bar.bar.n == 400 and "400/400" in terminal.getvalue().split("\r")[-1]
+    # Stan's messages are not progress: they go on to the stream held back
+    assert "Sampling" not in held.getvalue() and "Gradient evaluation took" in held.getvalue()
+
+
+def test_without_a_terminal_progress_is_a_line_per_quarter(monkeypatch, caplog):
+    from stancal.stan import progress
+
+    monkeypatch.setattr(progress, "terminal_stream", lambda: None)
+    with caplog.at_level("INFO", logger="stancal"), contextlib.redirect_stderr(io.StringIO()), \
+            progress.sampling_progress("sampling koh.stan", 400) as bar, progress.progress_lines(bar):
+        for text in PYSTAN_LINES:
+            sys.stderr.write(text)
+    lines = [r.getMessage() for r in caplog.records if "sampling koh.stan" in r.getMessage()]
+    assert [line.split(" (")[0] for line in lines] == [f"sampling koh.stan: {p} %" for p in (25, 50, 75)]
+    # a fit among many (a fit runner's task) shows none
+    caplog.clear()
+    with progress.quiet(), progress.sampling_progress("sampling koh.stan", 400) as bar:
+        assert bar is None
+
+
+def test_a_compile_ticks_until_it_is_done(monkeypatch, caplog):
+    from stancal.stan import progress
+
+    terminal = Terminal()
+    monkeypatch.setattr(progress, "terminal_stream", lambda: terminal)
+    with progress.ticking(["koh.stan (1/2)", "koh_latent.stan (2/2)"]) as done:
+        time.sleep(1.5)  # a tick a second
+        done("koh.stan (1/2)")
+        time.sleep(1.2)
+        done("koh_latent.stan (2/2)")
+    drawn = terminal.getvalue()
+    assert "compiling koh.stan (1/2): 00:01, done" in drawn and "compiling koh_latent.stan (2/2): 00:02, done" in drawn
+    monkeypatch.setattr(progress, "terminal_stream", lambda: None)
+    monkeypatch.setattr(progress, "COMPILE_LOG_EVERY_S", 0.5)
+    with caplog.at_level("INFO", logger="stancal"), progress.ticking(["koh.stan (1/1)"]) as done:
+        time.sleep(1.2)
+        done("koh.stan (1/1)")
+    said = [r.getMessage() for r in caplog.records]
+    ticks = [m for m in said if re.fullmatch(r"compiling koh.stan \(1/1\): \d s so far", m)]
+    assert ticks and said[-1] == "compiling koh.stan (1/1): done in 1 s", said
+
+
+def test_a_real_fit_drives_the_bar_to_its_total(monkeypatch, tmp_path):
+    import stancal
+    from stancal.problem.config import load_config
+    from stancal.stan import progress
+
+    bars = []
+    terminal = Terminal()
+
+    class Recorded(progress.SamplingProgress):
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            bars.append(self)
+
+    monkeypatch.setattr(progress, "terminal_stream", lambda: terminal)
+    monkeypatch.setattr(progress, "SamplingProgress", Recorded)
+    problem = load_config(COOLING / "config.toml")
+    # 2 x (30 + 20) iterations: too short to mix, and said so; the bar is what is tested here
+    with no_stancal_warnings(allow="R-hat|effective sample size|diverged|tree depth|E-BFMI|theta modes"):
+        stancal.calibrate(problem.data, simulator=problem.simulator, chains=2, warmup=30, draws=20, seed=2,
+                          backend="pystan")
+    assert len(bars) == 1 and bars[0].total == 2 * (30 + 20)
+    assert bars[0].done == bars[0].bar.n == 100, terminal.getvalue()
+    assert "100/100" in terminal.getvalue()

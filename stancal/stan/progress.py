@@ -185,7 +185,7 @@ def ticking(names: list[str], what: str = "compiling") -> Iterator[Callable[[str
         with lock:
             running.discard(name)
             if name in bars:
-                bars[name].set_postfix_str(", done")
+                bars[name].set_postfix_str("done")  # tqdm puts ", " before it
                 bars[name].close()
             elif not _quiet:
                 logger.info("%s %s: done in %.0f s", what, name, time.perf_counter() - started)
