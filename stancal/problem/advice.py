@@ -60,6 +60,11 @@ def option(name: str, value: object = None) -> str:
     return name if value is None else f"{name}={value!r}"
 
 
+def options(**values: object) -> str:
+    """Several options with values: ``--warmup 2000 --draws 2000`` or ``warmup=2000, draws=2000``."""
+    return (" " if _audience == CLI else ", ").join(option(name, value) for name, value in values.items())
+
+
 def config_key(table: str, key: str, value: object) -> str:
     """A model option: a keyword of calibrate() in Python, a key of the
     config's table on the command line."""

@@ -140,7 +140,7 @@ def _messages(d: Diagnostics, chains: int, max_treedepth: int, bfmi: np.ndarray,
         messages.append(
             f"R-hat up to {d.max_rhat:.3f} ({d.worst_rhat}) > {RHAT_LIMIT}: chains "
             + ("within a theta mode " if several_modes else "") + "disagree. "
-            f"Run longer ({advice.option('warmup', longer)} {advice.option('draws', longer)})"
+            f"Run longer ({advice.options(warmup=longer, draws=longer)})"
             + ("." if several_modes else f"; if chains sit in different theta modes, see {advice.place('modes')}.")
         )
     min_ess = min(d.min_ess_bulk, d.min_ess_tail)
