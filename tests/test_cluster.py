@@ -55,8 +55,8 @@ def test_a_failed_fit_is_retried_once_then_named(scheduler, tmp_path, monkeypatc
     assert outcomes[0] == 2 and outcomes[2] == 1  # a: failed once, then ran again
     assert outcomes[1] == FitFailure("fit b", "ValueError: row 2 is bad")  # b: tried twice, then named
     assert (tmp_path / "b").read_text() == "2"
-    # the workers' warnings are said where the command runs
-    assert sorted(str(w.message) for w in caught) == ["fitted after 1 calls", "fitted after 2 calls"]
+    # the workers' warnings are said where the command runs, each naming its fit
+    assert sorted(str(w.message) for w in caught) == ["fit a: fitted after 2 calls", "fit c: fitted after 1 calls"]
     assert runner.progress.done == runner.progress.total == 3
 
 

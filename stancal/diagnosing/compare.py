@@ -22,6 +22,7 @@ from stancal.fitting.resume import Resume
 from stancal.fitting.seeds import fit_seed
 from stancal.numerics.quadrature import Quadrature, input_box_quadrature
 from stancal.problem.data import CalibrationData
+from stancal.problem.sampling import SamplerOptions
 from stancal.results.result import CalibrationResult
 from stancal.results.summaries import band
 from stancal.stan.registry import DEFAULT_ESTIMATOR, ESTIMATORS, L2
@@ -129,6 +130,7 @@ def compare_methods(data: CalibrationData, *, simulator: str | Path | None = Non
     twice, are listed as skipped. A rerun with the same ``out_dir`` reuses
     the fits finished there (stancal.fitting.resume). ``calibrate_options`` go to every
     calibrate() call (chains, draws, kernel, ...)."""
+    SamplerOptions.from_keywords({**calibrate_options, "seed": seed})  # before anything is planned or compiled
     unknown = set(methods) - set(METHODS)
     if unknown:
         raise ValueError(f"unknown methods {sorted(unknown)}; choose from {', '.join(METHODS)}")

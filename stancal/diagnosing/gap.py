@@ -61,6 +61,7 @@ from stancal.fitting.vector_calibrate import calibrate_vector
 from stancal.problem.candidates import Candidate, CandidateError
 from stancal.problem.data import CalibrationData, DataError
 from stancal.problem.mean_terms import FormulaError, build_mean_terms
+from stancal.problem.sampling import SamplerOptions
 from stancal.problem.vector_data import VectorCalibrationData
 from stancal.results.result import CalibrationResult
 from stancal.results.vector_result import VectorCalibrationResult
@@ -259,6 +260,7 @@ def diagnose_gap(
     ``calibrate_options`` (kernel, chains, warmup, draws, backend,
     adapt_delta, ...) go to every fit.
     """
+    SamplerOptions.from_keywords({**calibrate_options, "seed": seed})  # before anything is planned or compiled
     vector = isinstance(data, VectorCalibrationData)
     if vector:
         calibrate_options.pop("approximation", None)

@@ -32,12 +32,15 @@ from stancal.fitting.cluster import FitFailure, FitRunner, FitTask, fit_runner
 from stancal.fitting.plan import make_plan, model_keywords
 from stancal.fitting.resume import Resume, keep_whole, write_json
 from stancal.fitting.seeds import fit_seed
+from stancal.problem import advice
 from stancal.problem.data import CalibrationData
+from stancal.problem.sampling import SamplerOptions
 from stancal.results.result import CalibrationResult
 from stancal.stan.backends import get_backend
 from stancal.stan.standata import build_stan_data, to_stan_json
 
 PRIOR_THINNING = 5  # prior draws kept: every 5th of one long chain
+SBC_CHAINS, SBC_WARMUP = 2, 300  # each fit's defaults: many fits, each of a small posterior
 LOG_LIKELIHOOD = "log_likelihood"  # ranked beside the parameters (Modrák et al. 2023)
 TRUTH = "truth.json"  # in each simulation's folder: the values it was simulated from
 RANKED_DRAWS = "ranked_draws.json"  # and the thinned posterior draws they were ranked among
@@ -139,6 +142,27 @@ def simulated_ranks(data: CalibrationData, truth: dict[str, float], truth_parame
     return {name: rank_of(at_truth[name], draws) for name, draws in ranked.items()}
 
 
+def _sampling(calibrate_options: dict[str, Any], seed: int | None, draws_per_fit: int) -> SamplerOptions:
+    """Each fit's sampler options, taken out of ``calibrate_options`` (chains,
+    warmup and draws; the others stay for calibrate()) and checked before
+    anything is compiled."""
+    if not (isinstance(draws_per_fit, int) and draws_per_fit >= 1):
+        raise ValueError(f"{advice.option('draws_per_fit')} must be a whole number of at least 1; "
+                         f"got {draws_per_fit!r}")
+    chains = calibrate_options.pop("chains", SBC_CHAINS)
+    warmup = calibrate_options.pop("warmup", SBC_WARMUP)
+    draws = calibrate_options.pop("draws", None)
+    if draws is None:  # a bad chains is named by the check below, not met by a division
+        draws = -(-2 * draws_per_fit // chains) if isinstance(chains, int) and chains >= 1 else 1
+    sampling = SamplerOptions.from_keywords({**calibrate_options, "seed": seed, "chains": chains,
+                                             "warmup": warmup, "draws": draws})
+    if sampling.chains * sampling.draws < draws_per_fit:
+        raise ValueError(f"{advice.option('draws')} x {advice.option('chains')} = "
+                         f"{sampling.chains * sampling.draws} is fewer than the {draws_per_fit} draws per fit "
+                         f"that are ranked ({advice.option('draws_per_fit')})")
+    return sampling
+
+
 def simulation_based_calibration(
     data: CalibrationData,
     *,
@@ -162,13 +186,13 @@ def simulation_based_calibration(
     Under ``out_dir``, each simulation's folder holds its fit, its truth and
     the draws each truth was ranked among; a rerun with the same ``out_dir``
     reuses the simulations finished there (stancal.fitting.resume).
-    ``calibrate_options`` (chains, warmup, discrepancy, ...) go to every fit."""
+    ``calibrate_options`` (chains, warmup, discrepancy, ...) go to every fit;
+    ``draws`` per chain of each fit default to 2 x draws_per_fit over the chains."""
+    sampling = _sampling(calibrate_options, seed, draws_per_fit)
     resume = Resume(out_dir, seed)  # a rerun into the same folder reuses the simulations it finished
     seed = resume.seed
     started = time.perf_counter()
-    chains = calibrate_options.pop("chains", 2)
-    warmup = calibrate_options.pop("warmup", 300)
-    per_chain = -(-2 * draws_per_fit // chains)
+    chains, warmup, per_chain = sampling.chains, sampling.warmup, sampling.draws
     prior_parametrization, fit_parametrization = functional_parametrizations(calibrate_options)
     prior_options = dict(calibrate_options)
     if fit_parametrization:

@@ -4,7 +4,7 @@ plan -> stage 1 -> sample -> post-fit checks (Kennedy & O'Hagan 2001)."""
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 from pathlib import Path
 from typing import Any
 
@@ -21,6 +21,7 @@ from stancal.fitting.stage_one import run_stage_one
 from stancal.numerics.quadrature import Quadrature, input_box_quadrature
 from stancal.problem.data import CalibrationData
 from stancal.problem.options import ModelOptions
+from stancal.problem.sampling import SamplerOptions
 from stancal.results.diagnostics import parametrization_advice
 from stancal.results.result import CalibrationResult, build_datatree
 from stancal.stan.backends import get_backend
@@ -171,6 +172,8 @@ def calibrate(
     ``plan``: a plan made earlier (stancal.fitting.plan), which then replaces
     ``simulator``, ``method``, ``program`` and the model's options.
     """
+    # the sampler's options first: a bad one is said before anything is planned or compiled
+    sampling = SamplerOptions(chains, warmup, draws, seed, adapt_delta, max_treedepth)
     options = model_options(discrepancy, kernel, estimate_rho, mean_formula, mean_intercept, scaled_lambda,
                             functional, functional_inputs, functional_parametrization, approximation,
                             basis_functions, boundary_factor)
@@ -185,8 +188,7 @@ def calibrate(
     new_points, fit_points, quadrature = _prediction_points(data, new_points, plan.l2)
     emulator = run_stage_one(plan.program.stage_one, data, plan.options, programs, backend=stan_backend,
                              seed=seed) or {}
-    sampler = {"chains": chains, "warmup": warmup, "draws": draws, "seed": seed, "adapt_delta": adapt_delta,
-                   "max_treedepth": max_treedepth}
+    sampler = replace(sampling, seed=seed).keywords()
     flat = programs[-1]
     fit, options, messages = _sample_checked(
         lambda options: _sample(stan_backend, flat, data, plan, options, fit_points, emulator, prior, sampler),

@@ -43,6 +43,8 @@ from typing import Any
 
 import click
 
+from stancal.problem import advice
+from stancal.stan import progress as stan_progress
 from stancal.stan.backends import get_backend
 from stancal.stan.backends.base import end_when_orphaned
 from stancal.stan.source import FlatProgram
@@ -82,10 +84,14 @@ class FitFailure:
 _one_fit_at_a_time = threading.RLock()  # re-entrant: a fit may run fits of its own in-process
 
 
-def _captured(function: Callable[..., Any], kwargs: dict[str, Any]) -> tuple[Any, list[tuple[str, type]]]:
+def _captured(function: Callable[..., Any], kwargs: dict[str, Any],
+              reader: str = advice.PYTHON) -> tuple[Any, list[tuple[str, type]]]:
     """Run one task, keeping its warnings (sampler trouble, ...) to say them
-    where the command runs, not in a worker's log."""
-    with _one_fit_at_a_time, warnings.catch_warnings(record=True) as caught:
+    where the command runs, not in a worker's log; their advice is for
+    ``reader``, the command's (stancal.problem.advice). It shows no progress
+    of its own: the runner shows the fits done."""
+    with _one_fit_at_a_time, advice.spoken_to(reader), stan_progress.quiet(), \
+            warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         value = function(**kwargs)
     return value, [(str(w.message), w.category) for w in caught]
@@ -233,8 +239,8 @@ class FitRunner:
                 values[index] = outcome
             else:
                 values[index], caught = outcome
-                for message, category in caught:
-                    warnings.warn(message, category, stacklevel=2)
+                for message, category in caught:  # said once, naming the fit it came from
+                    warnings.warn(f"{tasks[index].name}: {message}", category, stacklevel=2)
             self.progress.finished(tasks[index].name, isinstance(outcome, FitFailure))
         return values
 
@@ -242,7 +248,7 @@ class FitRunner:
         for index, task in enumerate(tasks):
             for attempt in range(RETRIES + 1):
                 try:
-                    yield index, _captured(task.function, task.kwargs)
+                    yield index, _captured(task.function, task.kwargs, advice.audience())
                     break
                 except Exception as error:  # one failed fit must not lose the others
                     if attempt == RETRIES:
@@ -253,7 +259,8 @@ class FitRunner:
     def _in_cluster(self, tasks: list[FitTask]) -> Iterator[tuple[int, Any]]:
         from distributed import as_completed
 
-        futures = {self.client.submit(_captured, task.function, task.kwargs, pure=False, retries=RETRIES,
+        futures = {self.client.submit(_captured, task.function, task.kwargs, advice.audience(), pure=False,
+                                      retries=RETRIES,
                                       key=f"{TASK_PREFIX}-{uuid.uuid4().hex}"): index
                    for index, task in enumerate(tasks)}
         for future in as_completed(list(futures)):

@@ -20,6 +20,7 @@ from stancal.fitting.seeds import command_seed
 from stancal.fitting.stage_one import run_stage_one
 from stancal.numerics.vector_emulator import VectorEmulator
 from stancal.problem.options import VectorOptions
+from stancal.problem.sampling import SamplerOptions
 from stancal.problem.vector_data import VectorCalibrationData
 from stancal.results.vector_result import VectorCalibrationResult, vector_datatree
 from stancal.stan.backends import get_backend
@@ -95,6 +96,7 @@ def calibrate_vector(
     ``program``: your copy of the method's program. ``new_rows``: where f,
     delta and zeta are drawn (default: prediction_rows). ``out_dir``: the
     posterior is written there as soon as sampling ends."""
+    SamplerOptions(chains, warmup, draws, seed, adapt_delta, max_treedepth)  # checked before anything else
     if plan is None:
         plan = plan_vector(data, simulator, method, VectorOptions(
             discrepancy, noise or ("known" if data.noise_sd else "one"), kernel, mean_formula, mean_intercept),

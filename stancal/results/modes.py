@@ -3,15 +3,13 @@ instead of reporting a blended mean."""
 
 from __future__ import annotations
 
-import logging
 import warnings
 from dataclasses import dataclass, replace
 
 import numpy as np
 
 from stancal.numerics.mode_mass import bridge_log_mass, mode_weights
-
-logger = logging.getLogger("stancal")
+from stancal.problem import advice
 
 
 class MultimodalWarning(UserWarning):
@@ -149,8 +147,7 @@ def report(modes: list[Mode], weights_unavailable: str | None = None) -> None:
                    "necessarily the heaviest")
         message = (
             f"the chains found {len(modes)} separate theta modes: {describe(modes)}. {how}. "
-            "Summaries per mode are in result.summary(); more chains, or narrower theta bounds, "
+            f"Summaries per mode are in {advice.place('summary by mode')}; more chains, or narrower theta bounds, "
             "show whether there are modes no chain found."
         )
-        logger.warning(message)
         warnings.warn(message, MultimodalWarning, stacklevel=3)

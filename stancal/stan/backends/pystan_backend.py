@@ -10,7 +10,6 @@ import multiprocessing
 import os
 import signal
 import subprocess
-import sys
 import tempfile
 import time
 from collections.abc import Callable
@@ -33,9 +32,11 @@ from stancal.stan.backends.pystan_compile import (
     compile_programs,
     ensure_private_httpstan_cache,
     held_output,
+    program_file,
     stanc,
     stored_module,
 )
+from stancal.stan.progress import progress_lines, sampling_progress
 from stancal.stan.source import FlatProgram, StanProgramError
 
 logger = logging.getLogger("stancal")
@@ -104,11 +105,11 @@ def _chains_in_processes_that_end_with_this_one() -> None:
 
 
 @contextlib.contextmanager
-def _sampling_output(model_name: str):
-    """PyStan's sampling output, tamed. In a terminal its progress bar stays;
-    otherwise (a log file, CI) its line per progress step and Stan's
-    informational messages are held back (shown if sampling fails), stancal
-    logs one line per fit instead. httpstan keeps every seeded fit's draws in
+def _sampling_output(model_name: str, label: str, total: int):
+    """PyStan's sampling output, tamed. Its progress lines drive stancal's
+    progress (stancal.stan.progress: a bar on a terminal, a compact log
+    elsewhere); Stan's informational messages and what else it prints are
+    held back (shown if sampling fails). httpstan keeps every seeded fit's draws in
     its cache, gigabytes over time, and would serve the same draws again for
     the same seed and data: the fits made here are deleted once read."""
     import httpstan.cache
@@ -116,7 +117,7 @@ def _sampling_output(model_name: str):
     fits = httpstan.cache.model_directory(model_name) / "fits"
     before = set(fits.glob("*")) if fits.is_dir() else set()
     try:
-        with contextlib.nullcontext() if sys.stderr.isatty() else held_output():
+        with sampling_progress(label, total) as progress, held_output(descriptors=False), progress_lines(progress):
             yield
     finally:
         for path in (set(fits.glob("*")) if fits.is_dir() else set()) - before:
@@ -202,7 +203,7 @@ class PyStanBackend:
             kwargs["init"] = inits
         _chains_in_processes_that_end_with_this_one()
         try:
-            with _sampling_output(model.model_name):
+            with _sampling_output(model.model_name, f"sampling {program_file(program)}", chains * (warmup + draws)):
                 fit = model.sample(**kwargs)
         except RuntimeError as err:
             raise StanRuntimeError(self._explain_failure(model, program, inits, err)) from None

@@ -24,11 +24,12 @@ import subprocess
 import sys
 import tempfile
 import time
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import ThreadPoolExecutor, as_completed
 from importlib.machinery import EXTENSION_SUFFIXES
 from pathlib import Path
 
 from stancal.stan.backends.base import StanRuntimeError, cache_root
+from stancal.stan.progress import ticking
 from stancal.stan.source import FlatProgram
 
 logger = logging.getLogger("stancal")
@@ -259,19 +260,23 @@ def _remove_own_folder(folder: Path, owner: int) -> None:
 
 
 @contextlib.contextmanager
-def held_output():
+def held_output(descriptors: bool = True):
     """Hold back what a build or a run prints: PyStan's stanc warnings about the flat
-    program (print) and g++'s pages of warnings (a subprocess writing to file
-    descriptors 1 and 2). Shown only if it fails."""
+    program and its messages while sampling (print, sys.stderr) and, with
+    ``descriptors``, g++'s pages of warnings (a subprocess writing to file
+    descriptors 1 and 2). Shown only if it fails. Sampling holds Python's
+    streams only, so that stancal's log lines (its progress among them) still
+    reach the terminal while a fit runs."""
     with tempfile.TemporaryFile(mode="w+b") as held, \
             contextlib.redirect_stdout(io.StringIO()) as printed, contextlib.redirect_stderr(printed):
-        saved = [os.dup(1), os.dup(2)]
+        fds = (1, 2) if descriptors else ()
+        saved = [os.dup(fd) for fd in fds]
         try:
-            for fd in (1, 2):
+            for fd in fds:
                 os.dup2(held.fileno(), fd)
             yield
         except Exception:
-            for fd, copy in zip((1, 2), saved, strict=True):
+            for fd, copy in zip(fds, saved, strict=True):
                 os.dup2(copy, fd)
             held.seek(0)
             tail = (printed.getvalue() + held.read().decode(errors="replace")).strip().splitlines()[-20:]
@@ -279,7 +284,7 @@ def held_output():
                 logger.warning("before failing, it printed:\n%s", "\n".join(tail))
             raise
         finally:
-            for fd, copy in zip((1, 2), saved, strict=True):
+            for fd, copy in zip(fds, saved, strict=True):
                 os.dup2(copy, fd)
                 os.close(copy)
 
@@ -294,11 +299,12 @@ def _compile_in_subprocess(program: FlatProgram) -> bool:
     done = subprocess.run([sys.executable, "-c", script], input=program.code, capture_output=True, text=True)
     if done.returncode != 0:
         tail = "\n".join((done.stdout + done.stderr).strip().splitlines()[-20:])
-        raise StanRuntimeError(f"compiling {_file_name(program)} failed:\n{tail}")
+        raise StanRuntimeError(f"compiling {program_file(program)} failed:\n{tail}")
     return done.stdout.strip().splitlines()[-1] == "1"
 
 
-def _file_name(program: FlatProgram) -> str:
+def program_file(program: FlatProgram) -> str:
+    """The program's file name, for progress and messages."""
     return Path(program.origin[0][0]).name if program.origin else "the program"
 
 
@@ -317,13 +323,19 @@ def compile_programs(programs: list[FlatProgram]) -> float:
         logger.warning("Compiling %d Stan program%s with PyStan, %d at a time (%s); each takes two to "
                        "four minutes on a 2-core machine, once per machine.",
                        len(building), "s" if len(building) > 1 else "", workers,
-                       ", ".join(_file_name(p) for p in building))
+                       ", ".join(program_file(p) for p in building))
     started = time.perf_counter()
-    with ThreadPoolExecutor(max_workers=workers) as pool:  # each thread waits on one subprocess
-        built = list(pool.map(_compile_in_subprocess, building))
+    names = [f"{program_file(p)} ({i + 1}/{len(building)})" for i, p in enumerate(building)]
+    built = {}  # program -> True if this process built it, False if another did meanwhile
+    with ticking(names) as done, ThreadPoolExecutor(max_workers=workers) as pool:  # a thread waits on a subprocess
+        builds = {pool.submit(_compile_in_subprocess, p): (p, name) for p, name in zip(building, names, strict=True)}
+        for build in as_completed(builds):
+            program, name = builds[build]
+            built[program_file(program)] = build.result()  # a failure is raised here
+            done(name)
     for code in todo:  # into this process's httpstan cache
         _install(code, stored_module(code))
-    for program, here in zip(building, built, strict=True):
-        logger.info("%s %s in %.0f s", "compiled" if here else "another process compiled", _file_name(program),
+    for name, here in built.items():
+        logger.info("%s %s in %.0f s", "compiled" if here else "another process compiled", name,
                     time.perf_counter() - started)
     return time.perf_counter() - started if building else 0.0
