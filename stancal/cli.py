@@ -91,7 +91,7 @@ def run_gap(args: argparse.Namespace) -> dict:
         raise ConfigError("config: `stancal gap` needs a [candidates] section")
     model = dict(problem.model)
     method = args.method or model.pop("method", None)
-    args.out.mkdir(parents=True, exist_ok=True)
+    # no args.out.mkdir here: the fits and reports create it, so a failure before sampling leaves none
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         analysis = diagnose_gap(problem.data, problem.candidates, simulator=problem.simulator,
@@ -136,7 +136,7 @@ def run_calibrate(args: argparse.Namespace) -> dict:
         model["approximation"] = args.approximation
     sampler = {"chains": args.chains, "warmup": args.warmup, "draws": args.draws, "seed": args.seed,
                    "backend": args.backend, "adapt_delta": args.adapt_delta, "out_dir": args.out}
-    args.out.mkdir(parents=True, exist_ok=True)
+    # no args.out.mkdir here: the fits and reports create it, so a failure before sampling leaves none
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         if vector:
@@ -163,7 +163,7 @@ def run_compare(args: argparse.Namespace) -> dict:
     model = {k: v for k, v in problem.model.items() if k not in ("method", "discrepancy")}
     if args.approximation:
         model["approximation"] = args.approximation
-    args.out.mkdir(parents=True, exist_ok=True)
+    # no args.out.mkdir here: the fits and reports create it, so a failure before sampling leaves none
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         comparison = compare_methods(problem.data, simulator=problem.simulator,

@@ -1,20 +1,67 @@
-"""The error for unusable input data, and how rows are named in it."""
+"""The error for unusable input data, and how rows are named in it: a
+table read from a file keeps the file's line numbers as its index (the
+header is line 1), so an error names the file and the lines to fix."""
 
 from __future__ import annotations
 
+import csv
+import io
+from pathlib import Path
+
 import numpy as np
 import pandas as pd
+
+_LINES_OF = "line of "  # the index name of a table read by read_table: "line of <file>"
 
 
 class DataError(ValueError):
     """Input data that cannot be used, with the column and rows to fix."""
 
 
+def read_table(path: Path) -> pd.DataFrame:
+    """A CSV file whose index is each row's line in the file (the header is
+    line 1), named after the file; a header that repeats a column, or a
+    file pandas cannot parse, is a DataError naming the file."""
+    try:
+        text = path.read_text(encoding="utf-8-sig")
+    except UnicodeDecodeError as err:
+        raise DataError(f"{path}: not a UTF-8 text file ({err.reason} at byte {err.start})") from None
+    lines = [n for n, line in enumerate(text.splitlines(), 1) if line.strip()]
+    if not lines:
+        raise DataError(f"{path}: the file is empty; it needs a header line and data rows")
+    header = next(csv.reader([text.splitlines()[lines[0] - 1]]))
+    repeated = sorted({c.strip() for c in header if [h.strip() for h in header].count(c.strip()) > 1})
+    if repeated:
+        raise DataError(f"{path}: line {lines[0]} (the header) repeats column(s) {repeated}")
+    try:
+        frame = pd.read_csv(io.StringIO(text))
+    except Exception as err:  # pandas raises many parser errors; they name the line
+        raise DataError(f"{path}: cannot read as CSV: {' '.join(str(err).split())}") from None
+    # blank lines are skipped by pandas: count the rest (a quoted line break shifts the count; then rows)
+    rows = lines[1:] if len(lines) - 1 == len(frame) else range(2, len(frame) + 2)
+    frame.index = pd.Index(rows, name=f"{_LINES_OF}{path}")
+    return frame
+
+
+def source_file(index: pd.Index) -> str | None:
+    """The file a table was read from by read_table, or None."""
+    name = index.name
+    return name[len(_LINES_OF):] if isinstance(name, str) and name.startswith(_LINES_OF) else None
+
+
+def described(what: str, frame: pd.DataFrame) -> str:
+    """'physical data (dir/physical.csv)' for a table read from a file, else what."""
+    source = source_file(frame.index)
+    return f"{what} ({source})" if source else what
+
+
 def row_labels(mask: np.ndarray, index: pd.Index, limit: int = 10) -> str:
-    """'[3, 17, ... 4 more]': the labels of the rows where mask is true."""
+    """'lines [3, 17, ... 4 more]' of a table read from a file, else 'rows
+    [3, 17]' (the index's labels) where mask is true."""
     labels = [str(v) for v in index[mask][:limit]]
     more = int(mask.sum()) - len(labels)
-    return "[" + ", ".join(labels) + (f", ... {more} more" if more > 0 else "") + "]"
+    kind = "lines" if source_file(index) else "rows"
+    return f"{kind} [" + ", ".join(labels) + (f", ... {more} more" if more > 0 else "") + "]"
 
 
 def numeric_values(frame: pd.DataFrame, column: str, what: str) -> np.ndarray:
@@ -23,7 +70,7 @@ def numeric_values(frame: pd.DataFrame, column: str, what: str) -> np.ndarray:
     values = pd.to_numeric(raw, errors="coerce")
     bad = values.isna().to_numpy() & raw.notna().to_numpy()
     if bad.any():
-        raise DataError(f"{what}: column '{column}' has non-numeric values in rows {row_labels(bad, frame.index)}")
+        raise DataError(f"{what}: column '{column}' has non-numeric values in {row_labels(bad, frame.index)}")
     return values.to_numpy(dtype=float)
 
 
@@ -32,5 +79,5 @@ def require_whole(values: np.ndarray, column: str, index: pd.Index, what: str, m
     bad = np.isnan(values) | (values < minimum) | (values != np.round(values))
     if bad.any():
         kind = "non-negative" if minimum == 0 else "positive"
-        raise DataError(f"{what}: column '{column}' must hold {kind} whole numbers; rows "
+        raise DataError(f"{what}: column '{column}' must hold {kind} whole numbers; "
                         f"{row_labels(bad, index)} hold {values[bad][:5].tolist()}")
