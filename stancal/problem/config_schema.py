@@ -75,10 +75,10 @@ class Table:
         return next((k for k in self.keys if k.name == name), None)
 
 
-_THETA_MEANING = "name = [lower, upper]: a calibration parameter and the bounds of its uniform prior"
+_THETA_MEANING = "The calibration parameters, `name = [lower, upper]`: the bounds of each one's uniform prior"
 
 TABLES: tuple[Table, ...] = (
-    Table("physical", "the measurements: a CSV and its columns", required=True, keys=(
+    Table("physical", "The measurements: a CSV and its columns", required=True, keys=(
         Key("csv", "path", "required", "the physical data, a CSV with a header line (relative to the config)"),
         Key("inputs", "list of names", "required", "the simulator's input columns, in the simulator's order"),
         Key("output", "string", "required", "the measured output column (the same name in the runs)"),
@@ -91,7 +91,7 @@ TABLES: tuple[Table, ...] = (
         Key("noise_sd", "string", "none (the noise sd is estimated)", "a column of each reading's known "
             "measurement sd", VECTOR),
     )),
-    Table("simulator", "the computer model: a Stan function, runs of it, or both", required=True, keys=(
+    Table("simulator", "The computer model: a Stan function, runs of it, or both", required=True, keys=(
         Key("stan", "path", "none", "a Stan file defining vector simulator(matrix X, vector theta), one value "
             "per row of X (give stan, runs or both)"),
         Key("runs", "path", "none", "a CSV of simulator runs: the inputs, every theta and the output (an "
@@ -101,9 +101,9 @@ TABLES: tuple[Table, ...] = (
     )),
     Table("simulator.theta", _THETA_MEANING + ", in the simulator's order", entries="[lower, upper]",
           required=True),
-    Table("simulator.theta_per_experiment", "name = [lower, upper]: a parameter with one value per experiment "
-          "(vector outputs; after the shared theta in the simulator's theta)", entries="[lower, upper]"),
-    Table("model", "the statistical model and the method", keys=(
+    Table("simulator.theta_per_experiment", "Parameters with one value per experiment, `name = [lower, upper]` "
+          "(vector outputs; they follow the shared theta in the simulator's theta)", entries="[lower, upper]"),
+    Table("model", "The statistical model and the method", keys=(
         Key("method", "string", "koh with a Stan simulator, else an emulator of the runs", "the calibration "
             "method (koh, koh_emulator, modular, l2, ...; see `stancal calibrate --help`)"),
         Key("program", "path", "the method's shipped program", "your edited copy of the method's Stan program"),
@@ -142,18 +142,18 @@ TABLES: tuple[Table, ...] = (
         Key("components", "integer", "by variance_share", "the output basis's number of components (overrides "
             "variance_share)", VECTOR),
     )),
-    Table("candidates", "candidate unmodelled effects for `stancal gap`: name = \"formula\" (discrepancy "
-          "mean terms), or a [candidates.NAME] table", entries="string or table"),
-    Table("candidates.NAME", "a candidate: formula, or a simulator variant (stan, inputs and theta)", keys=(
+    Table("candidates", "Candidate unmodelled effects for `stancal gap`: `name = \"formula\"` (discrepancy "
+          "mean terms), or a `[candidates.NAME]` table", entries="string or table"),
+    Table("candidates.NAME", "One candidate: a formula, or a simulator variant (stan, inputs and theta)", keys=(
         Key("formula", "string", "none", "discrepancy mean terms over the physical columns, e.g. \"C(batch)\""),
         Key("stan", "path", "none", "a variant simulator in Stan (instead of formula)"),
         Key("inputs", "list of names", "required with stan", "the physical columns the variant takes, in its "
             "order"),
     )),
-    Table("candidates.NAME.theta", "name = [lower, upper]: the variant's extra parameters (after the "
+    Table("candidates.NAME.theta", "The variant's extra parameters, `name = [lower, upper]` (after the "
           "baseline's theta, which keep their bounds)", entries="[lower, upper]"),
-    Table("units", 'name = "unit": the unit of an input, covariate, output, output index or theta, for the '
-          'figures\' axes (e.g. T = "°C")', entries="string"),
+    Table("units", 'Units for the figures\' axes, `name = "unit"`: the unit of an input, covariate, output, '
+          'output index or theta (e.g. `T = "°C"`)', entries="string"),
 )
 
 
@@ -168,9 +168,24 @@ def must_be(kind: str) -> str:
 
 
 def closest(name: str, known: list[str], form: str = "'{}'") -> str:
-    """"; did you mean 'x'?" for the closest known name (shown in ``form``), or ""."""
-    match = difflib.get_close_matches(name, known, n=1, cutoff=0.6)
-    return f"; did you mean {form.format(match[0])}?" if match else ""
+    """"; did you mean 'x'?" for the closest known name (shown in ``form``), or "".
+    difflib finds the near names; the fewest edits, then the same length,
+    picks among them ('runz' is 'runs' mistyped more likely than 'run' extended)."""
+    near = difflib.get_close_matches(name, known, n=5, cutoff=0.6)
+    if not near:
+        return ""
+    best = min(near, key=lambda k: (_edits(name, k), abs(len(k) - len(name))))
+    return f"; did you mean {form.format(best)}?"
+
+
+def _edits(a: str, b: str) -> int:
+    """Levenshtein distance."""
+    row = list(range(len(b) + 1))
+    for i, ca in enumerate(a, 1):
+        previous, row[0] = row[0], i
+        for j, cb in enumerate(b, 1):
+            previous, row[j] = row[j], min(row[j] + 1, row[j - 1] + 1, previous + (ca != cb))
+    return row[-1]
 
 
 def check(raw: dict[str, Any]) -> str | None:
@@ -185,34 +200,28 @@ def check(raw: dict[str, Any]) -> str | None:
             return what + (closest(name, top, "[{}]") or f"; the tables are {', '.join(f'[{t}]' for t in top)}")
         if not isinstance(value, dict):
             return f"'{name}' must be a table [{name}]; got {value!r}"
-    missing = [t.name for t in TABLES if t.required and _lookup(raw, t.name) is None]
-    if missing:
-        return f"missing the [{missing[0]}] table"
+    for name in ("physical", "simulator"):
+        if name not in raw:
+            return f"missing the [{name}] table"
     output = VECTOR if "output_index" in raw["physical"] else SCALAR
-    if output == SCALAR and "theta_per_experiment" in raw["simulator"]:
+    simulator = raw["simulator"]
+    problem = (_check_table(raw["physical"], table("physical"), output)
+               or _check_table(simulator, table("simulator"), output, subtables=("theta", "theta_per_experiment")))
+    if problem or "theta" not in simulator:
+        return problem or "missing the [simulator.theta] table"
+    if output == SCALAR and "theta_per_experiment" in simulator:
         return "[simulator.theta_per_experiment] applies to a vector output only (a [physical] output_index)"
-    return (_check_table(raw["physical"], table("physical"), output)
-            or _check_table(raw["simulator"], table("simulator"), output, subtables=("theta", "theta_per_experiment"))
-            or _check_entries(raw["simulator"]["theta"], table("simulator.theta"))
-            or _check_entries(raw["simulator"].get("theta_per_experiment", {}), table("simulator.theta_per_experiment"))
+    return (_check_entries(simulator["theta"], table("simulator.theta"))
+            or _check_entries(simulator.get("theta_per_experiment", {}), table("simulator.theta_per_experiment"))
             or _check_table(raw.get("model", {}), table("model"), output)
             or _check_candidates(raw.get("candidates", {}))
             or _check_units(raw))
-
-
-def _lookup(raw: dict[str, Any], dotted: str) -> Any:
-    for part in dotted.split("."):
-        if not isinstance(raw, dict) or part not in raw:
-            return None
-        raw = raw[part]
-    return raw
 
 
 def _check_table(values: dict[str, Any], spec: Table, output: str, subtables: tuple[str, ...] = (),
                  where: str | None = None) -> str | None:
     """Unknown keys (with the closest known), sub-tables where they belong, types, and keys of the other output."""
     where = where or f"[{spec.name}]"
-    known = [k.name for k in spec.keys]
     for name, value in values.items():
         if name in subtables:
             if not isinstance(value, dict):
@@ -222,7 +231,8 @@ def _check_table(values: dict[str, Any], spec: Table, output: str, subtables: tu
         if key is None:
             if isinstance(value, dict):
                 return f"unknown table [{spec.name}.{name}]" + closest(name, list(subtables), f"[{spec.name}.{{}}]")
-            return f"unknown key '{name}' in {where}{closest(name, known)}"
+            applicable = [k.name for k in spec.keys if k.output in (BOTH, output)]  # suggest what this output takes
+            return f"unknown key '{name}' in {where}{closest(name, applicable)}"
         if not TYPES[key.type](value):
             return f"{where} {name} {must_be(key.type)}; got {value!r}"
         if key.output not in (BOTH, output):
@@ -288,3 +298,24 @@ def _check_units(raw: dict[str, Any]) -> str | None:
         if not isinstance(unit, str):
             return f"[units] {name} must be a string such as \"°C\"; got {unit!r}"
     return None
+
+
+def reference() -> str:
+    """The tables and keys as Markdown (docs/config.md holds this between
+    its GENERATED markers; `python -m stancal.problem.config_schema` prints it)."""
+    applies = {SCALAR: "scalar outputs", VECTOR: "vector outputs", BOTH: "both"}
+    out = []
+    for spec in TABLES:
+        out += [f"### `[{spec.name}]`", "", spec.meaning + "." + (" Required." if spec.required else ""), ""]
+        if spec.entries:
+            out += [f"Every value: {spec.entries}.", ""]
+        if spec.keys:
+            out += ["| key | type | default | applies to | meaning |", "|---|---|---|---|---|"]
+            out += [f"| `{k.name}` | {k.type} | {k.default} | {applies[k.output]} | {k.meaning} |"
+                    for k in spec.keys]
+            out.append("")
+    return "\n".join(out).replace(": [lower, upper].", ": `[lower, upper]`.")
+
+
+if __name__ == "__main__":
+    print(reference())
