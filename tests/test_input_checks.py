@@ -144,7 +144,7 @@ def test_the_schemas_model_keys_are_the_options_fields():
 # ---- 2. docs/config.md --------------------------------------------------------------
 def test_docs_config_lists_every_table_and_key_as_the_schema_says():
     docs = (ROOT / "docs" / "config.md").read_text()
-    generated = docs.split("<!-- GENERATED from stancal/problem/schema().py: do not edit by hand -->\n")[1]
+    generated = docs.split("<!-- GENERATED from stancal/problem/config_schema.py: do not edit by hand -->\n")[1]
     assert generated.split("<!-- END GENERATED -->")[0].strip() == schema().reference().strip()
     for table in schema().TABLES:
         assert f"### `[{table.name}]`" in docs
@@ -347,10 +347,10 @@ def bad_physical_csv(draw) -> tuple[str, str]:
         return "\n".join(lines[:3]) + "\n", "2 rows"
     if kind == "ragged long":
         lines[row + 1] += ",1,2"
-        return "\n".join(lines) + "\n", f"line {row + 2}"
+        return "\n".join(lines) + "\n", f"line {row + 2} has 7 fields; the header (line 1) has 5"
     if kind == "ragged short":
         lines[row + 1] = ",".join(cells[:2])
-        return "\n".join(lines) + "\n", f"lines [{row + 2}]"
+        return "\n".join(lines) + "\n", f"line {row + 2} has 2 fields; the header (line 1) has 5"
     header = list(HEADER)
     header[draw(st.integers(0, len(header) - 1))] = draw(st.sampled_from(HEADER))
     if len(set(header)) == len(header):  # drew a column over itself: repeat another

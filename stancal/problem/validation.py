@@ -20,26 +20,36 @@ class DataError(ValueError):
 
 def read_table(path: Path) -> pd.DataFrame:
     """A CSV file whose index is each row's line in the file (the header is
-    line 1), named after the file; a header that repeats a column, or a
-    file pandas cannot parse, is a DataError naming the file."""
+    line 1), named after the file. An empty file, a header that repeats a
+    column, a row with more or fewer fields than the header, or a file
+    pandas cannot parse is a DataError naming the file (and the line)."""
     try:
         text = path.read_text(encoding="utf-8-sig")
     except UnicodeDecodeError as err:
         raise DataError(f"{path}: not a UTF-8 text file ({err.reason} at byte {err.start})") from None
-    lines = [n for n, line in enumerate(text.splitlines(), 1) if line.strip()]
-    if not lines:
+    try:
+        reader = csv.reader(io.StringIO(text))
+        rows = [(reader.line_num, row) for row in reader if any(field.strip() for field in row)]
+    except csv.Error as err:
+        raise DataError(f"{path}: cannot read as CSV: {err}") from None
+    if not rows:
         raise DataError(f"{path}: the file is empty; it needs a header line and data rows")
-    header = next(csv.reader([text.splitlines()[lines[0] - 1]]))
-    repeated = sorted({c.strip() for c in header if [h.strip() for h in header].count(c.strip()) > 1})
+    (header_line, header), data = rows[0], rows[1:]
+    names = [name.strip() for name in header]
+    repeated = sorted({name for name in names if names.count(name) > 1})
     if repeated:
-        raise DataError(f"{path}: line {lines[0]} (the header) repeats column(s) {repeated}")
+        raise DataError(f"{path}: line {header_line} (the header) repeats column(s) {repeated}")
+    ragged = [(line, len(row)) for line, row in data if len(row) != len(header)]
+    if ragged:  # pandas would shift such a row into an index, or fill it silently
+        line, count = ragged[0]
+        raise DataError(f"{path}: line {line} has {count} fields; the header (line {header_line}) has {len(header)}"
+                        + (f" ({len(ragged) - 1} more such lines)" if len(ragged) > 1 else ""))
     try:
         frame = pd.read_csv(io.StringIO(text))
-    except Exception as err:  # pandas raises many parser errors; they name the line
+    except Exception as err:  # pandas raises many parser errors
         raise DataError(f"{path}: cannot read as CSV: {' '.join(str(err).split())}") from None
-    # blank lines are skipped by pandas: count the rest (a quoted line break shifts the count; then rows)
-    rows = lines[1:] if len(lines) - 1 == len(frame) else range(2, len(frame) + 2)
-    frame.index = pd.Index(rows, name=f"{_LINES_OF}{path}")
+    lines = [line for line, _ in data] if len(data) == len(frame) else range(2, len(frame) + 2)
+    frame.index = pd.Index(lines, name=f"{_LINES_OF}{path}")
     return frame
 
 
