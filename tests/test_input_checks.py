@@ -65,10 +65,17 @@ def error_line(err: str) -> str:
 
 @pytest.fixture
 def no_fit(monkeypatch):
-    """The command must stop before fitting: reaching calibrate fails the test."""
+    """The command must stop before compiling or fitting: reaching either fails the test."""
+    import stancal.diagnosing.compare
+    import stancal.diagnosing.gap
+    import stancal.diagnosing.sbc
+
     def reached(*args, **kwargs):
-        raise AssertionError("the bad input reached calibrate()")
-    monkeypatch.setattr(stancal.cli, "calibrate", reached)
+        raise AssertionError("the bad input reached a compile or a fit")
+    for module, name in [(stancal.cli, "calibrate"), (stancal.cli, "get_backend"),
+                         (stancal.diagnosing.gap, "diagnose_gap"), (stancal.diagnosing.compare, "compare_methods"),
+                         (stancal.diagnosing.sbc, "simulation_based_calibration")]:
+        monkeypatch.setattr(module, name, reached)
 
 
 # ---- 1. every table and key of the config is known ----------------------------------
