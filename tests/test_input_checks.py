@@ -195,12 +195,21 @@ def test_a_bad_cell_is_named_by_its_file_and_line(tmp_path, file, column, value,
 
 def test_lines_count_blank_lines_and_name_a_vector_configs_file(tmp_path):
     path = tmp_path / "blank.csv"
-    path.write_text("a,b\n1,2\n\n3,4\n")
-    assert read_table(path).index.tolist() == [2, 4]
+    path.write_text('a,b\n1,2\n\n3,4\n"two\nlines",5\n6,7\n')
+    assert read_table(path).index.tolist() == [2, 4, 5, 7]
     config = copy_case(tmp_path, CURVES)
     _with_cell(tmp_path / "physical.csv", 20, "temperature", "warm")
     with pytest.raises(DataError, match=re.escape(f"physical data ({tmp_path / 'physical.csv'}): column "
                                                   "'temperature' has non-numeric values in lines [22]")):
+        load_config(config)
+
+
+def test_the_extrapolation_warning_names_the_file_and_line(tmp_path):
+    from stancal.problem.data import InputRangeWarning
+
+    config = copy_case(tmp_path)
+    _with_cell(tmp_path / "physical.csv", 12, "T0", "99")  # above the runs' T0
+    with pytest.warns(InputRangeWarning, match=re.escape(f"in lines [14] of {tmp_path / 'physical.csv'}")):
         load_config(config)
 
 

@@ -11,7 +11,7 @@ import numpy as np
 import pandas as pd
 
 from stancal.problem.observations import LINKS, read_observations
-from stancal.problem.validation import DataError, described, numeric_values, require_whole
+from stancal.problem.validation import DataError, described, numeric_values, require_whole, source_file
 from stancal.problem.validation import row_labels as _rows
 
 
@@ -111,8 +111,14 @@ def warn_outside_runs(physical: pd.DataFrame, runs: pd.DataFrame, inputs: Sequen
         outside = (values < lo) | (values > hi)
         if outside.any():
             warnings.warn(f"physical input '{column}' lies outside the simulator runs' range [{lo:g}, {hi:g}] "
-                          f"in {_rows(outside, physical.index)}; the emulator extrapolates there",
+                          f"in {_rows(outside, physical.index)}{_of_file(physical)}; the emulator extrapolates there",
                           InputRangeWarning, stacklevel=4)
+
+
+def _of_file(frame: pd.DataFrame) -> str:
+    """' of dir/physical.csv' after the lines of a table read from a file, else ''."""
+    source = source_file(frame.index)
+    return f" of {source}" if source else ""
 
 
 def one_hot_name(column: str, level: str) -> str:

@@ -29,7 +29,11 @@ def read_table(path: Path) -> pd.DataFrame:
         raise DataError(f"{path}: not a UTF-8 text file ({err.reason} at byte {err.start})") from None
     try:
         reader = csv.reader(io.StringIO(text))
-        rows = [(reader.line_num, row) for row in reader if any(field.strip() for field in row)]
+        rows, last = [], 0
+        for row in reader:  # a row starts on the line after the last one ended (a quoted field may span lines)
+            if any(field.strip() for field in row):
+                rows.append((last + 1, row))
+            last = reader.line_num
     except csv.Error as err:
         raise DataError(f"{path}: cannot read as CSV: {err}") from None
     if not rows:
