@@ -89,6 +89,9 @@ def no_fit(monkeypatch):
     ("k = [0.01, 0.2]", "k = [0.01]", "[simulator.theta] k must be [lower, upper]; got [0.01]"),
     ('kernel = "se"', 'kernel = "se"\nestimate_rho = "yes"', "[model] estimate_rho must be a boolean; got 'yes'"),
     ('kernel = "se"', 'kernel = "se"\nnoise = "one"', "[model] noise applies to a vector output only"),
+    ('kernel = "se"', 'kernel = "matern5"', "[model] kernel must be one of se, matern52; got 'matern5'; did you mean 'matern52'?"),
+    ('discrepancy = "gp"', 'discrepancy = "orthogonl"', ("[model] discrepancy must be one of gp, orthogonal, "
+                                                        "scaled, none; got 'orthogonl'; did you mean 'orthogonal'?")),
     ("[model]", "[model]\ncomponents = 2", "[model] components applies to a vector output only"),
     ("[physical]", "title = 'x'\n[physical]", "unknown key 'title' outside any table"),
     ("[simulator.theta]", "[simulator.theta_per_experiment]\no = [0, 1]\n[simulator.theta]",
@@ -156,7 +159,7 @@ def test_docs_config_lists_every_table_and_key_as_the_schema_says():
     for table in schema().TABLES:
         assert f"### `[{table.name}]`" in docs
         for key in table.keys:
-            assert f"| `{key.name}` | {key.type} | {key.default} |" in docs, key
+            assert f"| `{key.name}` | {key.type}" in docs and f" | {key.default} | " in docs, key
 
 
 def test_the_docs_example_config_passes_the_schema():

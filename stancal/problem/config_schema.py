@@ -11,6 +11,14 @@ from dataclasses import dataclass
 from typing import Any
 
 from stancal.problem.codes import NOISE_MODES
+from stancal.problem.observations import LIKELIHOODS
+from stancal.problem.options import (
+    APPROXIMATIONS,
+    DISCREPANCIES,
+    EXACT_SIZE_LIMIT,
+    FUNCTIONAL_PARAMETRIZATIONS,
+    KERNELS,
+)
 from stancal.problem.output_basis import DEFAULT_VARIANCE_SHARE
 
 SCALAR, VECTOR, BOTH = "scalar", "vector", "both"  # which outputs a key applies to
@@ -55,6 +63,7 @@ class Key:
     default: str  # as the docs show it; "required" when the key must be given
     meaning: str
     output: str = BOTH  # SCALAR, VECTOR or BOTH
+    choices: tuple[str, ...] = ()  # the values a string key takes, when they are few
 
     def __post_init__(self) -> None:
         assert self.type in TYPES, self.type
@@ -108,8 +117,8 @@ TABLES: tuple[Table, ...] = (
             "method (koh, koh_emulator, modular, l2, ...; see `stancal calibrate --help`)"),
         Key("program", "path", "the method's shipped program", "your edited copy of the method's Stan program"),
         Key("discrepancy", "string", '"gp"', "gp (Kennedy-O\'Hagan), orthogonal (Plumlee 2017), scaled "
-            "(S-GaSP) or none; gp or none for a vector output"),
-        Key("kernel", "string", '"se"', "the discrepancy GP's kernel: se or matern52"),
+            "(S-GaSP) or none; gp or none for a vector output", choices=tuple(DISCREPANCIES)),
+        Key("kernel", "string", '"se"', "the discrepancy GP's kernel: se or matern52", choices=KERNELS),
         Key("estimate_rho", "boolean", "false", "estimate a scale rho on the simulator (zeta = rho f + delta)",
             SCALAR),
         Key("mean_formula", "string", "none", 'discrepancy mean terms over the physical columns, a formula '
@@ -122,21 +131,23 @@ TABLES: tuple[Table, ...] = (
         Key("functional_inputs", "list of names (or one name)", "[]", "the physical columns the functional "
             "theta vary over", SCALAR),
         Key("functional_parametrization", "string", '"centred"', "theta(x)'s latent GP: centred (data that "
-            "pin theta(x)) or non_centred", SCALAR),
+            "pin theta(x)) or non_centred", SCALAR,
+            choices=FUNCTIONAL_PARAMETRIZATIONS),
         Key("approximation", "string", '"auto"', "exact (dense GPs), hsgp (Hilbert-space, scalable) or auto "
-            "(hsgp above 1,000 points plus runs)", SCALAR),
+            f"(hsgp above {EXACT_SIZE_LIMIT:,} points plus runs)", SCALAR,
+            choices=APPROXIMATIONS),
         Key("basis_functions", "list of integers", "chosen by stancal", "the Hilbert-space discrepancy's "
             "basis functions per discrepancy input", SCALAR),
         Key("boundary_factor", "list of numbers", "chosen by stancal", "the Hilbert-space boundary factor "
             "per discrepancy input (>= 1)", SCALAR),
         Key("likelihood", "string", '"gaussian"', "gaussian, poisson, negbinomial (counts) or binomial",
-            SCALAR),
+            SCALAR, choices=tuple(LIKELIHOODS)),
         Key("trials", "string", "none", "binomial only: the column with each row's number of trials", SCALAR),
         Key("lower", "string", "none", "gaussian only: a column of censoring lower bounds (a row with an empty "
             "output is censored)", SCALAR),
         Key("upper", "string", "none", "gaussian only: a column of censoring upper bounds", SCALAR),
         Key("noise", "string", '"one" ("known" with noise_sd)', "the vector output's noise: "
-            + ", ".join(sorted(NOISE_MODES)), VECTOR),
+            + ", ".join(sorted(NOISE_MODES)), VECTOR, choices=tuple(NOISE_MODES)),
         Key("variance_share", "number", str(DEFAULT_VARIANCE_SHARE), "the share of the runs' variance the "
             "output basis keeps", VECTOR),
         Key("components", "integer", "by variance_share", "the output basis's number of components (overrides "
@@ -235,6 +246,9 @@ def _check_table(values: dict[str, Any], spec: Table, output: str, subtables: tu
             return f"unknown key '{name}' in {where}{closest(name, applicable)}"
         if not TYPES[key.type](value):
             return f"{where} {name} {must_be(key.type)}; got {value!r}"
+        if key.choices and value not in key.choices:
+            return (f"{where} {name} must be one of {', '.join(key.choices)}; got {value!r}"
+                    + closest(value, list(key.choices)))
         if key.output not in (BOTH, output):
             return (f"{where} {name} applies to a vector output only (a [physical] output_index)" if output == SCALAR
                     else f"{where} {name} does not apply to a vector output ([physical] output_index)")
@@ -311,10 +325,14 @@ def reference() -> str:
             out += [f"Every value: {spec.entries}.", ""]
         if spec.keys:
             out += ["| key | type | default | applies to | meaning |", "|---|---|---|---|---|"]
-            out += [f"| `{k.name}` | {k.type} | {k.default} | {applies[k.output]} | {k.meaning} |"
+            out += [f"| `{k.name}` | {k.type}{_choices(k)} | {k.default} | {applies[k.output]} | {k.meaning} |"
                     for k in spec.keys]
             out.append("")
     return "\n".join(out).replace(": [lower, upper].", ": `[lower, upper]`.")
+
+
+def _choices(key: Key) -> str:
+    return f": {', '.join(f'`{c}`' for c in key.choices)}" if key.choices else ""
 
 
 if __name__ == "__main__":
