@@ -269,6 +269,14 @@ def test_simulator_failures_read_from_stans_messages():
     assert simulator_failure("Exception: normal_lpdf: Scale parameter is 0", stan, points) is None
     inside = "Exception: index 5 out of range; expecting index to be between 1 and 4 (at line 6 of cool/simulator.stan)"
     assert simulator_failure(inside, stan, points).startswith("simulator.stan failed at the data's rows: ")
+    # a sampler's failure (the cmdstanpy backend has no start check) is rewritten the same way
+    from stancal.fitting.simulator_check import explained
+    from stancal.stan.backends import StanRuntimeError
+
+    assert str(explained(StanRuntimeError(f"Stan failed while sampling: {length}"), stan, points)).startswith(
+        "simulator.stan returned 39 values for 40 rows")
+    other = StanRuntimeError("Stan failed while sampling: Scale parameter is 0")
+    assert explained(other, stan, points) is other and explained(other, None, points) is other
 
 
 @pytest.mark.parametrize("value, message", [
@@ -333,49 +341,50 @@ def test_a_failure_after_sampling_keeps_the_draws(tmp_path, capsys, monkeypatch)
 
 
 # ---- 6. property tests: malformed CSVs and TOMLs through the command line -----------
-PHYSICAL = (COOLING / "physical.csv").read_text().splitlines()
-HEADER = PHYSICAL[0].split(",")
-NUMERIC = ["t", "T0", "humidity", "temperature"]
+CSVS = {"physical.csv": ["t", "T0", "humidity", "temperature", "operator"],  # its columns the config uses
+        "runs.csv": ["t", "T0", "k", "temperature"]}
+NUMERIC = ["t", "T0", "humidity", "k", "temperature"]
 JUNK = st.text(string.ascii_letters + "#$%&?", min_size=1, max_size=6)
 
 
 @st.composite
-def bad_physical_csv(draw) -> tuple[str, str]:
-    """A malformed physical.csv and what the error must name (a column, a line, or the file only)."""
-    lines = list(PHYSICAL)
+def bad_csv(draw) -> tuple[str, str, str]:
+    """A malformed physical.csv or runs.csv: the file, its text, and what
+    the error must name (a column, a line, or the file only)."""
+    file = draw(st.sampled_from(sorted(CSVS)))
+    lines = (COOLING / file).read_text().splitlines()
+    header = lines[0].split(",")
     row = draw(st.integers(0, len(lines) - 2))
     kind = draw(st.sampled_from(["missing column", "non-numeric", "empty cell", "nan", "empty file",
                                  "header only", "ragged long", "ragged short", "repeated header", "two rows"]))
     cells = lines[row + 1].split(",")
     if kind == "missing column":
-        drop = HEADER.index(draw(st.sampled_from([*NUMERIC, "operator"])))
+        drop = header.index(draw(st.sampled_from(CSVS[file])))
         lines = [",".join(c for i, c in enumerate(line.split(",")) if i != drop) for line in lines]
-        return "\n".join(lines) + "\n", f"missing column(s) ['{HEADER[drop]}']"
+        return file, "\n".join(lines) + "\n", f"missing column(s) ['{header[drop]}']"
     if kind in ("non-numeric", "empty cell", "nan"):
-        column = draw(st.sampled_from(NUMERIC))
-        cells[HEADER.index(column)] = {"non-numeric": draw(JUNK), "empty cell": "", "nan": "NaN"}[kind]
-        if cells[HEADER.index(column)].lower() in ("nan", "inf", "infinity", "na", "null", "none", "n"):
-            cells[HEADER.index(column)] = "NaN"  # pandas reads these as missing
+        column = draw(st.sampled_from([c for c in CSVS[file] if c in NUMERIC]))
+        cells[header.index(column)] = {"non-numeric": draw(JUNK), "empty cell": "", "nan": "NaN"}[kind]
         lines[row + 1] = ",".join(cells)
-        return "\n".join(lines) + "\n", f"column '{column}'"
+        return file, "\n".join(lines) + "\n", f"column '{column}'"
     if kind == "empty file":
-        return draw(st.sampled_from(["", "\n", "  \n\n"])), "empty"
+        return file, draw(st.sampled_from(["", "\n", "  \n\n"])), "the file is empty"
     if kind == "header only":
-        return lines[0] + "\n", "0 rows"
+        return file, lines[0] + "\n", "0 rows"
     if kind == "two rows":
-        return "\n".join(lines[:3]) + "\n", "2 rows"
+        return file, "\n".join(lines[:3]) + "\n", "2 rows"
     if kind == "ragged long":
         lines[row + 1] += ",1,2"
-        return "\n".join(lines) + "\n", f"line {row + 2} has 7 fields; the header (line 1) has 5"
+        fields = len(header)
+        return file, "\n".join(lines) + "\n", f"line {row + 2} has {fields + 2} fields; the header (line 1) has {fields}"
     if kind == "ragged short":
         lines[row + 1] = ",".join(cells[:2])
-        return "\n".join(lines) + "\n", f"line {row + 2} has 2 fields; the header (line 1) has 5"
-    header = list(HEADER)
-    header[draw(st.integers(0, len(header) - 1))] = draw(st.sampled_from(HEADER))
+        return file, "\n".join(lines) + "\n", f"line {row + 2} has 2 fields; the header (line 1) has {len(header)}"
+    header[draw(st.integers(0, len(header) - 1))] = draw(st.sampled_from(header))
     if len(set(header)) == len(header):  # drew a column over itself: repeat another
         header[0] = header[1]
     lines[0] = ",".join(header)
-    return "\n".join(lines) + "\n", "repeats column(s)"
+    return file, "\n".join(lines) + "\n", "repeats column(s)"
 
 
 def _one_named_error(argv: list, capsys) -> str:
@@ -384,15 +393,15 @@ def _one_named_error(argv: list, capsys) -> str:
     return error_line(err)
 
 
-@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
-@given(case=bad_physical_csv())
+@settings(max_examples=50, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(case=bad_csv())
 def test_malformed_csvs_end_in_one_named_line(case, capsys, no_fit):
-    text, names = case
+    file, text, names = case
     with tempfile.TemporaryDirectory() as folder:
         config = copy_case(Path(folder))
-        (Path(folder) / "physical.csv").write_text(text)
+        (Path(folder) / file).write_text(text)
         line = _one_named_error(["calibrate", config, "--out", Path(folder) / "out"], capsys)
-        assert str(Path(folder) / "physical.csv") in line, line
+        assert str(Path(folder) / file) in line, line
         assert names in line, line
         assert not (Path(folder) / "out").exists()
 
