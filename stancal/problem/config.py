@@ -57,10 +57,7 @@ def _candidates(table: dict[str, Any], base: Path) -> list[Candidate]:
 def _read_csv(path: Path, key: str) -> pd.DataFrame:
     if not path.is_file():
         raise ConfigError(f"{key}: file not found: {path}")
-    try:
-        return read_table(path)
-    except DataError as err:
-        raise ConfigError(f"{key}: {err}") from None
+    return read_table(path)  # its errors name the file and line
 
 
 def _require(table: dict, key: str, where: str) -> Any:
