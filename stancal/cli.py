@@ -134,7 +134,7 @@ def run_gap(args: argparse.Namespace) -> dict:
         raise ConfigError("config: `stancal gap` needs a [candidates] section")
     model = dict(problem.model)
     method = args.method or model.pop("method", None)
-    args.out.mkdir(parents=True, exist_ok=True)
+    # no args.out.mkdir here: the fits and reports create it, so a failure before sampling leaves none
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         analysis = diagnose_gap(problem.data, problem.candidates, simulator=problem.simulator,
@@ -174,7 +174,7 @@ def run_calibrate(args: argparse.Namespace) -> dict:
     if args.approximation:
         model["approximation"] = args.approximation
     sampler = {**sampler_options(args), "backend": args.backend, "out_dir": args.out}
-    args.out.mkdir(parents=True, exist_ok=True)
+    # no args.out.mkdir here: the fits and reports create it, so a failure before sampling leaves none
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         if vector:
@@ -201,7 +201,7 @@ def run_compare(args: argparse.Namespace) -> dict:
     model = {k: v for k, v in problem.model.items() if k not in ("method", "discrepancy")}
     if args.approximation:
         model["approximation"] = args.approximation
-    args.out.mkdir(parents=True, exist_ok=True)
+    # no args.out.mkdir here: the fits and reports create it, so a failure before sampling leaves none
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         comparison = compare_methods(problem.data, simulator=problem.simulator,

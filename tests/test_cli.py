@@ -66,7 +66,8 @@ def test_missing_column_exits_with_one_line(tmp_path):
     done = run("calibrate", config, "--out", tmp_path / "out")
     assert done.returncode == 2
     lines = done.stderr.strip().splitlines()
-    assert lines[-1].startswith("stancal: error: physical data: missing column(s) ['temperature']")
+    assert lines[-1].startswith(f"stancal: error: physical data ({tmp_path / 'physical.csv'}): "
+                                "missing column(s) ['temperature']")
     assert "Traceback" not in done.stderr
 
 

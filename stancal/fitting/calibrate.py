@@ -17,6 +17,7 @@ from stancal.fitting.l2 import l2_result
 from stancal.fitting.plan import Plan, model_options, plan_scalar
 from stancal.fitting.postfit import check_fit, save_draws
 from stancal.fitting.seeds import command_seed
+from stancal.fitting.simulator_check import check_simulator_at_start, explained
 from stancal.fitting.stage_one import run_stage_one
 from stancal.numerics.quadrature import Quadrature, input_box_quadrature
 from stancal.problem.data import CalibrationData
@@ -24,7 +25,7 @@ from stancal.problem.options import ModelOptions
 from stancal.problem.sampling import SamplerOptions
 from stancal.results.diagnostics import parametrization_advice
 from stancal.results.result import CalibrationResult, build_datatree
-from stancal.stan.backends import get_backend
+from stancal.stan.backends import StanRuntimeError, get_backend
 from stancal.stan.registry import STAGE_ONE_SCALABLE
 from stancal.stan.source import FlatProgram
 from stancal.stan.standata import EMULATOR_HYPERPARAMETERS, build_stan_data, default_new_points, to_stan_json
@@ -60,9 +61,14 @@ def _sample(stan_backend, flat: FlatProgram, data: CalibrationData, plan: Plan, 
     stan_json = to_stan_json(build_stan_data(data, plan.program.data, options, fit_points,
                                              emulator_hyperparameters=emulator.get("hyperparameters")))
     inits = spread_theta_inits(sampler["chains"], len(data.parameters), np.random.default_rng(sampler["seed"]))
+    simulator, points = plan.simulator if plan.program.simulator else None, data.physical[data.inputs]
+    check_simulator_at_start(stan_backend, flat, stan_json, inits, simulator, points)
     logger.info("sampling %s: %d chains x (%d warmup + %d draws) with %s",
                 plan.name, sampler["chains"], sampler["warmup"], sampler["draws"], stan_backend.name)
-    sample = stan_backend.sample(flat, stan_json, inits=inits, **sampler)
+    try:
+        sample = stan_backend.sample(flat, stan_json, inits=inits, **sampler)
+    except StanRuntimeError as err:
+        raise explained(err, simulator, points) from None
     parameter_names = stan_backend.parameter_names(flat)  # the program's own, edited or not
     tree = build_datatree(sample, data, fit_points, parameter_names, options)
     if prior:

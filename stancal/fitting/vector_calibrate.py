@@ -17,13 +17,14 @@ from stancal.fitting.inits import spread_theta_inits
 from stancal.fitting.plan import Plan, plan_vector
 from stancal.fitting.postfit import check_fit, save_draws
 from stancal.fitting.seeds import command_seed
+from stancal.fitting.simulator_check import check_simulator_at_start, explained
 from stancal.fitting.stage_one import run_stage_one
 from stancal.numerics.vector_emulator import VectorEmulator
 from stancal.problem.options import VectorOptions
 from stancal.problem.sampling import SamplerOptions
 from stancal.problem.vector_data import VectorCalibrationData
 from stancal.results.vector_result import VectorCalibrationResult, vector_datatree
-from stancal.stan.backends import get_backend
+from stancal.stan.backends import StanRuntimeError, get_backend
 from stancal.stan.standata import to_stan_json
 from stancal.stan.vector_standata import build_vector_stan_data, mean_terms
 
@@ -117,8 +118,14 @@ def calibrate_vector(
                 stan_data["E"], stan_data["N"], f", {stan_data['C']} components" if emulator else "",
                 chains, warmup, draws)
     stan_json = to_stan_json(stan_data)
-    sample = stan_backend.sample(flat, stan_json, inits=inits, chains=chains, warmup=warmup, draws=draws,
-                                 seed=seed, adapt_delta=adapt_delta, max_treedepth=max_treedepth)
+    # the simulator is called on each experiment's rows of (inputs, output index)
+    simulator, points = plan.simulator if row.simulator else None, data.physical[[*data.inputs, *data.output_index]]
+    check_simulator_at_start(stan_backend, flat, stan_json, inits, simulator, points)
+    try:
+        sample = stan_backend.sample(flat, stan_json, inits=inits, chains=chains, warmup=warmup, draws=draws,
+                                     seed=seed, adapt_delta=adapt_delta, max_treedepth=max_treedepth)
+    except StanRuntimeError as err:
+        raise explained(err, simulator, points) from None
     terms = mean_terms(data, options)
     tree = vector_datatree(sample.draws, sample.sample_stats, data, new_rows, stan_backend.parameter_names(flat),
                            options, terms, samples_emulator=row.samples_emulator, from_runs=row.runs)

@@ -119,6 +119,14 @@ class StanBackend(Protocol):
         """The names in the program's parameters block, read by stanc."""
         ...
 
+    def start_error(self, program: FlatProgram, data: dict[str, Any],
+                    inits: list[dict[str, Any]] | None) -> str | None:
+        """Stan's message (with the user's files and lines) if the log density
+        fails at the first chain's start (its init, the other parameters
+        inside their constraints), else None: a check before sampling, on
+        the program already compiled."""
+        ...
+
     def generate_quantities(
         self,
         program: FlatProgram,

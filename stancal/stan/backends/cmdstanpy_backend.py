@@ -152,6 +152,14 @@ class CmdStanPyBackend:
             raise StanRuntimeError(program.explain(f"optimisation failed from all {starts} starting points"))
         return best
 
+    def start_error(self, program: FlatProgram, data: dict[str, Any],
+                    inits: list[dict[str, Any]] | None) -> str | None:
+        """None: CmdStan's log_prob method needs every parameter's value, whose
+        sizes only the data fix; a simulator failing at the start stops
+        CmdStan's sampler at once instead, and calibrate rewrites its
+        message as the start check would (fitting.simulator_check.explained)."""
+        return None
+
     def log_density_functions(self, program: FlatProgram, data: dict[str, Any]):
         # cmdstanpy evaluates log densities one CmdStan process at a time and
         # has no unconstrain; BridgeStan would, but is not a dependency

@@ -179,6 +179,22 @@ class PyStanBackend:
     def parameter_names(self, program: FlatProgram) -> list[str]:
         return list(_program_info(program.code)["parameters"])
 
+    def start_error(self, program: FlatProgram, data: dict[str, Any],
+                    inits: list[dict[str, Any]] | None) -> str | None:
+        """In this process, through the compiled model's services module:
+        no HTTP round trip and none of httpstan's log lines."""
+        import httpstan.models
+
+        model = self._build(program, data, seed=1)
+        services = httpstan.models.import_services_extension_module(model.model_name)
+        point = _interior_point(model)
+        point.update(inits[0] if inits else {})
+        try:
+            services.log_prob(model.data, services.transform_inits(model.data, point), True)
+        except (RuntimeError, ValueError) as err:  # Stan's domain errors arrive as ValueError
+            return program.explain(str(err))
+        return None
+
     def sample(
         self,
         program: FlatProgram,
