@@ -144,7 +144,7 @@ def test_run_calibrate_reads_paths_from_the_callers_folder(repository, tmp_path)
                           cwd=caller, capture_output=True, text=True, env=env)
     assert done.returncode == 2, done.stderr
     assert done.stderr.strip().splitlines()[-1].startswith(
-        "stancal: error: config study/config.toml: not valid TOML"), done.stderr
+        "stancal: error: study/config.toml: not valid TOML"), done.stderr
     assert not (caller / "out").exists() and not (repository / "out").exists()
     assert time.perf_counter() - started < 60  # no compile, no sampling
 

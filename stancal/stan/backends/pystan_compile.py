@@ -257,6 +257,8 @@ def _remove_own_folder(folder: Path, owner: int) -> None:
     if os.getpid() == owner:  # not in a forked child (httpstan's sampling processes)
         shutil.rmtree(folder, ignore_errors=True)
         folder.with_suffix(".lock").unlink(missing_ok=True)
+        if _held_lock is not None:
+            _held_lock.close()
 
 
 @contextlib.contextmanager
