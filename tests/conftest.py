@@ -24,26 +24,41 @@ from make_data import K_TRUE, newton  # noqa: E402  (the case study's own physic
 
 # fits made once per session and read by several test files
 SESSION_FITS = ("koh_fit", "koh_emulator_fit", "modular_fit", "cooling_gap")
+# `./run tests` runs two pytest-xdist workers. Each test file runs on one worker, and
+# the files that read one session fit share a worker, so that no fit is made twice
+# (pytest_collection_modifyitems checks this table against the fixtures the tests use)
+WORKER_GROUPS = {"test_backends.py": "cooling_fits", "test_predict.py": "cooling_fits",
+                 "test_recovery.py": "cooling_fits", "test_reporting.py": "cooling_fits"}
+
+
+def _group(file_name: str) -> str:
+    return WORKER_GROUPS.get(file_name, file_name)
+
+
+def pytest_xdist_make_scheduler(config, log):
+    """xdist's load-by-scope scheduling, with a file's scope its group."""
+    from xdist.scheduler import LoadScopeScheduling
+
+    class ByGroup(LoadScopeScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            return _group(nodeid.split("::", 1)[0].rsplit("/", 1)[-1])
+
+    return ByGroup(config, log)
 
 
 def pytest_collection_modifyitems(items):
-    """`./run tests` runs two pytest-xdist workers (--dist loadgroup). A test
-    file stays on one worker, and files that read the same session fit share
-    a worker, so that no fit is made twice."""
-    files_of_fit: dict[str, set[str]] = {}
-    for item in items:
-        callspec = getattr(item, "callspec", None)  # a fit named by a parameter, for request.getfixturevalue
-        named = {v for v in (callspec.params.values() if callspec else ()) if isinstance(v, str)}
-        for name in (set(item.fixturenames) | named) & set(SESSION_FITS):
-            files_of_fit.setdefault(name, set()).add(item.path.name)
-    group = {}
-    for files in files_of_fit.values():  # join files linked through any fit
-        merged = set(files).union(*(group[f] for f in files if f in group))
-        for f in merged:
-            group[f] = merged
-    for item in items:
-        name = item.path.name
-        item.add_marker(pytest.mark.xdist_group(min(group.get(name, {name}))))
+    """Refuse to run when files that read one session fit are in different
+    worker groups: each worker would make the fit again."""
+    for fit in SESSION_FITS:
+        files = set()
+        for item in items:
+            callspec = getattr(item, "callspec", None)  # a fit named by a parameter (request.getfixturevalue)
+            named = {v for v in (callspec.params.values() if callspec else ()) if isinstance(v, str)}
+            if fit in set(item.fixturenames) | named:
+                files.add(item.path.name)
+        if len({_group(f) for f in files}) > 1:
+            raise pytest.UsageError(f"tests/conftest.py: {sorted(files)} read the session fit {fit!r}; "
+                                    "put them in one WORKER_GROUPS group")
 
 
 def cooling_data(seed: int) -> stancal.CalibrationData:
