@@ -274,8 +274,12 @@ def _one_line(err: Exception) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    with advice.spoken_to(advice.CLI):  # advice in messages names flags, config keys and report files
-        return _main(argv)
+    level = logger.level  # restored: a script or test that calls main() keeps its own logging
+    try:
+        with advice.spoken_to(advice.CLI):  # advice in messages names flags, config keys and report files
+            return _main(argv)
+    finally:
+        logger.setLevel(level)
 
 
 def _main(argv: list[str] | None) -> int:

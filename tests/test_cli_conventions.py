@@ -312,3 +312,45 @@ def test_a_real_fit_drives_the_bar_to_its_total(monkeypatch, tmp_path):
     assert len(bars) == 1 and bars[0].total == 2 * (30 + 20)
     assert bars[0].done == bars[0].bar.n == 100, terminal.getvalue()
     assert "100/100" in terminal.getvalue()
+
+
+def _warns_twice(library_file: str) -> int:
+    """A fit that raises one warning of stancal's own and one from another library."""
+    from stancal.results.diagnostics import SamplerWarning
+
+    warnings.warn_explicit("a deprecated call inside a dependency", DeprecationWarning, library_file, 7)
+    warnings.warn_explicit("R-hat up to 1.2 (k)", SamplerWarning, str(Path(stancal_file())), 1)
+    return 3
+
+
+def stancal_file() -> str:
+    import stancal.fitting.calibrate
+
+    return stancal.fitting.calibrate.__file__
+
+
+def test_a_fits_warnings_name_it_but_another_librarys_pass_as_raised(tmp_path):
+    """The runner names the fit in stancal's warnings; a dependency's warning
+    (PyStan's marshmallow deprecations, say) is replayed unprefixed, so the
+    filters that hide it outside a fit still match it."""
+    from stancal.fitting.cluster import IN_PROCESS, FitTask, fit_runner
+
+    with warnings.catch_warnings(record=True) as caught, fit_runner(IN_PROCESS) as runner:
+        warnings.simplefilter("always")
+        assert runner.map([FitTask("candidate 'x'", _warns_twice, {"library_file": str(tmp_path / "lib.py")})]) == [3]
+    said = {(w.category.__name__, str(w.message)) for w in caught}
+    assert ("DeprecationWarning", "a deprecated call inside a dependency") in said
+    assert ("SamplerWarning", "candidate 'x': R-hat up to 1.2 (k)") in said
+
+
+def test_main_leaves_the_callers_logging_as_it_was(tmp_path):
+    """main() sets stancal's logger to INFO for its run only: a script or test
+    that calls it keeps its own level (a later caplog saw a whole earlier run)."""
+    import logging
+
+    from stancal.cli import main
+
+    logger = logging.getLogger("stancal")
+    before = logger.level
+    assert main(["calibrate", str(tmp_path / "missing.toml"), "--out", str(tmp_path / "out")]) == 2
+    assert logger.level == before

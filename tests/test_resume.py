@@ -234,6 +234,7 @@ def test_a_compare_rerun_reuses_its_fit(tmp_path, caplog):
     allow = "diverged|effective sample size|R-hat|maximum tree depth|E-BFMI"  # 1 chain of 100 + 100
     with no_stancal_warnings(allow=allow):
         first = stancal.compare_methods(data, **options)
+    caplog.clear()  # the first run's lines, had an earlier test left stancal's logger at INFO
     with caplog.at_level(logging.INFO, logger="stancal"), no_stancal_warnings(allow=allow):
         again = stancal.compare_methods(data, **options)
     assert _sampled(caplog) == [] and "reused 1 of 1 fits" in caplog.text

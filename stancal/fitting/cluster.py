@@ -85,7 +85,7 @@ _one_fit_at_a_time = threading.RLock()  # re-entrant: a fit may run fits of its 
 
 
 def _captured(function: Callable[..., Any], kwargs: dict[str, Any],
-              reader: str = advice.PYTHON) -> tuple[Any, list[tuple[str, type]]]:
+              reader: str = advice.PYTHON) -> tuple[Any, list[tuple[str, type[Warning], str, int]]]:
     """Run one task, keeping its warnings (sampler trouble, ...) to say them
     where the command runs, not in a worker's log; their advice is for
     ``reader``, the command's (stancal.problem.advice). It shows no progress
@@ -94,7 +94,21 @@ def _captured(function: Callable[..., Any], kwargs: dict[str, Any],
             warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         value = function(**kwargs)
-    return value, [(str(w.message), w.category) for w in caught]
+    return value, [(str(w.message), w.category, w.filename, w.lineno) for w in caught]
+
+
+_PACKAGE = str(Path(__file__).resolve().parents[1])
+
+
+def _pass_on(fit: str, message: str, category: type[Warning], filename: str, lineno: int) -> None:
+    """Say a fit's warning where the command runs. stancal's own name the fit
+    they came from; another library's (a deprecation inside PyStan's
+    dependencies, say) are replayed as raised, so that the filters that hide
+    them outside a fit hide them here too."""
+    if str(Path(filename).resolve()).startswith(_PACKAGE):
+        warnings.warn(f"{fit}: {message}", category, stacklevel=3)
+    else:
+        warnings.warn_explicit(message, category, filename, lineno)
 
 
 def _describe(error: BaseException) -> str:
@@ -239,8 +253,8 @@ class FitRunner:
                 values[index] = outcome
             else:
                 values[index], caught = outcome
-                for message, category in caught:  # said once, naming the fit it came from
-                    warnings.warn(f"{tasks[index].name}: {message}", category, stacklevel=2)
+                for caught_warning in caught:  # said once
+                    _pass_on(tasks[index].name, *caught_warning)
             self.progress.finished(tasks[index].name, isinstance(outcome, FitFailure))
         return values
 
