@@ -6,18 +6,35 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from stancal.results.vector_result import VectorCalibrationResult
 
-def write_calibration(result, folder: Path, warning_messages: list[str]) -> dict:
-    """summary.json, summary.csv, figures and report.md of one calibration."""
+
+def write_calibration(result, folder: str | Path, warning_messages: list[str] | None = None) -> dict:
+    """summary.json, summary.csv, figures and report.md of one calibration,
+    in ``folder`` (made if missing). A vector-output result gets its curves
+    instead of the scalar figures.
+
+    ``warning_messages`` are the warnings the report lists: by default the
+    sampler's checks recorded on the result (``result.diagnostics.messages``);
+    the command line passes every stancal warning the fit raised."""
     from stancal.reporting.plots import write_plots
 
+    if isinstance(result, VectorCalibrationResult):
+        return write_vector_calibration(result, folder, warning_messages)
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
     summary = result.to_summary_json()
-    summary["warnings"] = warning_messages
+    summary["warnings"] = _recorded(result) if warning_messages is None else list(warning_messages)
     (folder / "summary.json").write_text(json.dumps(summary, indent=2))
     result.summary().to_csv(folder / "summary.csv")
     plots = write_plots(result, folder)
     (folder / "report.md").write_text(_report(summary, result.summary(), plots))
     return summary
+
+
+def _recorded(result) -> list[str]:
+    """The sampler's warnings kept on the result (none for a result without checks)."""
+    return list(result.diagnostics.messages) if result.diagnostics else []
 
 
 def _parameters_and_sampler(summary: dict, table) -> list[str]:
@@ -71,13 +88,15 @@ def _report(summary: dict, table, plots: list[Path]) -> str:
     return "\n".join(lines)
 
 
-def write_vector_calibration(result, folder: Path, warning_messages: list[str]) -> dict:
+def write_vector_calibration(result, folder: str | Path, warning_messages: list[str] | None = None) -> dict:
     """summary.json, summary.csv, the curves per experiment and report.md
-    of one vector-output calibration."""
+    of one vector-output calibration, in ``folder`` (made if missing);
+    ``warning_messages`` as for :func:`write_calibration`."""
     from stancal.reporting.plots import plot_vector_curves
 
+    folder = Path(folder)
     summary = result.to_summary_json()
-    summary["warnings"] = warning_messages
+    summary["warnings"] = _recorded(result) if warning_messages is None else list(warning_messages)
     folder.mkdir(parents=True, exist_ok=True)
     (folder / "summary.json").write_text(json.dumps(summary, indent=2))
     table = result.summary()
