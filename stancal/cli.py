@@ -5,75 +5,118 @@
 from __future__ import annotations
 
 import argparse
+import functools
 import logging
 import sys
 import warnings
+from dataclasses import fields
 from pathlib import Path
 
 from stancal.diagnosing.compare import METHODS
+from stancal.diagnosing.sbc import SBC_CHAINS, SBC_WARMUP
 from stancal.fitting.calibrate import calibrate
 from stancal.fitting.cluster import IN_PROCESS
 from stancal.fitting.plan import make_plan, model_keywords
+from stancal.problem import advice
 from stancal.problem.config import ConfigError, load_config
 from stancal.problem.data import DataError
 from stancal.problem.options import APPROXIMATIONS, DISCREPANCIES, EXACT_SIZE_LIMIT
+from stancal.problem.sampling import NAMES as SAMPLER_NAMES
+from stancal.problem.sampling import SamplerOptions
 from stancal.problem.vector_data import VectorCalibrationData
 from stancal.reporting.report import write_calibration, write_vector_calibration
 from stancal.stan.backends import BACKENDS, StanRuntimeError, get_backend
-from stancal.stan.registry import L2, entry_methods, method_names
+from stancal.stan.registry import L2, PROGRAMS, commands_taking, entry_methods, method_names
 from stancal.stan.source import FlatProgram, StanProgramError
 
 logger = logging.getLogger("stancal")
 
 
+class _HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
+    """Every option's help states its default (argparse's "(default: ...)",
+    or the help's own words where the default is not a plain value), and a
+    required option says so."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        text = action.help or ""
+        if action.required and action.option_strings:
+            return f"{text} (required)"
+        if "default:" in text or action.default is None:
+            return text
+        return super()._get_help_string(action)
+
+
+_BACKEND_HELP = "Stan interface; default: $STANCAL_BACKEND, else cmdstanpy when CmdStan is installed, else pystan"
+_METHOD_HELP = ("the calibration program; default: the config's [model] method, else koh with a Stan "
+                "simulator, koh_emulator with runs only")
+_SBC_DRAWS = "posterior draws kept per chain of each fit; default: 2 x --draws-per-fit spread over the chains"
+
+
+def sampler_arguments(command: argparse.ArgumentParser, **defaults) -> None:
+    """The sampler's flags, made from stancal.problem.sampling.SamplerOptions
+    (its help text and defaults, or a command's own ``defaults``): every
+    command that samples takes the same ones."""
+    for option in fields(SamplerOptions):
+        help_text = option.metadata["help"]
+        if option.name == "draws" and defaults.get("draws", option.default) is None:
+            help_text = _SBC_DRAWS
+        command.add_argument("--" + option.name.replace("_", "-"), type=option.metadata["type"],
+                             default=defaults.get(option.name, option.default), help=help_text)
+
+
+def sampler_options(args: argparse.Namespace) -> dict:
+    """The sampler's flags the user gave or that have a default, checked
+    (a bad one is a one-line error before the config is read)."""
+    given = {name: getattr(args, name) for name in SAMPLER_NAMES if getattr(args, name) is not None}
+    SamplerOptions.from_keywords(given)
+    return given
+
+
 def _parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="stancal", description="Bayesian calibration of computer models with Stan")
+    parser = argparse.ArgumentParser(prog="stancal", description="Bayesian calibration of computer models with Stan",
+                                     formatter_class=_HelpFormatter)
     commands = parser.add_subparsers(dest="command", required=True)
-    cal = commands.add_parser("calibrate", help="calibrate theta and write a report folder")
-    gap = commands.add_parser("gap", help="diagnose the sim-to-real gap: where, which effect, how far")
-    comp = commands.add_parser("compare", help="fit with koh, l2, orthogonal and scaled GP side by side")
-    sbc = commands.add_parser("sbc", help="simulation-based calibration of the config's program and sampler")
+    add = functools.partial(commands.add_parser, formatter_class=_HelpFormatter)
+    cal = add("calibrate", help="calibrate theta and write a report folder")
+    gap = add("gap", help="diagnose the sim-to-real gap: where, which effect, how far")
+    comp = add("compare", help="fit with koh, l2, orthogonal and scaled GP side by side")
+    sbc = add("sbc", help="simulation-based calibration of the config's program and sampler")
     sbc.add_argument("config", type=Path, help="TOML config: its design, method and model")
     sbc.add_argument("--out", type=Path, required=True, help="output folder (sbc.json, ecdf.png)")
     sbc.add_argument("--sims", type=int, default=200, help="simulated data sets (S)")
     sbc.add_argument("--draws-per-fit", type=int, default=100, help="thinned posterior draws per fit (L)")
     sbc.add_argument("--level", type=float, default=0.95, help="a parameter is rejected below p = 1 - level")
-    sbc.add_argument("--chains", type=int, default=2)
-    sbc.add_argument("--warmup", type=int, default=300)
-    sbc.add_argument("--seed", type=int, default=None)
-    sbc.add_argument("--backend", choices=BACKENDS, default=None)
+    sampler_arguments(sbc, chains=SBC_CHAINS, warmup=SBC_WARMUP, draws=None)
+    sbc.add_argument("--backend", choices=BACKENDS, default=None, help=_BACKEND_HELP)
     for command in (cal, gap, comp):
         command.add_argument("config", type=Path, help="TOML config (paths inside are relative to it)")
         command.add_argument("--out", type=Path, required=True, help="output folder")
-        command.add_argument("--chains", type=int, default=4)
-        command.add_argument("--warmup", type=int, default=1000)
-        command.add_argument("--draws", type=int, default=1000)
-        command.add_argument("--seed", type=int, default=None)
-        command.add_argument("--backend", choices=BACKENDS, default=None)
+        sampler_arguments(command)
+        command.add_argument("--backend", choices=BACKENDS, default=None, help=_BACKEND_HELP)
     for command in (cal, gap, comp):
         command.add_argument("--approximation", choices=APPROXIMATIONS, default=None,
                              help="exact (dense GPs), hsgp (scalable) or auto (hsgp above "
-                                  f"{EXACT_SIZE_LIMIT} points plus runs)")
+                                  f"{EXACT_SIZE_LIMIT} points plus runs); default: the config's, else auto")
     for command in (cal, gap):
         command.add_argument("--method", choices=list(dict.fromkeys([*method_names("scalar"), *method_names("vector"),
-                                                                      *([L2] if command is cal else [])])))
-    for command in (cal, gap, comp):
-        command.add_argument("--adapt-delta", type=float, default=0.9,
-                             help="the sampler's target acceptance; raise it (0.95, 0.99) when transitions diverge")
+                                                                      *([L2] if command is cal else [])])),
+                             help=_METHOD_HELP)
     cal.add_argument("--discrepancy", choices=list(DISCREPANCIES),
-                     help="gp (KOH), orthogonal (Plumlee 2017), scaled (S-GaSP) or none")
-    comp.add_argument("--methods", nargs="+", choices=METHODS, default=list(METHODS))
+                     help="gp (KOH), orthogonal (Plumlee 2017), scaled (S-GaSP) or none; "
+                          "default: the config's [model] discrepancy, else gp")
+    comp.add_argument("--methods", nargs="+", choices=METHODS, default=list(METHODS), help="the methods compared")
     for command in (gap, comp, sbc):
         command.add_argument("--scheduler", default=None, metavar="ADDRESS",
                              help="run the fits on this Dask cluster (e.g. tcp://10.0.0.5:8786); default: a "
                                   f"local cluster, one worker per core; '{IN_PROCESS}': one after another here")
-    build = commands.add_parser("compile", help="compile every Stan program the configs need, in parallel")
+    build = add("compile", help="compile every Stan program the configs need, in parallel")
     build.add_argument("configs", type=Path, nargs="+", help="TOML configs")
     build.add_argument("--all-methods", action="store_true",
                        help="every method the problem admits, not only the configured one")
-    build.add_argument("--backend", choices=BACKENDS, default=None)
+    build.add_argument("--backend", choices=BACKENDS, default=None, help=_BACKEND_HELP)
     gap.add_argument("--kfold", type=int, default=None,
-                     help="compare by K-fold cross-validation instead of PSIS-LOO")
+                     help="compare by K-fold cross-validation with this many folds instead of PSIS-LOO; "
+                          "default: PSIS-LOO, with 5-fold when Pareto k is high at many observations")
     return parser
 
 
@@ -91,36 +134,32 @@ def run_gap(args: argparse.Namespace) -> dict:
         raise ConfigError("config: `stancal gap` needs a [candidates] section")
     model = dict(problem.model)
     method = args.method or model.pop("method", None)
-    args.out.mkdir(parents=True, exist_ok=True)
+    # no args.out.mkdir here: the fits and reports create it, so a failure before sampling leaves none
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         analysis = diagnose_gap(problem.data, problem.candidates, simulator=problem.simulator,
                                 method=method, kernel=model.get("kernel", "se"),
                                 **({} if vector else {"approximation": args.approximation
                                                       or model.get("approximation", "auto")}),
-                                chains=args.chains, warmup=args.warmup, draws=args.draws,
-                                adapt_delta=args.adapt_delta, seed=args.seed, backend=args.backend,
+                                **sampler_options(args), backend=args.backend,
                                 out_dir=args.out, kfold=args.kfold, scheduler=args.scheduler)
-    summary = write_gap_report(analysis, args.out)
+    summary = write_gap_report(analysis, args.out, problem.units)
     write = write_vector_calibration if vector else write_calibration
     write(analysis.baseline, args.out / "baseline",
-          analysis.baseline.diagnostics.messages if analysis.baseline.diagnostics else [])
+          analysis.baseline.diagnostics.messages if analysis.baseline.diagnostics else [], problem.units)
     for message in _stancal_warnings(caught):
         print(f"warning: {message}", file=sys.stderr)
     return summary
 
 
-_NOT_FOR_VECTORS = {
-    "compare": "it compares the identifiable-calibration methods (L2, orthogonal, scaled), which are not built "
-               "for vector outputs yet",
-    "sbc": "simulation-based calibration is built for scalar outputs so far",
-}
-
-
 def _scalar_only(problem, command: str) -> None:
-    if isinstance(problem.data, VectorCalibrationData):
-        raise ConfigError(f"`stancal {command}` does not take a vector output: {_NOT_FOR_VECTORS[command]}; "
-                          f"`stancal calibrate` (koh, modular or koh_emulator) and `stancal gap` do")
+    """Refuse an output kind none of whose programs the command takes (the
+    registry's Program.commands)."""
+    output = "vector" if isinstance(problem.data, VectorCalibrationData) else "scalar"
+    if not commands_taking(command, output):
+        takers = sorted({p.output for p in PROGRAMS.values() if command in p.commands})
+        raise ConfigError(f"`stancal {command}` does not take a {output} output yet (it takes {' and '.join(takers)} "
+                          f"outputs); `stancal calibrate` and `stancal gap` do")
 
 
 def run_calibrate(args: argparse.Namespace) -> dict:
@@ -134,9 +173,8 @@ def run_calibrate(args: argparse.Namespace) -> dict:
         model["discrepancy"] = args.discrepancy
     if args.approximation:
         model["approximation"] = args.approximation
-    sampler = {"chains": args.chains, "warmup": args.warmup, "draws": args.draws, "seed": args.seed,
-                   "backend": args.backend, "adapt_delta": args.adapt_delta, "out_dir": args.out}
-    args.out.mkdir(parents=True, exist_ok=True)
+    sampler = {**sampler_options(args), "backend": args.backend, "out_dir": args.out}
+    # no args.out.mkdir here: the fits and reports create it, so a failure before sampling leaves none
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         if vector:
@@ -148,7 +186,7 @@ def run_calibrate(args: argparse.Namespace) -> dict:
             result = calibrate(problem.data, simulator=problem.simulator, method=args.method or configured_method,
                                **sampler, **model)
     write = write_vector_calibration if vector else write_calibration
-    summary = write(result, args.out, _stancal_warnings(caught))
+    summary = write(result, args.out, _stancal_warnings(caught), problem.units)
     for message in summary["warnings"]:
         print(f"warning: {message}", file=sys.stderr)
     return summary
@@ -163,19 +201,17 @@ def run_compare(args: argparse.Namespace) -> dict:
     model = {k: v for k, v in problem.model.items() if k not in ("method", "discrepancy")}
     if args.approximation:
         model["approximation"] = args.approximation
-    args.out.mkdir(parents=True, exist_ok=True)
+    # no args.out.mkdir here: the fits and reports create it, so a failure before sampling leaves none
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         comparison = compare_methods(problem.data, simulator=problem.simulator,
-                                     methods=tuple(args.methods), chains=args.chains,
-                                     warmup=args.warmup, draws=args.draws, adapt_delta=args.adapt_delta,
-                                     seed=args.seed,
+                                     methods=tuple(args.methods), **sampler_options(args),
                                      backend=args.backend, out_dir=args.out, scheduler=args.scheduler,
                                      **model)
     for fit in comparison.fits:
         if fit.result is not None:
             write_calibration(fit.result, args.out / fit.name,
-                              fit.result.diagnostics.messages if fit.result.diagnostics else [])
+                              fit.result.diagnostics.messages if fit.result.diagnostics else [], problem.units)
     summary = write_comparison(comparison, args.out)
     for message in _stancal_warnings(caught):
         print(f"warning: {message}", file=sys.stderr)
@@ -189,11 +225,15 @@ def run_sbc(args: argparse.Namespace) -> dict:
     problem = load_config(args.config)
     _scalar_only(problem, "sbc")
     model = {k: v for k, v in problem.model.items() if k != "approximation"}
-    result = simulation_based_calibration(
-        problem.data, simulator=problem.simulator, simulations=args.sims, draws_per_fit=args.draws_per_fit,
-        level=args.level, seed=args.seed, out_dir=args.out, chains=args.chains, warmup=args.warmup,
-        backend=args.backend, scheduler=args.scheduler, **model)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        result = simulation_based_calibration(
+            problem.data, simulator=problem.simulator, simulations=args.sims, draws_per_fit=args.draws_per_fit,
+            level=args.level, out_dir=args.out, **sampler_options(args),
+            backend=args.backend, scheduler=args.scheduler, **model)
     write_sbc_report(result, args.out)
+    for message in _stancal_warnings(caught):  # each naming its simulation
+        print(f"warning: {message}", file=sys.stderr)
     return result.to_json()
 
 
@@ -234,12 +274,19 @@ def _one_line(err: Exception) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
+    with advice.spoken_to(advice.CLI):  # advice in messages names flags, config keys and report files
+        return _main(argv)
+
+
+def _main(argv: list[str] | None) -> int:
     args = _parser().parse_args(argv)
     # stancal's own messages at INFO; other libraries' (setuptools prints each
     # g++ command of a compile) at WARNING
     logging.basicConfig(level=logging.WARNING, format="%(name)s: %(message)s")
     logger.setLevel(logging.INFO)
     try:
+        if hasattr(args, "chains"):  # the sampler's options, checked before the config is read
+            sampler_options(args)
         summary = {"gap": run_gap, "compare": run_compare, "calibrate": run_calibrate,
                    "compile": run_compile, "sbc": run_sbc}[args.command](args)
     except (ConfigError, DataError, StanProgramError, StanRuntimeError, ValueError, RuntimeError) as err:

@@ -22,6 +22,29 @@ COOLING = ROOT / "case_studies" / "cooling"
 sys.path.insert(0, str(COOLING))
 from make_data import K_TRUE, newton  # noqa: E402  (the case study's own physics)
 
+# fits made once per session and read by several test files
+SESSION_FITS = ("koh_fit", "koh_emulator_fit", "modular_fit", "cooling_gap")
+
+
+def pytest_collection_modifyitems(items):
+    """`./run tests` runs two pytest-xdist workers (--dist loadgroup). A test
+    file stays on one worker, and files that read the same session fit share
+    a worker, so that no fit is made twice."""
+    files_of_fit: dict[str, set[str]] = {}
+    for item in items:
+        callspec = getattr(item, "callspec", None)  # a fit named by a parameter, for request.getfixturevalue
+        named = {v for v in (callspec.params.values() if callspec else ()) if isinstance(v, str)}
+        for name in (set(item.fixturenames) | named) & set(SESSION_FITS):
+            files_of_fit.setdefault(name, set()).add(item.path.name)
+    group = {}
+    for files in files_of_fit.values():  # join files linked through any fit
+        merged = set(files).union(*(group[f] for f in files if f in group))
+        for f in merged:
+            group[f] = merged
+    for item in items:
+        name = item.path.name
+        item.add_marker(pytest.mark.xdist_group(min(group.get(name, {name}))))
+
 
 def cooling_data(seed: int) -> stancal.CalibrationData:
     """Data from the exact simulator at k = 0.05 with noise sd 0.3, plus the shipped runs."""

@@ -7,6 +7,7 @@ import sys
 
 import numpy as np
 import pytest
+import xarray as xr
 from conftest import COOLING, assert_trouble_reported
 
 STANCAL = [sys.executable, "-m", "stancal.cli"]
@@ -45,7 +46,7 @@ def test_calibrate_writes_the_report_folder(cli_run):
     assert set(summary["diagnostics"]["warnings"]) <= set(summary["warnings"])  # reported, not hidden
     assert set(summary["diagnostics"]) >= {"divergences", "max_rhat", "min_ess_bulk"}
     assert set(summary["timing"]) == {"compile_s", "sample_s"}
-    for name in ("posterior.nc", "theta.png", "fit.png", "discrepancy.png", "report.md"):
+    for name in ("posterior.nc", "theta.png", "fit.png", "discrepancy.png", "report.md", "report.html"):
         assert (out / name).stat().st_size > 0, name
 
 
@@ -65,7 +66,8 @@ def test_missing_column_exits_with_one_line(tmp_path):
     done = run("calibrate", config, "--out", tmp_path / "out")
     assert done.returncode == 2
     lines = done.stderr.strip().splitlines()
-    assert lines[-1].startswith("stancal: error: physical data: missing column(s) ['temperature']")
+    assert lines[-1].startswith(f"stancal: error: physical data ({tmp_path / 'physical.csv'}): "
+                                "missing column(s) ['temperature']")
     assert "Traceback" not in done.stderr
 
 
@@ -102,6 +104,24 @@ def test_sbc_command_writes_ranks_and_verdicts(tmp_path):
     parameters = summary["parameters"]
     assert {"theta[k]", "noise_sd", "delta_sd", "log_likelihood"} <= set(parameters)
     for name, row in parameters.items():
-        assert len(row["ranks"]) == 6 and all(0 <= r <= 20 for r in row["ranks"]), name
         assert 0 <= row["p_value"] <= 1 and row["verdict"].startswith(name) and row["verdict"] in done.stdout
-    assert (out / "ecdf.png").is_file() and len(list((out / "fits").iterdir())) == 6
+    assert (out / "ecdf.png").is_file()
+    folders = sorted((out / "fits").iterdir())
+    assert len(folders) == 6
+    for simulation, folder in enumerate(folders):
+        # each rank again, from the truth and the thinned draws saved beside the fit: draws below the truth
+        truth = json.loads((folder / "truth.json").read_text())["values"]
+        draws = json.loads((folder / "ranked_draws.json").read_text())
+        assert set(draws) == set(truth) == set(parameters)
+        for name, row in parameters.items():
+            assert len(draws[name]) == 20
+            assert row["ranks"][simulation] == sum(d < truth[name] for d in draws[name]), (simulation, name)
+        # and those are draws of the saved fit: the parameters' from its posterior, the
+        # log-likelihood's sums of its pointwise log_lik at a draw
+        tree = xr.open_datatree(folder / "posterior.nc")
+        posterior = np.concatenate([np.ravel(v) for v in tree["posterior"].to_dataset().data_vars.values()])
+        log_lik = np.asarray(tree["log_likelihood"]["y"])
+        sums = log_lik.reshape(-1, log_lik.shape[-1]).sum(-1)
+        assert all(np.isin(draws[name], posterior).all() for name in draws if name != "log_likelihood")
+        assert all(np.isclose(d, sums, rtol=1e-12).any() for d in draws["log_likelihood"])
+        assert 0.01 <= truth["theta[k]"] <= 0.2  # from the prior, within k's bounds

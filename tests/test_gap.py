@@ -133,8 +133,8 @@ def test_cooling_where(cooling_gap):
 
 def test_cooling_report_folder(cooling_gap):
     summary, out = cooling_gap
-    for name in ("gap.json", "report.md", "importance.png", "where.png", "candidates.png",
-                 "baseline/posterior.nc", "baseline/summary.json",
+    for name in ("gap.json", "report.md", "report.html", "importance.png", "where.png", "candidates.png",
+                 "baseline/posterior.nc", "baseline/summary.json", "baseline/report.html", "baseline/fit.png",
                  "candidates/quadratic_loss/posterior.nc"):
         assert (out / name).stat().st_size > 0, name
     report = (out / "report.md").read_text()

@@ -243,7 +243,8 @@ def test_every_method_recovers_an_exact_simulator(exact_comparison):
         assert abs(row["k_q50"] - K_TRUE) < 0.01 * K_TRUE, method
         assert row["discrepancy_rms_q50"] < 0.15, method
     summary = write_comparison(comparison, out)
-    assert {"comparison.csv", "comparison.json", "comparison.png", "report.md"} <= {p.name for p in out.iterdir()}
+    assert {"comparison.csv", "comparison.json", "comparison.png", "report.md", "report.html"} <= \
+        {p.name for p in out.iterdir()}
     assert len(summary["methods"]) == 4
     assert (out / "scaled" / "posterior.nc").exists()
 

@@ -581,7 +581,7 @@ def test_config_reaches_the_new_model_keys(tmp_path):
                    .replace('"physical.csv"', f'"{COUNTS / "physical.csv"}"')
                    .replace('"simulator.stan"', f'"{COUNTS / "simulator.stan"}"')
                    .replace('"runs.csv"', f'"{COUNTS / "runs.csv"}"'))
-    with pytest.raises(stancal.DataError, match="likelihood must be one of"):
+    with pytest.raises(ConfigError, match="likelihood must be one of"):
         load_config(bad)
     bad.write_text((BEAM / "config.toml").read_text().replace('functional = ["E"]', "functional = 3")
                    .replace('"physical.csv"', f'"{BEAM / "physical.csv"}"')

@@ -2,6 +2,8 @@
 registered under a new name, and nothing else, calibrates, predicts, saves,
 loads and runs in the gap diagnosis."""
 
+import subprocess
+import sys
 from dataclasses import replace
 
 import numpy as np
@@ -41,6 +43,14 @@ def test_a_registered_copy_calibrates_predicts_saves_loads_and_runs_in_gap(my_ko
     points = pd.DataFrame({"t": [5.0, 30.0], "T0": [70.0, 80.0]})
     predicted = mine.predict(points)
     pd.testing.assert_frame_equal(predicted, shipped.predict(points))
+    # the result carries its row: a process that never registered my_koh (a Dask worker) predicts with it
+    pd.to_pickle((mine, points), tmp_path / "mine.pkl")
+    script = ("import sys, pandas as pd; result, points = pd.read_pickle(sys.argv[1]); "
+              "result.predict(points).to_pickle(sys.argv[2])")
+    done = subprocess.run([sys.executable, "-c", script, tmp_path / "mine.pkl", tmp_path / "predicted.pkl"],
+                          capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr[-2000:]
+    pd.testing.assert_frame_equal(pd.read_pickle(tmp_path / "predicted.pkl"), predicted)
     loaded = stancal.load_result(mine.save(tmp_path / "mine.nc"))
     assert loaded.method == "my_koh"
     pd.testing.assert_frame_equal(loaded.predict(points), predicted)
@@ -65,3 +75,20 @@ def test_methods_and_their_hand_overs_come_from_the_rows(exact_cooling_data):
                                                                                    "koh_latent_emulator.stan"]
     with pytest.raises(ValueError, match="discrepancy 'orthogonal' needs method 'koh'"):
         plan_scalar(exact_cooling_data, None, "modular", stancal.fitting.plan.model_options("orthogonal"))
+
+
+def test_commands_take_the_outputs_their_programs_are_registered_for(tmp_path, capsys, monkeypatch):
+    """Which output kinds compare and sbc take comes from Program.commands: a
+    vector config is refused in one line; registering a vector program for
+    compare would lift the refusal (no list elsewhere says otherwise)."""
+    from stancal.cli import main
+    from stancal.stan.registry import COMPARE, commands_taking
+
+    config = COOLING.parent / "cooling_curves" / "config.toml"
+    assert main(["compare", str(config), "--out", str(tmp_path / "out")]) == 2
+    message = capsys.readouterr().err.strip().splitlines()[-1]
+    assert "`stancal compare` does not take a vector output yet" in message
+    assert not (tmp_path / "out").exists()
+    monkeypatch.setitem(PROGRAMS, "compare_vector",
+                        replace(PROGRAMS["koh_vector"], name="compare_vector", commands=frozenset({COMPARE})))
+    assert commands_taking(COMPARE, "vector") == ["compare_vector"]

@@ -92,7 +92,7 @@ def test_the_cli_calibrates_the_cooling_curves_by_koh_and_by_modular(tmp_path):
         assert summary["method"] == program and set(summary["theta"]) == {"k", "Ta"}
         assert len(summary["theta_per_experiment"]) == 6
         assert (summary["basis"] is None) == (program == "koh_vector")
-        for name in ("posterior.nc", "summary.csv", "curves.png", "report.md"):
+        for name in ("posterior.nc", "summary.csv", "curves.png", "theta.png", "report.md", "report.html"):
             assert (out / name).is_file(), (program, name)
     assert main(["compare", str(config), "--out", str(tmp_path / "compare")]) == 2  # refused by name
 

@@ -17,9 +17,12 @@ from stancal.fitting.calibrate import calibrate, model_options
 from stancal.fitting.cluster import FitFailure, FitRunner, FitTask, fit_runner
 from stancal.fitting.l2 import l2_result
 from stancal.fitting.plan import Plan, model_keywords, plan_scalar, require_gaussian
-from stancal.fitting.seeds import command_seed, fit_seed
+from stancal.fitting.postfit import DRAWS_FILE
+from stancal.fitting.resume import Resume
+from stancal.fitting.seeds import fit_seed
 from stancal.numerics.quadrature import Quadrature, input_box_quadrature
 from stancal.problem.data import CalibrationData
+from stancal.problem.sampling import SamplerOptions
 from stancal.results.result import CalibrationResult
 from stancal.results.summaries import band
 from stancal.stan.registry import DEFAULT_ESTIMATOR, ESTIMATORS, L2
@@ -87,6 +90,11 @@ def _method_fit(name: str, **options: Any) -> MethodFit:
     return MethodFit(name, calibrate(**options), time.perf_counter() - started)
 
 
+def _seconds(fit: MethodFit) -> float:
+    """What a rerun keeps of a finished fit beyond its draws: its time."""
+    return fit.seconds
+
+
 def _plans(data: CalibrationData, simulator, methods: tuple[str, ...], model: dict[str, Any],
            program) -> dict[str, Plan | str]:
     """Each compared estimator's plan, or why it cannot run on this problem;
@@ -119,14 +127,17 @@ def compare_methods(data: CalibrationData, *, simulator: str | Path | None = Non
     own seed), side by side on Dask (``scheduler``, see stancal.fitting.cluster). L2
     projects the KOH fit's zeta draws, so it adds no sampling when koh is also
     compared. Methods that cannot run on this problem, or whose fit failed
-    twice, are listed as skipped. ``calibrate_options`` go to every
+    twice, are listed as skipped. A rerun with the same ``out_dir`` reuses
+    the fits finished there (stancal.fitting.resume). ``calibrate_options`` go to every
     calibrate() call (chains, draws, kernel, ...)."""
+    SamplerOptions.from_keywords({**calibrate_options, "seed": seed})  # before anything is planned or compiled
     unknown = set(methods) - set(METHODS)
     if unknown:
         raise ValueError(f"unknown methods {sorted(unknown)}; choose from {', '.join(METHODS)}")
     require_gaussian("the method comparison", data)
     quadrature = input_box_quadrature(data)
-    seed = command_seed(seed)
+    resume = Resume(out_dir, seed)  # a rerun into the same folder reuses the fits it finished
+    seed = resume.seed
     model = model_keywords(calibrate_options, vector=False)
     fits: dict[str, MethodFit] = {}
     tasks: list[FitTask] = []
@@ -139,7 +150,9 @@ def compare_methods(data: CalibrationData, *, simulator: str | Path | None = Non
             out_dir=None if out_dir is None else Path(out_dir) / name, **calibrate_options)))
     with fit_runner(scheduler) as runner:
         runner.prepare([], calibrate_options.get("backend"))  # each fit compiles its program once per machine
-        for task, fit in zip(tasks, runner.map(tasks), strict=False):
+        done = resume.map(runner, tasks, keep=_seconds, restore=lambda task, folder, seconds: MethodFit(
+            task.name, CalibrationResult.load(folder / DRAWS_FILE), seconds))
+        for task, fit in zip(tasks, done, strict=False):
             fits[task.name] = (MethodFit(task.name, None, skipped=f"the fit failed twice: {fit.error}")
                                if isinstance(fit, FitFailure) else fit)
     koh = fits.get(DEFAULT_ESTIMATOR)

@@ -53,12 +53,15 @@ from stancal.diagnosing.scoring import (
 from stancal.fitting.calibrate import calibrate
 from stancal.fitting.cluster import FitFailure, FitRunner, FitTask, fit_runner
 from stancal.fitting.plan import Plan, make_plan, model_keywords, plan_scalar
-from stancal.fitting.seeds import command_seed, fit_seed
-from stancal.fitting.stopwatch import Stopwatch
+from stancal.fitting.postfit import DRAWS_FILE
+from stancal.fitting.resume import Resume
+from stancal.fitting.seeds import fit_seed
+from stancal.fitting.stopwatch import COMPILED_EARLIER, Stopwatch
 from stancal.fitting.vector_calibrate import calibrate_vector
 from stancal.problem.candidates import Candidate, CandidateError
 from stancal.problem.data import CalibrationData, DataError
 from stancal.problem.mean_terms import FormulaError, build_mean_terms
+from stancal.problem.sampling import SamplerOptions
 from stancal.problem.vector_data import VectorCalibrationData
 from stancal.results.result import CalibrationResult
 from stancal.results.vector_result import VectorCalibrationResult
@@ -251,9 +254,13 @@ def diagnose_gap(
     a local cluster, an address, "in-process", or a FitRunner; see
     stancal.fitting.cluster); each is written under ``out_dir`` as it finishes. A
     candidate whose fit fails twice is left out of the ranking and named in
-    ``failed``. ``calibrate_options`` (kernel, chains, warmup, draws,
-    backend, adapt_delta, ...) go to every fit.
+    ``failed``. A rerun with the same ``out_dir`` reuses the fits and refits
+    finished there with the same inputs (stancal.fitting.resume; scalar
+    outputs only so far: a vector result is not read back from its files).
+    ``calibrate_options`` (kernel, chains, warmup, draws, backend,
+    adapt_delta, ...) go to every fit.
     """
+    SamplerOptions.from_keywords({**calibrate_options, "seed": seed})  # before anything is planned or compiled
     vector = isinstance(data, VectorCalibrationData)
     if vector:
         calibrate_options.pop("approximation", None)
@@ -266,9 +273,18 @@ def diagnose_gap(
     stan_backend = get_backend(calibrate_options.get("backend"))
     check_candidates(data, candidates, stan_backend, plan)
     clock = Stopwatch()
-    seed = command_seed(seed)
+    resume = Resume(out_dir, seed)  # a rerun into the same folder reuses the fits and refits it finished
+    seed = resume.seed
     out = Path(out_dir) if out_dir is not None else None
     task = functools.partial(_fit_task, vector=vector, plan=plan, seed=seed, sampling=calibrate_options)
+    # a vector result cannot be read back from its files yet, so its fits always run
+    run = functools.partial(resume.map, restore=_restored) if not vector else lambda runner, tasks: runner.map(tasks)
+
+    def folder(*parts: str) -> Path | None:
+        return None if out is None else out.joinpath(*parts)
+
+    def home(candidate: Candidate | None) -> tuple[str, ...]:  # a fit's folder under out (and under refits)
+        return ("baseline",) if candidate is None else ("candidates", _slug(candidate.name))
 
     def data_for(candidate: Candidate | None):
         return variant_data(data, candidate) if candidate and candidate.kind == "variant" else data
@@ -277,15 +293,14 @@ def diagnose_gap(
     failed: list[FitFailure] = []
     with fit_runner(scheduler) as runner:
         # every program up front, side by side on the machine's cores, then on every worker
-        runner.prepare([*plan.stan_programs(), *(variant_program(data, c, plan) for c in candidates
-                                                 if c.kind == "variant")],
-                       calibrate_options.get("backend"))
-        clock.lap("compile")
-        fits = runner.map([task(label_name(c), c, data_for(c),
-                                None if vector else data_for(c).source.reset_index(drop=True),
-                                None if out is None else (out / "baseline" if c is None
-                                                          else out / "candidates" / _slug(c.name)))
-                           for c in labels])
+        compiled = runner.prepare([*plan.stan_programs(), *(variant_program(data, c, plan) for c in candidates
+                                                            if c.kind == "variant")],
+                                  calibrate_options.get("backend"))
+        clock.lap("compile" if compiled else COMPILED_EARLIER)
+        fits = run(runner, [task(label_name(c), c, data_for(c),
+                                 None if vector else data_for(c).source.reset_index(drop=True),
+                                 folder(*home(c)))
+                            for c in labels])
         for c, fit in zip(labels, fits, strict=False):
             if isinstance(fit, FitFailure):
                 _record_failure(c, fit, failed)
@@ -297,9 +312,10 @@ def diagnose_gap(
         tests = [kfold_tests(len(data_for(c).physical), kfold, seed) if kfold is not None else unreliable_tests(s)
                  for c, s in zip(labels, scores, strict=True)]
         # every refit of every fit in one batch
-        jobs = [(i, test) for i, label_tests in enumerate(tests) for test in label_tests]
-        refits = runner.map([task(f"{label_name(labels[i])} without {_rows(test)}", labels[i],
-                                  *refit_rows(data_for(labels[i]), test), None) for i, test in jobs])
+        jobs = [(i, j, test) for i, label_tests in enumerate(tests) for j, test in enumerate(label_tests)]
+        refits = run(runner, [task(f"{label_name(labels[i])} without {_rows(test)}", labels[i],
+                                   *refit_rows(data_for(labels[i]), test),
+                                   folder("refits", *home(labels[i]), f"{j:03d}")) for i, j, test in jobs])
     labels, fits, scores = _rescored(labels, fits, scores, tests, jobs, refits, data_for, kfold, failed)
     clock.lap("refits")
     location = locate_gap(fits[0], seed=seed, along=tuple(data.output_index) if vector else ())
@@ -308,6 +324,11 @@ def diagnose_gap(
         (CandidateFit(c, r, s) for c, r, s in zip(labels[1:], fits[1:], scores[1:], strict=False)),
         key=lambda f: -(f.score.elpd_i - scores[0].elpd_i).sum())
     return GapAnalysis(fits[0], scores[0], location, ranked, clock.laps, failed)
+
+
+def _restored(task: FitTask, folder: Path, kept: None) -> CalibrationResult:
+    """A scalar fit finished by an earlier run, read back from its folder."""
+    return CalibrationResult.load(folder / DRAWS_FILE)
 
 
 def _scheme(labels: list, scores: list[Score], kfold: int | None) -> int | None:
@@ -330,7 +351,7 @@ def _rescored(labels, fits, scores, tests, jobs, refits, data_for, kfold, failed
     """Each fit's score with its refits' held-out densities; a fit whose
     refit failed is left out (and recorded)."""
     grouped: list[list] = [[] for _ in labels]
-    for (i, _), refit in zip(jobs, refits, strict=True):
+    for (i, *_), refit in zip(jobs, refits, strict=True):
         grouped[i].append(refit)
     kept = []
     for c, fit, score, label_tests, results in zip(labels, fits, scores, tests, grouped, strict=True):

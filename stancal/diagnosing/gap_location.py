@@ -62,7 +62,7 @@ class MainEffect:
         whole = bool((sign == sign[0]).all())
         if self.categorical:
             return [{"variable": self.variable, "from": v, "to": v, "sign": _sign_word(s),
-                     "whole_range": whole} for v, s in zip(self.values, sign, strict=False) if s != 0]
+                     "whole_range": whole} for v, s in zip(self.values, sign, strict=True) if s != 0]
         out, start = [], 0
         for k in range(1, len(sign) + 1):
             if k == len(sign) or sign[k] != sign[start]:

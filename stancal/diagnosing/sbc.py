@@ -29,15 +29,21 @@ import numpy as np
 from stancal.diagnosing.sbc_ranks import Uniformity, fractional_ranks, rank_of, uniformity
 from stancal.fitting.calibrate import calibrate
 from stancal.fitting.cluster import FitFailure, FitRunner, FitTask, fit_runner
-from stancal.fitting.seeds import command_seed, fit_seed
+from stancal.fitting.plan import make_plan, model_keywords
+from stancal.fitting.resume import Resume, keep_whole, write_json
+from stancal.fitting.seeds import fit_seed
+from stancal.problem import advice
 from stancal.problem.data import CalibrationData
+from stancal.problem.sampling import SamplerOptions
 from stancal.results.result import CalibrationResult
 from stancal.stan.backends import get_backend
-from stancal.stan.registry import program
 from stancal.stan.standata import build_stan_data, to_stan_json
 
 PRIOR_THINNING = 5  # prior draws kept: every 5th of one long chain
+SBC_CHAINS, SBC_WARMUP = 2, 300  # each fit's defaults: many fits, each of a small posterior
 LOG_LIKELIHOOD = "log_likelihood"  # ranked beside the parameters (Modrák et al. 2023)
+TRUTH = "truth.json"  # in each simulation's folder: the values it was simulated from
+RANKED_DRAWS = "ranked_draws.json"  # and the thinned posterior draws they were ranked among
 
 
 @dataclass
@@ -96,7 +102,7 @@ def log_likelihood_at(fit: CalibrationResult, parameters: dict[str, np.ndarray],
     points = fit.idata["predictions_constant_data"].to_dataset().to_dataframe().reset_index(drop=True)
     options = replace(fit.options, functional_parametrization=functional_parametrization
                       or fit.options.functional_parametrization)
-    stan_data = build_stan_data(fit.data, program(fit.method).data, options, points,
+    stan_data = build_stan_data(fit.data, fit.row.data, options, points,
                                 emulator_hyperparameters=fit.emulator.get("hyperparameters"))
     draws = get_backend(fit.backend).generate_quantities(
         fit.program, to_stan_json(stan_data), {k: np.asarray(v)[None, None] for k, v in parameters.items()}, seed=1)
@@ -116,17 +122,45 @@ def functional_parametrizations(calibrate_options: dict[str, Any]) -> tuple[str 
 
 def simulated_ranks(data: CalibrationData, truth: dict[str, float], truth_parameters: dict[str, np.ndarray],
                     draws_per_fit: int, prior_parametrization: str | None = None,
-                    **calibrate_options: Any) -> dict[str, int]:
+                    out_dir: str | Path | None = None, **calibrate_options: Any) -> dict[str, int]:
     """Fit one simulated data set and rank each true value among L evenly
     thinned posterior draws, and the log-likelihood at the truth among its
-    values at those draws (run where the fit runs: only ranks travel back)."""
-    fit = calibrate(data, **calibrate_options)
+    values at those draws (run where the fit runs: only ranks travel back).
+    In ``out_dir``, beside the fit: the truth (TRUTH) and the thinned draws
+    each was ranked among (RANKED_DRAWS), so that a rank can be checked."""
+    fit = calibrate(data, out_dir=out_dir, **calibrate_options)
     posterior = _scalars(fit.idata["posterior"].to_dataset())
-    ranks = {name: rank_of(value, _thinned(posterior[name], draws_per_fit))
-             for name, value in truth.items() if name in posterior}
-    ranks[LOG_LIKELIHOOD] = rank_of(log_likelihood_at(fit, truth_parameters, prior_parametrization),
-                                    _thinned(log_likelihood_draws(fit), draws_per_fit))
-    return ranks
+    at_truth = {name: value for name, value in truth.items() if name in posterior}
+    at_truth[LOG_LIKELIHOOD] = log_likelihood_at(fit, truth_parameters, prior_parametrization)
+    ranked = {name: _thinned(posterior[name], draws_per_fit) for name in at_truth if name != LOG_LIKELIHOOD}
+    ranked[LOG_LIKELIHOOD] = _thinned(log_likelihood_draws(fit), draws_per_fit)
+    if out_dir is not None:
+        write_json(Path(out_dir) / TRUTH, {"values": {k: float(v) for k, v in at_truth.items()},
+                                           "stan_parameters": {k: np.asarray(v).tolist()
+                                                               for k, v in truth_parameters.items()}})
+        write_json(Path(out_dir) / RANKED_DRAWS, {k: v.tolist() for k, v in ranked.items()})
+    return {name: rank_of(at_truth[name], draws) for name, draws in ranked.items()}
+
+
+def _sampling(calibrate_options: dict[str, Any], seed: int | None, draws_per_fit: int) -> SamplerOptions:
+    """Each fit's sampler options, taken out of ``calibrate_options`` (chains,
+    warmup and draws; the others stay for calibrate()) and checked before
+    anything is compiled."""
+    if not (isinstance(draws_per_fit, int) and draws_per_fit >= 1):
+        raise ValueError(f"{advice.option('draws_per_fit')} must be a whole number of at least 1; "
+                         f"got {draws_per_fit!r}")
+    chains = calibrate_options.pop("chains", SBC_CHAINS)
+    warmup = calibrate_options.pop("warmup", SBC_WARMUP)
+    draws = calibrate_options.pop("draws", None)
+    if draws is None:  # a bad chains is named by the check below, not met by a division
+        draws = -(-2 * draws_per_fit // chains) if isinstance(chains, int) and chains >= 1 else 1
+    sampling = SamplerOptions.from_keywords({**calibrate_options, "seed": seed, "chains": chains,
+                                             "warmup": warmup, "draws": draws})
+    if sampling.chains * sampling.draws < draws_per_fit:
+        raise ValueError(f"{advice.option('draws')} x {advice.option('chains')} = "
+                         f"{sampling.chains * sampling.draws} is fewer than the {draws_per_fit} draws per fit "
+                         f"that are ranked ({advice.option('draws_per_fit')})")
+    return sampling
 
 
 def simulation_based_calibration(
@@ -149,12 +183,16 @@ def simulation_based_calibration(
     copy) while simulating from the method's own. Each fit keeps
     ``draws_per_fit`` draws, evenly thinned from 2 x draws_per_fit per chain.
     The fits run side by side on Dask (``scheduler``, see stancal.fitting.cluster).
-    ``calibrate_options`` (chains, warmup, discrepancy, ...) go to every fit."""
-    seed = command_seed(seed)
+    Under ``out_dir``, each simulation's folder holds its fit, its truth and
+    the draws each truth was ranked among; a rerun with the same ``out_dir``
+    reuses the simulations finished there (stancal.fitting.resume).
+    ``calibrate_options`` (chains, warmup, discrepancy, ...) go to every fit;
+    ``draws`` per chain of each fit default to 2 x draws_per_fit over the chains."""
+    sampling = _sampling(calibrate_options, seed, draws_per_fit)
+    resume = Resume(out_dir, seed)  # a rerun into the same folder reuses the simulations it finished
+    seed = resume.seed
     started = time.perf_counter()
-    chains = calibrate_options.pop("chains", 2)
-    warmup = calibrate_options.pop("warmup", 300)
-    per_chain = -(-2 * draws_per_fit // chains)
+    chains, warmup, per_chain = sampling.chains, sampling.warmup, sampling.draws
     prior_parametrization, fit_parametrization = functional_parametrizations(calibrate_options)
     prior_options = dict(calibrate_options)
     if fit_parametrization:
@@ -162,6 +200,9 @@ def simulation_based_calibration(
         prior_options["functional_parametrization"] = prior_parametrization
     prior_fit = calibrate(data, simulator=simulator, method=method, prior=True, chains=1, warmup=warmup,
                           draws=PRIOR_THINNING * simulations, seed=seed, **prior_options)
+    # one plan for every fit (simulated data sets share the design): its programs' code is part of each
+    # fit's fingerprint
+    plan = make_plan(data, simulator, method, program, **model_keywords(calibrate_options, vector=False))
     prior = {k: _thinned(v, simulations) for k, v in _scalars(prior_fit.idata["prior"].to_dataset()).items()}
     prior_parameters = {k: _thinned(np.asarray(v).reshape(v.shape[0] * v.shape[1], *v.shape[2:]), simulations)
                         for k, v in prior_fit.idata["prior_stan_parameters"].data_vars.items()}
@@ -170,14 +211,13 @@ def simulation_based_calibration(
     tasks = [FitTask(f"simulation {s}", simulated_ranks, dict(
         data=data.with_output(replicated[s]), truth={name: float(v[s]) for name, v in prior.items()},
         truth_parameters={name: v[s] for name, v in prior_parameters.items()},
-        prior_parametrization=prior_parametrization,
-        draws_per_fit=draws_per_fit, simulator=simulator, method=method, program=program, chains=chains,
+        prior_parametrization=prior_parametrization, draws_per_fit=draws_per_fit, plan=plan, chains=chains,
         warmup=warmup, draws=per_chain, seed=fit_seed(seed, f"simulation {s}"),
         out_dir=None if out_dir is None else Path(out_dir) / "fits" / f"{s:04d}", **calibrate_options))
         for s in range(simulations)]
     with fit_runner(scheduler) as runner:
         runner.prepare([], calibrate_options.get("backend"))  # the prior's fit compiled the programs here
-        outcomes = runner.map(tasks)
+        outcomes = resume.map(runner, tasks, keep=keep_whole, restore=lambda task, folder, ranks: ranks)
     ranks: dict[str, list[int]] = {}
     failed = [s for s, outcome in enumerate(outcomes) if isinstance(outcome, FitFailure)]
     for outcome in outcomes:

@@ -4,7 +4,7 @@ plan -> stage 1 -> sample -> post-fit checks (Kennedy & O'Hagan 2001)."""
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 from pathlib import Path
 from typing import Any
 
@@ -17,13 +17,15 @@ from stancal.fitting.l2 import l2_result
 from stancal.fitting.plan import Plan, model_options, plan_scalar
 from stancal.fitting.postfit import check_fit, save_draws
 from stancal.fitting.seeds import command_seed
+from stancal.fitting.simulator_check import check_simulator_at_start, explained
 from stancal.fitting.stage_one import run_stage_one
 from stancal.numerics.quadrature import Quadrature, input_box_quadrature
 from stancal.problem.data import CalibrationData
 from stancal.problem.options import ModelOptions
+from stancal.problem.sampling import SamplerOptions
 from stancal.results.diagnostics import parametrization_advice
 from stancal.results.result import CalibrationResult, build_datatree
-from stancal.stan.backends import get_backend
+from stancal.stan.backends import StanRuntimeError, get_backend
 from stancal.stan.registry import STAGE_ONE_SCALABLE
 from stancal.stan.source import FlatProgram
 from stancal.stan.standata import EMULATOR_HYPERPARAMETERS, build_stan_data, default_new_points, to_stan_json
@@ -59,9 +61,14 @@ def _sample(stan_backend, flat: FlatProgram, data: CalibrationData, plan: Plan, 
     stan_json = to_stan_json(build_stan_data(data, plan.program.data, options, fit_points,
                                              emulator_hyperparameters=emulator.get("hyperparameters")))
     inits = spread_theta_inits(sampler["chains"], len(data.parameters), np.random.default_rng(sampler["seed"]))
+    simulator, points = plan.simulator if plan.program.simulator else None, data.physical[data.inputs]
+    check_simulator_at_start(stan_backend, flat, stan_json, inits, simulator, points)
     logger.info("sampling %s: %d chains x (%d warmup + %d draws) with %s",
                 plan.name, sampler["chains"], sampler["warmup"], sampler["draws"], stan_backend.name)
-    sample = stan_backend.sample(flat, stan_json, inits=inits, **sampler)
+    try:
+        sample = stan_backend.sample(flat, stan_json, inits=inits, **sampler)
+    except StanRuntimeError as err:
+        raise explained(err, simulator, points) from None
     parameter_names = stan_backend.parameter_names(flat)  # the program's own, edited or not
     tree = build_datatree(sample, data, fit_points, parameter_names, options)
     if prior:
@@ -171,6 +178,8 @@ def calibrate(
     ``plan``: a plan made earlier (stancal.fitting.plan), which then replaces
     ``simulator``, ``method``, ``program`` and the model's options.
     """
+    # the sampler's options first: a bad one is said before anything is planned or compiled
+    sampling = SamplerOptions(chains, warmup, draws, seed, adapt_delta, max_treedepth)
     options = model_options(discrepancy, kernel, estimate_rho, mean_formula, mean_intercept, scaled_lambda,
                             functional, functional_inputs, functional_parametrization, approximation,
                             basis_functions, boundary_factor)
@@ -180,21 +189,22 @@ def calibrate(
         _plan_alone(options, simulator=simulator, method=method, program=program)
     programs = plan.stan_programs()
     stan_backend = get_backend(backend)
-    stan_backend.compile(programs)
+    compile_s = stan_backend.compile(programs)  # 0.0: compiled earlier
     seed = command_seed(seed)
     new_points, fit_points, quadrature = _prediction_points(data, new_points, plan.l2)
     emulator = run_stage_one(plan.program.stage_one, data, plan.options, programs, backend=stan_backend,
                              seed=seed) or {}
-    sampler = {"chains": chains, "warmup": warmup, "draws": draws, "seed": seed, "adapt_delta": adapt_delta,
-                   "max_treedepth": max_treedepth}
+    sampler = replace(sampling, seed=seed).keywords()
     flat = programs[-1]
     fit, options, messages = _sample_checked(
         lambda options: _sample(stan_backend, flat, data, plan, options, fit_points, emulator, prior, sampler),
         data, plan, emulator, chosen_by_user=plan.basis_given)
     result = CalibrationResult(
         idata=fit.tree, data=data, method=plan.name, backend=stan_backend.name, options=options, program=flat,
-        timing={"compile_s": fit.sample.compile_seconds,
-                "sample_s": fit.sample.sample_seconds + emulator.get("fit_s", 0.0)}, emulator=emulator)
+        registry_row=plan.program,
+        timing={"compile_s": compile_s,
+                "sample_s": fit.sample.load_seconds + fit.sample.sample_seconds + emulator.get("fit_s", 0.0)},
+        emulator=emulator)
     save_draws(result, out_dir)
     if quadrature is not None:
         logger.info("L2 calibration: projecting the draws of zeta onto the simulator")

@@ -6,9 +6,14 @@ to a FitRunner as FitTasks. The runner sends them to
 - by default, a local cluster that it starts and stops: one single-threaded
   worker process per core (each fit runs its chains in processes of its own),
   started as fresh processes (distributed's SubprocessCluster), so that a
-  user's script needs no ``if __name__ == "__main__"`` guard;
-- ``scheduler="tcp://host:8786"``: an existing cluster (``dask scheduler`` and
-  ``dask worker``, or dask-jobqueue on SLURM/PBS);
+  user's script needs no ``if __name__ == "__main__"`` guard. Its scheduler
+  and workers end themselves when the command is gone (killed, even by
+  SIGKILL): nothing keeps sampling or writing into its output;
+- ``scheduler="tcp://host:8786"``: an existing cluster, started as people
+  start one (``dask scheduler`` and ``dask worker``, or dask-jobqueue on
+  SLURM/PBS), with no special setting: daemonic workers with a nanny are fine
+  (the backend's chain processes end with their worker), and so are workers
+  with several threads (a worker process runs one fit at a time);
 - ``scheduler="in-process"``: this process, one fit after another, no Dask.
 
 Every task carries its own seed (seeds.fit_seed), so the results are the same
@@ -22,11 +27,11 @@ builds each at most once per machine (backends.pystan_compile).
 from __future__ import annotations
 
 import logging
-import multiprocessing
 import os
 import shutil
 import sys
 import tempfile
+import threading
 import time
 import uuid
 import warnings
@@ -36,7 +41,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import click
+
+from stancal.problem import advice
+from stancal.stan import progress as stan_progress
 from stancal.stan.backends import get_backend
+from stancal.stan.backends.base import end_when_orphaned
 from stancal.stan.source import FlatProgram
 
 logger = logging.getLogger("stancal")
@@ -44,10 +54,6 @@ logger = logging.getLogger("stancal")
 IN_PROCESS = "in-process"
 TASK_PREFIX = "stancal-fit"  # the dashboard groups the tasks under it
 RETRIES = 1
-
-
-class ClusterError(RuntimeError):
-    """The cluster cannot run stancal's fits; the message says how to start it."""
 
 
 @dataclass(frozen=True)
@@ -71,10 +77,21 @@ class FitFailure:
         return f"{self.name} failed: {self.error}"
 
 
-def _captured(function: Callable[..., Any], kwargs: dict[str, Any]) -> tuple[Any, list[tuple[str, type]]]:
+# A fit holds its process's output (file descriptors 1 and 2, while it samples), its
+# warning filters (_captured) and httpstan's cache of fits (cleared of the fits that
+# appeared while it sampled): two at once in one process would spoil each other's.
+# A worker with several threads (`dask worker`'s default) runs its fits one after another.
+_one_fit_at_a_time = threading.RLock()  # re-entrant: a fit may run fits of its own in-process
+
+
+def _captured(function: Callable[..., Any], kwargs: dict[str, Any],
+              reader: str = advice.PYTHON) -> tuple[Any, list[tuple[str, type]]]:
     """Run one task, keeping its warnings (sampler trouble, ...) to say them
-    where the command runs, not in a worker's log."""
-    with warnings.catch_warnings(record=True) as caught:
+    where the command runs, not in a worker's log; their advice is for
+    ``reader``, the command's (stancal.problem.advice). It shows no progress
+    of its own: the runner shows the fits done."""
+    with _one_fit_at_a_time, advice.spoken_to(reader), stan_progress.quiet(), \
+            warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         value = function(**kwargs)
     return value, [(str(w.message), w.category) for w in caught]
@@ -85,24 +102,20 @@ def _describe(error: BaseException) -> str:
     return f"{type(error).__name__}: {lines[-1] if lines else ''}".rstrip(": ")
 
 
-def _check_worker(dask_worker=None) -> str | None:
-    """What keeps this worker from running fits, or None."""
-    if multiprocessing.current_process().daemon:
-        return ("its process is daemonic, so a fit cannot start its chains' processes; start workers "
-                "with DASK_DISTRIBUTED__WORKER__DAEMON=False set (or with --no-nanny)")
-    if dask_worker is not None and dask_worker.state.nthreads != 1:
-        return (f"it has {dask_worker.state.nthreads} threads; start workers with --nthreads 1 (each fit "
-                f"runs its chains in processes of its own, and captures the process's output)")
-    return None
+def _prepare_worker(programs: list[FlatProgram], backend: str | None) -> None:
+    """On each worker: install the programs (from the machine's store,
+    where they are built once)."""
+    get_backend(backend).compile(programs)
 
 
-def _prepare_worker(programs: list[FlatProgram], backend: str | None, dask_worker=None) -> str | None:
-    """On each worker: check it and install the programs (from the
-    machine's store, where they are built once)."""
-    problem = _check_worker(dask_worker)
-    if problem is None:
-        get_backend(backend).compile(programs)
-    return problem
+@click.command()
+@click.option("--scratch", required=True, help="the command's scratch folder")
+def dask_setup(server, scratch: str) -> None:
+    """Preloaded by the local cluster's scheduler and workers (distributed's
+    ``preload``): each ends when the command that started it is gone, as a
+    killed command cannot stop them itself, and removes the command's
+    scratch folder (the workers' httpstan caches), as it cannot either."""
+    end_when_orphaned(os.getppid(), clean_up=lambda: shutil.rmtree(scratch, ignore_errors=True))
 
 
 def _private_cache_plugin(scratch: Path | None):
@@ -178,14 +191,16 @@ class FitRunner:
         started = time.perf_counter()
         if self.scheduler is None:
             # workers as fresh `dask spec` processes, not multiprocessing children: these never
-            # re-run the user's script (no __main__ guard needed), and a plain Worker (no nanny)
-            # is not daemonic, so a fit can start its chains' processes
+            # re-run the user's script (no __main__ guard needed); a plain Worker, as no nanny
+            # is needed to restart it (the scheduler reruns a lost worker's fits elsewhere)
             from distributed.deploy.subprocess import SubprocessCluster
 
             self._scratch = Path(tempfile.mkdtemp(prefix="stancal-cluster-"))
+            ending = {"preload_argv": ["--scratch", str(self._scratch)]}  # for dask_setup
             self._cluster = SubprocessCluster(n_workers=self.workers, threads_per_worker=1,
                                               worker_class="distributed.Worker", dashboard_address=":0",
-                                              worker_kwargs={"memory_limit": 0})
+                                              scheduler_kwargs={"preload": [__name__], **ending},
+                                              worker_kwargs={"memory_limit": 0, "preload": [__name__], **ending})
             self.client = Client(self._cluster)
             self.client.wait_for_workers(self.workers)
         else:
@@ -204,16 +219,14 @@ class FitRunner:
             self._cluster.close()  # kills the workers: their private caches go with the scratch folder
             shutil.rmtree(self._scratch, ignore_errors=True)
 
-    def prepare(self, programs: list[FlatProgram], backend: str | None = None) -> None:
+    def prepare(self, programs: list[FlatProgram], backend: str | None = None) -> float:
         """Compile the programs here (stanc's errors point at the user's
-        lines) and install them on every worker before any fit starts."""
-        get_backend(backend).compile(programs)
-        if self.client is None:
-            return
-        problems = self.client.run(_prepare_worker, programs, backend)
-        bad = {address: problem for address, problem in problems.items() if problem}
-        if bad:
-            raise ClusterError("; ".join(f"worker {a} cannot run fits: {p}" for a, p in bad.items()))
+        lines) and install them on every worker before any fit starts.
+        Returns the seconds spent compiling (0.0: all compiled earlier)."""
+        compile_s = get_backend(backend).compile(programs)
+        if self.client is not None:
+            self.client.run(_prepare_worker, programs, backend)
+        return compile_s
 
     def map(self, tasks: list[FitTask]) -> list[Any]:
         """Each task's value, or its FitFailure, in the tasks' order."""
@@ -226,8 +239,8 @@ class FitRunner:
                 values[index] = outcome
             else:
                 values[index], caught = outcome
-                for message, category in caught:
-                    warnings.warn(message, category, stacklevel=2)
+                for message, category in caught:  # said once, naming the fit it came from
+                    warnings.warn(f"{tasks[index].name}: {message}", category, stacklevel=2)
             self.progress.finished(tasks[index].name, isinstance(outcome, FitFailure))
         return values
 
@@ -235,7 +248,7 @@ class FitRunner:
         for index, task in enumerate(tasks):
             for attempt in range(RETRIES + 1):
                 try:
-                    yield index, _captured(task.function, task.kwargs)
+                    yield index, _captured(task.function, task.kwargs, advice.audience())
                     break
                 except Exception as error:  # one failed fit must not lose the others
                     if attempt == RETRIES:
@@ -246,7 +259,8 @@ class FitRunner:
     def _in_cluster(self, tasks: list[FitTask]) -> Iterator[tuple[int, Any]]:
         from distributed import as_completed
 
-        futures = {self.client.submit(_captured, task.function, task.kwargs, pure=False, retries=RETRIES,
+        futures = {self.client.submit(_captured, task.function, task.kwargs, advice.audience(), pure=False,
+                                      retries=RETRIES,
                                       key=f"{TASK_PREFIX}-{uuid.uuid4().hex}"): index
                    for index, task in enumerate(tasks)}
         for future in as_completed(list(futures)):

@@ -22,7 +22,6 @@ from stancal.numerics.kernels import ard_cross_cov
 from stancal.numerics.quadrature import Quadrature
 from stancal.problem.options import ModelOptions
 from stancal.stan.backends import get_backend
-from stancal.stan.registry import program
 from stancal.stan.standata import build_stan_data, to_stan_json
 
 # (points with the simulator inputs, theta (S, Q) in original units) -> f, (S, points)
@@ -60,7 +59,7 @@ def stan_simulator(result) -> SimulatorAt:
 
     def at(points: pd.DataFrame, theta: np.ndarray) -> np.ndarray:
         if last.get("points") is not points:
-            stan_data = to_stan_json(build_stan_data(data, program(result.method).data, options, points))
+            stan_data = to_stan_json(build_stan_data(data, result.row.data, options, points))
             last.update(points=points, run=backend.quantities_function(result.program, stan_data, seed=1))
         unit = np.clip(_theta_unit(data, theta), 1e-12, 1 - 1e-12)
         parameters = {name: np.broadcast_to(value, (1, len(unit), *np.shape(value)))
@@ -112,7 +111,7 @@ def _theta_unit(data, theta: np.ndarray) -> np.ndarray:
 
 def simulator_of(result) -> SimulatorAt:
     # a program with a Stan simulator runs it; one from runs has its emulator's mean
-    return stan_simulator(result) if program(result.method).simulator else emulator_mean(result)
+    return stan_simulator(result) if result.row.simulator else emulator_mean(result)
 
 
 def global_design(lower: np.ndarray, upper: np.ndarray, seed: int = 0) -> np.ndarray:
@@ -252,9 +251,10 @@ def _with_projected_simulator(predictions, points: pd.DataFrame, theta: np.ndarr
                               delta_new=predictions["delta_new"].copy(data=zeta - f))
 
 
-def reproject(result, points: pd.DataFrame, draws: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-    """predict() of an L2 result: the simulator at each draw's projected theta."""
-    theta = np.asarray(result.idata["posterior"]["theta"])
+def reproject(result, points: pd.DataFrame, draws: dict[str, np.ndarray], step: int = 1) -> dict[str, np.ndarray]:
+    """predict() of an L2 result: the simulator at each draw's projected theta
+    (every ``step``-th draw of each chain, as predict thinned them)."""
+    theta = np.asarray(result.idata["posterior"]["theta"])[:, ::step]
     f = simulator_of(result)(points, theta.reshape(-1, theta.shape[-1]))
     f = f.reshape(*draws["zeta_new"].shape)
     return {**draws, "f_new": f, "delta_new": draws["zeta_new"] - f}

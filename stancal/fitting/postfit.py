@@ -12,12 +12,14 @@ import numpy as np
 from stancal.results import diagnostics as sampler_checks
 from stancal.results import modes as mode_checks
 
+DRAWS_FILE = "posterior.nc"  # in a fit's out_dir
+
 
 def save_draws(result, out_dir: str | Path | None) -> None:
     """Write the result where the caller asked, if it asked (nothing after
     sampling may lose the draws)."""
     if out_dir is not None:
-        result.save(Path(out_dir) / "posterior.nc")
+        result.save(Path(out_dir) / DRAWS_FILE)
 
 
 def check_fit(result, *, theta_names: list[str], theta_widths: np.ndarray, log_density_functions,

@@ -11,29 +11,35 @@ from stancal.fitting.l2 import reproject
 from stancal.problem.codes import Likelihood
 from stancal.results.result import NEW_OBSERVATION, PREDICTED, interval_table
 from stancal.stan.backends import get_backend
-from stancal.stan.registry import program
 from stancal.stan.standata import build_stan_data, to_stan_json
 
 
 def predict(result, new_points: pd.DataFrame | None = None, *, backend: str | None = None,
-            seed: int = 1) -> pd.DataFrame:
+            seed: int = 1, max_draws: int | None = None) -> pd.DataFrame:
     """zeta (the real process), f(x, theta) and delta at ``new_points``
     (columns: simulator inputs and covariates), with 5/50/95 % quantiles,
     plus ``y`` with measurement noise. Without ``new_points``, the points
-    stored with the fit."""
+    stored with the fit. ``max_draws``: at new points, use every k-th draw
+    of each chain, at most this many in all (a figure's bands need a few
+    hundred; generated quantities cost a Stan call per draw)."""
+    step = 1  # every draw of each chain
     if new_points is None:
         draws = {k: np.asarray(v) for k, v in result.idata["predictions"].data_vars.items()}
         points = result.idata["predictions_constant_data"].to_dataset().to_dataframe()
         points = points.reset_index(drop=True)
     else:
         points = new_points.reset_index(drop=True)
-        stan_data = build_stan_data(result.data, program(result.method).data, result.options, points,
+        stan_data = build_stan_data(result.data, result.row.data, result.options, points,
                                     emulator_hyperparameters=result.emulator.get("hyperparameters"))
         params = {k: np.asarray(v) for k, v in result.idata["stan_parameters"].data_vars.items()}
+        if max_draws is not None:
+            chains, size = next(iter(params.values())).shape[:2]
+            step = -(-chains * size // max_draws)
+        params = {k: v[:, ::step] for k, v in params.items()}
         draws = get_backend(backend or result.backend).generate_quantities(
             result.program, to_stan_json(stan_data), params, seed)
         if result.l2:
-            draws = reproject(result, points, draws)
+            draws = reproject(result, points, draws, step)
     table = points.copy()
     for name in PREDICTED:
         values = draws[name].reshape(-1, len(points))
@@ -41,14 +47,15 @@ def predict(result, new_points: pd.DataFrame | None = None, *, backend: str | No
     if new_points is None and NEW_OBSERVATION in draws:  # drawn by the sampler's own RNG
         new_y = draws[NEW_OBSERVATION].reshape(-1, len(points))
     else:  # PyStan reruns generated quantities with one fixed RNG seed: draw the noise here
-        new_y = _observe(result, draws["zeta_new"].reshape(-1, len(points)), points, seed)
+        new_y = _observe(result, draws["zeta_new"].reshape(-1, len(points)), points, seed, step)
     return table.assign(**interval_table(new_y, "y"))
 
-def _observe(result, zeta: np.ndarray, points: pd.DataFrame, seed: int) -> np.ndarray:
-    """New observations given draws (samples, points) of the mean response."""
+def _observe(result, zeta: np.ndarray, points: pd.DataFrame, seed: int, step: int = 1) -> np.ndarray:
+    """New observations given draws (samples, points) of the mean response,
+    at every ``step``-th posterior draw of each chain."""
     rng = np.random.default_rng(seed)
     likelihood = result.data.observations.likelihood
-    posterior = result.idata["posterior"]
+    posterior = result.idata["posterior"].isel(draw=slice(None, None, step))
     if likelihood is Likelihood.POISSON:
         return rng.poisson(zeta).astype(float)
     if likelihood is Likelihood.NEGBINOMIAL:

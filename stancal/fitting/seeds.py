@@ -7,7 +7,9 @@ import hashlib
 
 import numpy as np
 
-MAX_SEED = 2**31 - 1  # Stan's seeds are unsigned 32-bit; PyStan's random_seed is a C int
+from stancal.problem.sampling import MAX_SEED
+
+__all__ = ["MAX_SEED", "command_seed", "fit_seed"]
 
 
 def command_seed(seed: int | None) -> int:

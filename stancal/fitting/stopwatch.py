@@ -4,6 +4,10 @@ from __future__ import annotations
 
 import time
 
+# the name of a command's compile stage when every program came from the
+# cache: its seconds are then installing them, not compiling
+COMPILED_EARLIER = "programs from the cache (compiled earlier)"
+
 
 class Stopwatch:
     """``lap(name)`` records the seconds since the previous lap (or the start)."""

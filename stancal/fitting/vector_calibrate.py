@@ -17,12 +17,14 @@ from stancal.fitting.inits import spread_theta_inits
 from stancal.fitting.plan import Plan, plan_vector
 from stancal.fitting.postfit import check_fit, save_draws
 from stancal.fitting.seeds import command_seed
+from stancal.fitting.simulator_check import check_simulator_at_start, explained
 from stancal.fitting.stage_one import run_stage_one
 from stancal.numerics.vector_emulator import VectorEmulator
 from stancal.problem.options import VectorOptions
+from stancal.problem.sampling import SamplerOptions
 from stancal.problem.vector_data import VectorCalibrationData
 from stancal.results.vector_result import VectorCalibrationResult, vector_datatree
-from stancal.stan.backends import get_backend
+from stancal.stan.backends import StanRuntimeError, get_backend
 from stancal.stan.standata import to_stan_json
 from stancal.stan.vector_standata import build_vector_stan_data, mean_terms
 
@@ -95,6 +97,7 @@ def calibrate_vector(
     ``program``: your copy of the method's program. ``new_rows``: where f,
     delta and zeta are drawn (default: prediction_rows). ``out_dir``: the
     posterior is written there as soon as sampling ends."""
+    SamplerOptions(chains, warmup, draws, seed, adapt_delta, max_treedepth)  # checked before anything else
     if plan is None:
         plan = plan_vector(data, simulator, method, VectorOptions(
             discrepancy, noise or ("known" if data.noise_sd else "one"), kernel, mean_formula, mean_intercept),
@@ -103,7 +106,7 @@ def calibrate_vector(
     seed = command_seed(seed)
     flat = plan.main_program()
     stan_backend = get_backend(backend)
-    stan_backend.compile([flat])
+    compile_s = stan_backend.compile([flat])  # 0.0: compiled earlier
     new_rows = prediction_rows(data) if new_rows is None else new_rows
     emulator = run_stage_one(row.stage_one, data, options, [flat], backend=stan_backend, seed=seed)
     stan_data = build_vector_stan_data(data, row.data, options, new_rows, emulator)
@@ -115,13 +118,19 @@ def calibrate_vector(
                 stan_data["E"], stan_data["N"], f", {stan_data['C']} components" if emulator else "",
                 chains, warmup, draws)
     stan_json = to_stan_json(stan_data)
-    sample = stan_backend.sample(flat, stan_json, inits=inits, chains=chains, warmup=warmup, draws=draws,
-                                 seed=seed, adapt_delta=adapt_delta, max_treedepth=max_treedepth)
+    # the simulator is called on each experiment's rows of (inputs, output index)
+    simulator, points = plan.simulator if row.simulator else None, data.physical[[*data.inputs, *data.output_index]]
+    check_simulator_at_start(stan_backend, flat, stan_json, inits, simulator, points)
+    try:
+        sample = stan_backend.sample(flat, stan_json, inits=inits, chains=chains, warmup=warmup, draws=draws,
+                                     seed=seed, adapt_delta=adapt_delta, max_treedepth=max_treedepth)
+    except StanRuntimeError as err:
+        raise explained(err, simulator, points) from None
     terms = mean_terms(data, options)
     tree = vector_datatree(sample.draws, sample.sample_stats, data, new_rows, stan_backend.parameter_names(flat),
                            options, terms, samples_emulator=row.samples_emulator, from_runs=row.runs)
     result = VectorCalibrationResult(tree, data, row.name, flat, stan_backend.name,
-                                     {"compile_s": sample.compile_seconds, "sample_s": sample.sample_seconds},
+                                     {"compile_s": compile_s, "sample_s": sample.load_seconds + sample.sample_seconds},
                                      options, emulator, terms)
     save_draws(result, out_dir)
     return check_fit(result, theta_names=data.theta_names,

@@ -3,15 +3,16 @@
 from __future__ import annotations
 
 import tomllib
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import pandas as pd
 
+from stancal.problem import config_schema
 from stancal.problem.candidates import Candidate, CandidateError
 from stancal.problem.data import CalibrationData
-from stancal.problem.options import ModelOptions, VectorOptions
+from stancal.problem.validation import DataError, read_table
 from stancal.problem.vector_data import VectorCalibrationData
 
 
@@ -25,32 +26,19 @@ class Problem:
     simulator: Path | None
     model: dict[str, Any] = field(default_factory=dict)
     candidates: list[Candidate] = field(default_factory=list)  # for `stancal gap`
+    units: dict[str, str] = field(default_factory=dict)  # [units]: column or parameter -> unit, for figures
 
 
 _OBSERVATION_KEYS = {"likelihood", "trials", "lower", "upper"}  # go to CalibrationData
-# [model]: the method, the user's copy of its program, and the options of the model (problem.options)
-_MODEL_KEYS = {"method", "program", *(f.name for f in fields(ModelOptions)), *_OBSERVATION_KEYS}
-_VARIANT_KEYS = {"stan", "inputs", "theta"}
-# the vector programs' discrepancy is an exact GP: no basis to set
-_VECTOR_MODEL_KEYS = {"method", "program", "variance_share", "components",
-                      *(f.name for f in fields(VectorOptions) if f.name != "basis_functions")}
 
 
 def _candidates(table: dict[str, Any], base: Path) -> list[Candidate]:
     """[candidates]: name = "formula", or a [candidates.NAME] table for a
     simulator variant (stan, inputs, theta) or a formula (formula)."""
     out = []
-    for name, spec in table.items():
-        where = f"[candidates.{name}]"
+    for name, spec in table.items():  # the schema checked their keys and types
         if isinstance(spec, str):
             spec = {"formula": spec}
-        if not isinstance(spec, dict):
-            raise ConfigError(f"candidate '{name}': give a formula string or a table; got {spec!r}")
-        allowed = {"formula"} if "formula" in spec else _VARIANT_KEYS
-        unknown = set(spec) - allowed
-        if unknown:
-            raise ConfigError(f"candidate '{name}': unknown key(s) {sorted(unknown)} in {where}; "
-                              f"known: {sorted(allowed)}")
         try:
             if "formula" in spec:
                 out.append(Candidate(name, formula=str(spec["formula"])))
@@ -69,10 +57,7 @@ def _candidates(table: dict[str, Any], base: Path) -> list[Candidate]:
 def _read_csv(path: Path, key: str) -> pd.DataFrame:
     if not path.is_file():
         raise ConfigError(f"{key}: file not found: {path}")
-    try:
-        return pd.read_csv(path)
-    except Exception as err:  # pandas raises many parser errors
-        raise ConfigError(f"{key}: cannot read {path} as CSV: {err}") from None
+    return read_table(path)  # its errors name the file and line
 
 
 def _require(table: dict, key: str, where: str) -> Any:
@@ -82,21 +67,30 @@ def _require(table: dict, key: str, where: str) -> Any:
 
 
 def load_config(path: str | Path) -> Problem:
+    """The problem a config states, checked against the schema first; every
+    error names the config file (and a data error the CSV and its lines)."""
     path = Path(path)
     try:
-        raw = tomllib.loads(path.read_text())
-    except FileNotFoundError:
+        raw = tomllib.loads(path.read_text(encoding="utf-8"))
+    except (FileNotFoundError, IsADirectoryError):
         raise ConfigError(f"config file not found: {path}") from None
-    except tomllib.TOMLDecodeError as err:
-        raise ConfigError(f"config {path}: not valid TOML: {err}") from None
-    base = path.parent
-    physical = raw.get("physical")
-    if physical is None:
-        raise ConfigError("config: missing the [physical] section")
-    simulator = raw.get("simulator")
-    if simulator is None:
-        raise ConfigError("config: missing the [simulator] section")
-    theta = _require(simulator, "theta", "simulator")
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as err:
+        raise ConfigError(f"{path}: not valid TOML: {err}") from None
+    problem = config_schema.check(raw)
+    if problem:
+        raise ConfigError(f"{path}: {problem}")
+    tables = ((raw["physical"], "csv"), (raw["simulator"], "runs"))
+    csvs = [str(path.parent / table[key]) for table, key in tables if key in table]
+    try:
+        return _problem(raw, path.parent)
+    except (ConfigError, DataError) as err:  # name the config, unless the message names a CSV of it
+        message = str(err).removeprefix("config: ")
+        raise type(err)(message if any(csv in message for csv in csvs) else f"{path}: {message}") from None
+
+
+def _problem(raw: dict[str, Any], base: Path) -> Problem:
+    physical, simulator = raw["physical"], raw["simulator"]  # the schema's check found both, and theta
+    theta = simulator["theta"]
     stan = base / simulator["stan"] if "stan" in simulator else None
     if stan is not None and not stan.is_file():
         raise ConfigError(f"simulator.stan: file not found: {stan}")
@@ -106,16 +100,11 @@ def load_config(path: str | Path) -> Problem:
     model = dict(raw.get("model", {}))
     if "output_index" in physical:
         return _vector_problem(physical, simulator, theta, runs, stan, model, raw, base)
-    unknown = set(model) - _MODEL_KEYS
-    if unknown:
-        raise ConfigError(f"config: unknown key(s) {sorted(unknown)} in [model]; known: {sorted(_MODEL_KEYS)}")
     if "program" in model:
         model["program"] = base / model["program"]
-    for key in ("functional", "functional_inputs"):
+    for key in ("functional", "functional_inputs"):  # one name or a list (the schema checked which)
         if isinstance(model.get(key), str):
             model[key] = [model[key]]
-        if key in model and not (isinstance(model[key], list) and all(isinstance(v, str) for v in model[key])):
-            raise ConfigError(f"config: [model] {key} must be a list of names; got {model[key]!r}")
     observation = {key: model.pop(key) for key in _OBSERVATION_KEYS if key in model}
     data = CalibrationData(
         _read_csv(base / _require(physical, "csv", "physical"), "physical.csv"),
@@ -127,16 +116,12 @@ def load_config(path: str | Path) -> Problem:
         **observation,
     )
     candidates = _candidates(raw.get("candidates", {}), base)
-    return Problem(data=data, simulator=stan, model=model, candidates=candidates)
+    return Problem(data=data, simulator=stan, model=model, candidates=candidates, units=dict(raw.get("units", {})))
 
 
 def _vector_problem(physical: dict, simulator: dict, theta: dict, runs: pd.DataFrame | None, stan: Path | None,
                     model: dict, raw: dict, base: Path) -> Problem:
     """A vector output ([physical] output_index): long tables, one row per value."""
-    unknown = set(model) - _VECTOR_MODEL_KEYS
-    if unknown:
-        raise ConfigError(f"config: unknown key(s) {sorted(unknown)} in [model] for a vector output; "
-                          f"known: {sorted(_VECTOR_MODEL_KEYS)}")
     if "program" in model:
         model["program"] = base / model["program"]
     basis = {k: model.pop(k) for k in ("variance_share", "components") if k in model}
@@ -149,4 +134,5 @@ def _vector_problem(physical: dict, simulator: dict, theta: dict, runs: pd.DataF
         theta=theta, theta_per_experiment=simulator.get("theta_per_experiment", {}),
         runs=runs, run=_require(simulator, "run", "simulator") if runs is not None else None,
         noise_sd=physical.get("noise_sd"), covariates=physical.get("covariates", []), **basis)
-    return Problem(data=data, simulator=stan, model=model, candidates=_candidates(raw.get("candidates", {}), base))
+    return Problem(data=data, simulator=stan, model=model, candidates=_candidates(raw.get("candidates", {}), base),
+                   units=dict(raw.get("units", {})))

@@ -11,7 +11,7 @@ import numpy as np
 import pandas as pd
 
 from stancal.problem.observations import LINKS, read_observations
-from stancal.problem.validation import DataError, numeric_values, require_whole
+from stancal.problem.validation import DataError, described, numeric_values, require_whole, source_file
 from stancal.problem.validation import row_labels as _rows
 
 
@@ -48,7 +48,7 @@ def numeric_columns(frame: pd.DataFrame, columns: Sequence[str], what: str) -> p
         bad = ~np.isfinite(values)
         if bad.any():
             raise DataError(
-                f"{what}: column '{column}' has NaN or inf in rows {_rows(bad, frame.index)}"
+                f"{what}: column '{column}' has NaN or inf in {_rows(bad, frame.index)}"
             )
         out[column] = values
     return pd.DataFrame(out, index=frame.index)
@@ -64,10 +64,10 @@ def _category_levels(frame: pd.DataFrame, column: str, what: str) -> list[str] |
     if numeric[~missing].all():
         return None
     if numeric.any():
-        raise DataError(f"{what}: column '{column}' mixes numbers and text; numbers in rows "
+        raise DataError(f"{what}: column '{column}' mixes numbers and text; numbers in "
                         f"{_rows(numeric, frame.index)}")
     if missing.any():
-        raise DataError(f"{what}: categorical column '{column}' is empty in rows {_rows(missing, frame.index)}")
+        raise DataError(f"{what}: categorical column '{column}' is empty in {_rows(missing, frame.index)}")
     return sorted(raw.astype(str).unique())
 
 
@@ -99,8 +99,8 @@ def require_runs_within_bounds(runs: pd.DataFrame, parameters: Sequence[Paramete
         values = runs[p.name].to_numpy()
         bad = (values < p.lower) | (values > p.upper)
         if bad.any():
-            raise DataError(f"simulator runs: column '{p.name}' lies outside its bounds [{p.lower}, {p.upper}] "
-                            f"in rows {_rows(bad, runs.index)}")
+            raise DataError(f"{described('simulator runs', runs)}: column '{p.name}' lies outside its bounds "
+                            f"[{p.lower}, {p.upper}] in {_rows(bad, runs.index)}")
 
 
 def warn_outside_runs(physical: pd.DataFrame, runs: pd.DataFrame, inputs: Sequence[str]) -> None:
@@ -111,8 +111,14 @@ def warn_outside_runs(physical: pd.DataFrame, runs: pd.DataFrame, inputs: Sequen
         outside = (values < lo) | (values > hi)
         if outside.any():
             warnings.warn(f"physical input '{column}' lies outside the simulator runs' range [{lo:g}, {hi:g}] "
-                          f"in rows {_rows(outside, physical.index)}; the emulator extrapolates there",
+                          f"in {_rows(outside, physical.index)}{_of_file(physical)}; the emulator extrapolates there",
                           InputRangeWarning, stacklevel=4)
+
+
+def _of_file(frame: pd.DataFrame) -> str:
+    """' of dir/physical.csv' after the lines of a table read from a file, else ''."""
+    source = source_file(frame.index)
+    return f" of {source}" if source else ""
 
 
 def one_hot_name(column: str, level: str) -> str:
@@ -191,21 +197,22 @@ class CalibrationData:
         self.parameters = parameters_from_bounds(theta)
         self._check_names()
         self.source = physical.copy()  # every column, for formulas over the physical data
-        self.levels = self._levels(physical, levels or {})
+        what = described("physical data", physical)  # with the file it was read from, if any
+        self.levels = self._levels(physical, levels or {}, what)
         numeric = [c for c in self.covariates if c not in self.levels]
-        require_columns(physical, [output], "physical data")
-        self.observations = read_observations(physical, output, likelihood, trials, lower, upper)
+        require_columns(physical, [output], what)
+        self.observations = read_observations(physical, output, likelihood, trials, lower, upper, what)
         self.observation_columns = {"likelihood": likelihood, "trials": trials, "lower": lower, "upper": upper}
         self.physical = pd.concat([
-            numeric_columns(physical, [*self.inputs, *numeric], "physical data"),
+            numeric_columns(physical, [*self.inputs, *numeric], what),
             pd.DataFrame({output: self.observations.value}, index=physical.index),
-            self.one_hot(physical)], axis=1)
+            self.one_hot(physical, what)], axis=1)
         if len(self.physical) < 3:
             raise DataError(
-                f"physical data: {len(self.physical)} rows; calibration needs at least 3"
+                f"{what}: {len(self.physical)} rows; calibration needs at least 3"
             )
         if np.ptp(self.observations.value[self.observations.observed]) == 0 and self.observations.is_gaussian:
-            raise DataError(f"physical data: output column '{output}' is constant")
+            raise DataError(f"{what}: output column '{output}' is constant")
         self.runs = None if runs is None else self._check_runs(runs)
         self.scaling = self._scaling()
 
@@ -235,11 +242,11 @@ class CalibrationData:
         """Columns of the discrepancy GP: simulator inputs, then covariates."""
         return [col for cols in self.discrepancy_variables.values() for col in cols]
 
-    def _levels(self, physical: pd.DataFrame, given: Mapping[str, Sequence[str]]) -> dict[str, list[str]]:
-        require_columns(physical, self.covariates, "physical data")
+    def _levels(self, physical: pd.DataFrame, given: Mapping[str, Sequence[str]], what: str) -> dict[str, list[str]]:
+        require_columns(physical, self.covariates, what)
         out = {}
         for column in self.covariates:
-            found = _category_levels(physical, column, "physical data")
+            found = _category_levels(physical, column, what)
             if found is not None:
                 out[column] = list(given.get(column, found))
         return out
@@ -253,7 +260,7 @@ class CalibrationData:
             values = frame[column].astype(str).to_numpy()
             unknown = ~np.isin(values, levels)
             if unknown.any():
-                raise DataError(f"{what}: column '{column}' has levels not in {levels} in rows "
+                raise DataError(f"{what}: column '{column}' has levels not in {levels} in "
                                 f"{_rows(unknown, frame.index)}")
             for level in levels:
                 columns[one_hot_name(column, level)] = (values == level).astype(float)
@@ -362,11 +369,12 @@ class CalibrationData:
             raise DataError(f"theta name(s) {clash} clash with data column names")
 
     def _check_runs(self, runs: pd.DataFrame) -> pd.DataFrame:
-        table = numeric_columns(runs, [*self.inputs, *self.theta_names, self.output], "simulator runs")
+        what = described("simulator runs", runs)
+        table = numeric_columns(runs, [*self.inputs, *self.theta_names, self.output], what)
         if len(table) < 3:
-            raise DataError(f"simulator runs: {len(table)} rows; an emulator needs at least 3")
+            raise DataError(f"{what}: {len(table)} rows; an emulator needs at least 3")
         if np.ptp(table[self.output].to_numpy()) == 0:
-            raise DataError(f"simulator runs: output column '{self.output}' is constant")
+            raise DataError(f"{what}: output column '{self.output}' is constant")
         self._check_runs_on_link_scale(table)
         require_runs_within_bounds(table, self.parameters)
         warn_outside_runs(self.physical, table, self.inputs)
@@ -378,7 +386,8 @@ class CalibrationData:
         values = table[self.output].to_numpy()
         bad = ~link.defined(values)
         if bad.any():
-            raise DataError(f"simulator runs: output column '{self.output}' must be {link.requirement}; rows "
+            raise DataError(f"{described('simulator runs', table)}: output column '{self.output}' must be "
+                            f"{link.requirement}; "
                             f"{_rows(bad, table.index)} hold {values[bad][:5].tolist()}")
 
     def runs_on_link_scale(self) -> np.ndarray:

@@ -91,7 +91,7 @@ def build_mean_terms(formula: str | None, physical: pd.DataFrame, intercept: boo
     center = np.where(intercept & (np.array(names) != "Intercept"), values.mean(axis=0), 0.0)
     scale = np.sqrt(np.mean((values - center) ** 2, axis=0))
     if (scale == 0).any():
-        flat = [n for n, s in zip(names, scale, strict=False) if s == 0]
+        flat = [n for n, s in zip(names, scale, strict=True) if s == 0]
         raise FormulaError(f"formula {formula!r}: term(s) {flat} are "
                            + ("constant at every physical point, which the constant term already is"
                               if intercept else "zero at every physical point"))

@@ -49,7 +49,7 @@ def _finite_or_empty(frame: pd.DataFrame, column: str, what: str) -> np.ndarray:
     """Numbers with NaN where empty (an open bound is an empty cell, not inf)."""
     values = numeric_values(frame, column, what)
     if np.isinf(values).any():
-        raise DataError(f"{what}: column '{column}' has inf in rows "
+        raise DataError(f"{what}: column '{column}' has inf in "
                         f"{_rows(np.isinf(values), frame.index)}; leave the cell empty instead")
     return values
 
@@ -134,11 +134,11 @@ def read_observations(frame: pd.DataFrame, output: str, likelihood: str = "gauss
         if unbounded.any():
             hint = ("give a lower or upper bound for a censored value, or drop the rows"
                     if lower or upper else "fill them, drop the rows, or name bound columns (lower/upper)")
-            raise DataError(f"{what}: output column '{output}' is empty in rows "
+            raise DataError(f"{what}: output column '{output}' is empty in "
                             f"{_rows(unbounded, frame.index)}; {hint}")
         crossed = empty & (low >= high)
         if crossed.any():
-            raise DataError(f"{what}: censored rows {_rows(crossed, frame.index)} have lower >= upper "
+            raise DataError(f"{what}: censored {_rows(crossed, frame.index)} have lower >= upper "
                             f"('{lower}' >= '{upper}'); an exact value belongs in '{output}'")
         censoring[empty & np.isneginf(low)] = Censoring.LEFT
         censoring[empty & np.isposinf(high)] = Censoring.RIGHT
@@ -152,14 +152,14 @@ def read_observations(frame: pd.DataFrame, output: str, likelihood: str = "gauss
                 above = value > 1
                 if above.any():
                     raise DataError(f"{what}: output column '{output}' must be 0 or 1 without a trials "
-                                    f"column; rows {_rows(above, frame.index)} exceed 1 "
+                                    f"column; {_rows(above, frame.index)} exceed 1 "
                                     "(name the trials column with trials = ...)")
             else:
                 n_trials = _finite_or_empty(frame, trials, what)
                 require_whole(n_trials, trials, frame.index, what, 1)
                 above = value > n_trials
                 if above.any():
-                    raise DataError(f"{what}: successes '{output}' exceed trials '{trials}' in rows "
+                    raise DataError(f"{what}: successes '{output}' exceed trials '{trials}' in "
                                     f"{_rows(above, frame.index)}")
     observed = censoring == Censoring.OBSERVED
     if observed.sum() < 2:

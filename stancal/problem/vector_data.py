@@ -21,7 +21,7 @@ from stancal.problem.data import (
     warn_outside_runs,
 )
 from stancal.problem.output_basis import DEFAULT_VARIANCE_SHARE, OutputBasis
-from stancal.problem.validation import DataError
+from stancal.problem.validation import DataError, described
 from stancal.problem.validation import row_labels as _rows
 
 
@@ -94,7 +94,7 @@ class VectorCalibrationData:
         self.source = physical.loc[self.physical.index].copy()  # every column, for formulas
         self.source[experiment] = self.physical[experiment]
         self.experiments = _constant_within(self.physical, experiment, [*self.inputs, *self.covariates],
-                                            "physical data", "experiment")
+                                            described("physical data", physical), "experiment")
         self.levels: dict[str, list[str]] = {}  # covariates are numeric (checked above)
         self.runs = None
         self.basis = None
@@ -202,19 +202,19 @@ class VectorCalibrationData:
             raise DataError(f"theta name(s) {clash} clash with a column or with each other")
 
     def _check_physical(self, physical: pd.DataFrame) -> pd.DataFrame:
-        what = "physical data"
+        what = described("physical data", physical)
         require_columns(physical, [self.experiment], what)
         values = [*self.inputs, *self.covariates, *self.output_index, self.output,
                   *([self.noise_sd] if self.noise_sd else [])]
         table = numeric_columns(physical, values, what)
         empty = physical[self.experiment].isna().to_numpy()
         if empty.any():
-            raise DataError(f"{what}: column '{self.experiment}' is empty in rows {_rows(empty, physical.index)}")
+            raise DataError(f"{what}: column '{self.experiment}' is empty in {_rows(empty, physical.index)}")
         table.insert(0, self.experiment, physical[self.experiment].astype(str))
         if self.noise_sd:
             bad = table[self.noise_sd].to_numpy() <= 0
             if bad.any():
-                raise DataError(f"{what}: column '{self.noise_sd}' (known noise sd) must be positive; rows "
+                raise DataError(f"{what}: column '{self.noise_sd}' (known noise sd) must be positive; "
                                 f"{_rows(bad, table.index)}")
         if len(table) < 3:
             raise DataError(f"{what}: {len(table)} rows; calibration needs at least 3")
@@ -223,7 +223,7 @@ class VectorCalibrationData:
     def _check_runs(self, runs: pd.DataFrame) -> tuple[pd.DataFrame, pd.DataFrame, np.ndarray, np.ndarray]:
         """The runs' table, one row of settings per run (inputs, every theta), their
         outputs (runs, K) on the shared grid (K, index columns)."""
-        what = "simulator runs"
+        what = described("simulator runs", runs)
         require_columns(runs, [self.run], what)
         every_theta = [p.name for p in self.all_parameters]
         table = numeric_columns(runs, [*self.inputs, *every_theta, *self.output_index, self.output], what)
@@ -253,12 +253,12 @@ class VectorCalibrationData:
             outside = (values < lo) | (values > hi)
             if outside.any():
                 experiments = sorted(self.physical.loc[outside, self.experiment].unique())[:5]
-                raise DataError(f"physical data: output index '{column}' lies outside the runs' range "
-                                f"[{lo:g}, {hi:g}] in rows {_rows(outside, self.physical.index)} "
+                raise DataError(f"{described('physical data', self.physical)}: output index '{column}' lies "
+                                f"outside the runs' range [{lo:g}, {hi:g}] in {_rows(outside, self.physical.index)} "
                                 f"(experiments {experiments}); the output basis cannot extrapolate")
         if len(self.output_index) > 1:  # inside each range but outside the grid's hull
             try:
                 self.basis.at(self.physical[self.output_index].to_numpy())
             except DataError as err:
-                raise DataError(f"physical data: {err}") from None
+                raise DataError(f"{described('physical data', self.physical)}: {err}") from None
 

@@ -10,6 +10,7 @@ from typing import Any
 import pandas as pd
 
 from stancal.diagnosing.compare import Comparison, discrepancy_rms
+from stancal.reporting.html import write_html
 from stancal.reporting.plots import finish, pyplot
 from stancal.results.summaries import band
 
@@ -19,7 +20,8 @@ def plot_comparison(comparison: Comparison, path: str | Path | None = None):
     plt = pyplot()
     fitted = [f for f in comparison.fits if f.result is not None]
     names = comparison.theta_names
-    fig, axes = plt.subplots(1, len(names) + 1, figsize=(3.6 * (len(names) + 1), 0.5 * len(fitted) + 2))
+    fig, axes = plt.subplots(1, len(names) + 1, figsize=(3.6 * (len(names) + 1), 0.5 * len(fitted) + 2),
+                             layout="constrained")
     rows = range(len(fitted))
     for ax, name in zip(axes, names, strict=False):
         for i, fit in enumerate(fitted):
@@ -33,7 +35,7 @@ def plot_comparison(comparison: Comparison, path: str | Path | None = None):
         q05, q50, q95 = size["q05"], size["q50"], size["q95"]
         ax.errorbar(q50, i, xerr=[[q50 - q05], [q95 - q50]], fmt="s", capsize=3, color="C3")
     ax.set_yticks(list(rows), [f.name for f in fitted])
-    ax.set_xlabel("discrepancy RMS over the input box")
+    ax.set_xlabel("discrepancy RMS over the input box (median, 90 %)")
     fig.suptitle("Calibration methods compared")
     return finish(fig, path)
 
@@ -51,6 +53,7 @@ def write_comparison(comparison: Comparison, folder: str | Path) -> dict[str, An
     figure = folder / "comparison.png"
     plot_comparison(comparison, figure)
     (folder / "report.md").write_text(_report(table, figure))
+    write_html(folder / "report.md")
     return summary
 
 

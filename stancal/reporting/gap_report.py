@@ -10,7 +10,9 @@ import numpy as np
 
 from stancal.diagnosing.gap import GapAnalysis
 from stancal.diagnosing.gap_location import GapLocation
-from stancal.reporting.plots import finish, pyplot
+from stancal.reporting.html import write_html
+from stancal.reporting.plots import LEVEL, finish, pyplot
+from stancal.reporting.series import axis_label
 
 
 def plot_importance(location: GapLocation, path: Path | None = None):
@@ -18,44 +20,55 @@ def plot_importance(location: GapLocation, path: Path | None = None):
     plt = pyplot()
     names = list(location.importance)
     est = [location.importance[v] for v in names]
-    fig, ax = plt.subplots(figsize=(5.5, 0.5 * len(names) + 1.4))
+    fig, ax = plt.subplots(figsize=(6.5, 0.5 * len(names) + 1.8), layout="constrained")
     y = np.arange(len(names))
     means = np.array([e["mean"] for e in est])
-    ax.barh(y, means, color="tab:orange", alpha=0.7)
+    ax.barh(y, means, color="tab:orange", alpha=0.7, label="posterior mean")
     ax.errorbar(means, y, xerr=[means - [e["q05"] for e in est], [e["q95"] for e in est] - means],
-                fmt="none", color="black", capsize=3)
+                fmt="none", color="black", capsize=3, label=f"{LEVEL} interval")
     ax.set_yticks(y, names)
     ax.invert_yaxis()
     ax.set_xlim(0, 1.05)
-    ax.set_xlabel("share of the discrepancy's variance involving the variable (total Sobol index)")
+    ax.set_xlabel("total Sobol index: share of the discrepancy's variance\ninvolving the variable")
+    ax.legend(fontsize=7, loc="lower right")
     ax.set_title("Where: what the gap depends on")
-    fig.tight_layout()
     return finish(fig, path)
 
 
-def plot_main_effects(location: GapLocation, path: Path | None = None):
-    """E[delta | variable] with its 90 % band; shaded where the band excludes 0."""
+def plot_main_effects(location: GapLocation, path: Path | None = None, units: dict[str, str] | None = None,
+                      output: str | None = None):
+    """E[delta | variable] with its 90 % band, one panel per variable (two or
+    three to a row); shaded red where the band excludes 0."""
     plt = pyplot()
     effects = list(location.main_effects.values())
-    fig, axes = plt.subplots(1, len(effects), figsize=(3.6 * len(effects), 3.2), squeeze=False,
-                             sharey=True)
-    for ax, effect in zip(axes[0], effects, strict=False):
+    columns = min(len(effects), 2 if len(effects) <= 4 else 3)
+    rows = -(-len(effects) // columns)
+    fig, axes = plt.subplots(rows, columns, figsize=(max(5.5, 4.2 * columns), 3.2 * rows + 0.5), squeeze=False,
+                             sharey=True, layout="constrained")
+    for ax, effect in zip(axes.ravel(), effects, strict=False):
         band = effect.band()
         if effect.categorical:
             x = np.arange(len(band))
             ax.errorbar(x, band["mean"], yerr=[band["mean"] - band.q05, band.q95 - band["mean"]],
-                        fmt="o", capsize=4)
+                        fmt="o", capsize=4, color="C0")
             ax.set_xticks(x, [str(v) for v in band.value])
         else:
-            ax.fill_between(band.value, band.q05, band.q95, alpha=0.3, label="90 % band")
-            ax.plot(band.value, band["mean"], label="mean")
+            ax.fill_between(band.value, band.q05, band.q95, alpha=0.3, color="C0", lw=0)
+            ax.plot(band.value, band["mean"], color="C0")
             for region in effect.regions():
-                ax.axvspan(region["from"], region["to"], color="tab:red", alpha=0.12)
+                ax.axvspan(region["from"], region["to"], color="tab:red", alpha=0.12, lw=0)
         ax.axhline(0, color="grey", lw=1)
-        ax.set_xlabel(effect.variable)
-    axes[0][0].set_ylabel("discrepancy (reality - simulator)")
-    fig.suptitle("Where: discrepancy along each variable (red: credibly non-zero)")
-    fig.tight_layout()
+        ax.set_xlabel(axis_label(effect.variable, units))
+    for ax in axes.ravel()[len(effects):]:
+        ax.set_visible(False)
+    unit = (units or {}).get(output or "")
+    for row in axes:
+        row[0].set_ylabel("discrepancy\n(reality − simulator)" + (f" [{unit}]" if unit else ""))
+    # one legend for every panel, with proxies
+    axes[0][0].fill_between([], [], color="C0", alpha=0.3, lw=0, label=f"mean and {LEVEL} band")
+    axes[0][0].axvspan(np.nan, np.nan, color="tab:red", alpha=0.12, label="band excludes 0")
+    axes[0][0].legend(fontsize=7)
+    fig.suptitle("Where: the discrepancy along each variable (the others averaged)", fontsize=10)
     return finish(fig, path)
 
 
@@ -65,7 +78,7 @@ def plot_candidates(summary: dict, path: Path | None = None):
     cands = summary["candidates"]
     names = [c["name"] for c in cands]
     y = np.arange(len(cands))
-    fig, (left, right) = plt.subplots(1, 2, figsize=(9, 0.5 * len(cands) + 1.6), sharey=True)
+    fig, (left, right) = plt.subplots(1, 2, figsize=(9, 0.5 * len(cands) + 1.8), sharey=True, layout="constrained")
     diff = np.array([c["elpd_diff"] for c in cands])
     left.errorbar(diff, y, xerr=2 * np.array([c["elpd_diff_se"] for c in cands]), fmt="o", capsize=3)
     left.axvline(0, color="grey", lw=1)
@@ -77,9 +90,8 @@ def plot_candidates(summary: dict, path: Path | None = None):
     right.errorbar(mean, y, xerr=[mean - [s["q05"] for s in shrink], [s["q95"] for s in shrink] - mean],
                    fmt="o", capsize=3, color="tab:green")
     right.axvline(0, color="grey", lw=1)
-    right.set_xlabel("shrinkage of the remaining discrepancy (90 %)")
+    right.set_xlabel(f"shrinkage of the remaining discrepancy ({LEVEL})")
     fig.suptitle("Which effect, and how far the gap shrinks")
-    fig.tight_layout()
     return finish(fig, path)
 
 
@@ -187,17 +199,19 @@ def report_markdown(summary: dict, figures: list[Path]) -> str:
     return "\n".join(lines)
 
 
-def write_gap_report(analysis: GapAnalysis, folder: str | Path) -> dict:
-    """gap.json, importance.png, where.png, candidates.png and report.md."""
+def write_gap_report(analysis: GapAnalysis, folder: str | Path, units: dict[str, str] | None = None) -> dict:
+    """gap.json, importance.png, where.png, candidates.png, report.md and
+    report.html. ``units``: name -> unit for the figures' axes."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     summary = analysis.to_json()
     (folder / "gap.json").write_text(json.dumps(summary, indent=2))
     figures = [folder / "importance.png", folder / "where.png"]
     plot_importance(analysis.location, figures[0])
-    plot_main_effects(analysis.location, figures[1])
+    plot_main_effects(analysis.location, figures[1], units, analysis.baseline.data.output)
     if summary["candidates"]:
         figures.append(folder / "candidates.png")
         plot_candidates(summary, figures[-1])
     (folder / "report.md").write_text(report_markdown(summary, figures))
+    write_html(folder / "report.md")
     return summary

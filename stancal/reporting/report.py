@@ -6,35 +6,48 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from stancal.reporting.html import write_html
 from stancal.results.vector_result import VectorCalibrationResult
 
 
-def write_calibration(result, folder: str | Path, warning_messages: list[str] | None = None) -> dict:
-    """summary.json, summary.csv, figures and report.md of one calibration,
-    in ``folder`` (made if missing). A vector-output result gets its curves
-    instead of the scalar figures.
+def write_calibration(result, folder: str | Path, warning_messages: list[str] | None = None,
+                      units: dict[str, str] | None = None) -> dict:
+    """summary.json, summary.csv, figures, report.md and report.html of one
+    calibration, in ``folder`` (made if missing). A vector-output result gets
+    its curves instead of the scalar figures.
 
     ``warning_messages`` are the warnings the report lists: by default the
     sampler's checks recorded on the result (``result.diagnostics.messages``);
-    the command line passes every stancal warning the fit raised."""
+    the command line passes every stancal warning the fit raised.
+    ``units``: name -> unit for the figures' axes (the config's [units])."""
     from stancal.reporting.plots import write_plots
 
     if isinstance(result, VectorCalibrationResult):
-        return write_vector_calibration(result, folder, warning_messages)
+        return write_vector_calibration(result, folder, warning_messages, units)
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     summary = result.to_summary_json()
     summary["warnings"] = _recorded(result) if warning_messages is None else list(warning_messages)
     (folder / "summary.json").write_text(json.dumps(summary, indent=2))
     result.summary().to_csv(folder / "summary.csv")
-    plots = write_plots(result, folder)
+    plots = write_plots(result, folder, units)
     (folder / "report.md").write_text(_report(summary, result.summary(), plots))
+    write_html(folder / "report.md")
     return summary
 
 
 def _recorded(result) -> list[str]:
     """The sampler's warnings kept on the result (none for a result without checks)."""
     return list(result.diagnostics.messages) if result.diagnostics else []
+
+
+def stage_times(timing: dict) -> str:
+    """The fit's stage times in words: its compile (or that the program was
+    compiled earlier, by another command or an earlier step), then sampling
+    (stage 1 included, and loading the program with the data)."""
+    compiled = (f"compile {timing['compile_s']:.1f} s" if timing["compile_s"] > 0
+                else "compiled earlier (the program came from the cache)")
+    return f"{compiled}, sampling {timing['sample_s']:.1f} s"
 
 
 def _parameters_and_sampler(summary: dict, table) -> list[str]:
@@ -50,7 +63,7 @@ def _parameters_and_sampler(summary: dict, table) -> list[str]:
         "", "## Sampler", "",
         (f"- divergences: {d['divergences']}; max R-hat {d['max_rhat']:.3f}; "
         f"min bulk ESS {d['min_ess_bulk']:.0f}; min tail ESS {d['min_ess_tail']:.0f}"),
-        f"- compile {summary['timing']['compile_s']:.1f} s, sampling {summary['timing']['sample_s']:.1f} s",
+        f"- {stage_times(summary['timing'])}",
         *(f"- **warning**: {w}" for w in summary.get("warnings", [])),
     ]
 
@@ -88,11 +101,12 @@ def _report(summary: dict, table, plots: list[Path]) -> str:
     return "\n".join(lines)
 
 
-def write_vector_calibration(result, folder: str | Path, warning_messages: list[str] | None = None) -> dict:
-    """summary.json, summary.csv, the curves per experiment and report.md
-    of one vector-output calibration, in ``folder`` (made if missing);
-    ``warning_messages`` as for :func:`write_calibration`."""
-    from stancal.reporting.plots import plot_vector_curves
+def write_vector_calibration(result, folder: str | Path, warning_messages: list[str] | None = None,
+                             units: dict[str, str] | None = None) -> dict:
+    """summary.json, summary.csv, the curves per experiment, report.md and
+    report.html of one vector-output calibration, in ``folder`` (made if
+    missing); ``warning_messages`` and ``units`` as for :func:`write_calibration`."""
+    from stancal.reporting.plots import plot_theta, plot_vector_curves
 
     folder = Path(folder)
     summary = result.to_summary_json()
@@ -101,13 +115,15 @@ def write_vector_calibration(result, folder: str | Path, warning_messages: list[
     (folder / "summary.json").write_text(json.dumps(summary, indent=2))
     table = result.summary()
     table.to_csv(folder / "summary.csv")
-    plot_vector_curves(result, folder / "curves.png")
+    plot_vector_curves(result, folder / "curves.png", units)
+    plot_theta(result, folder / "theta.png", units)
     basis = summary["basis"]
     lines = [
         f"# Calibration report ({summary['method']}, {summary['backend']})", "",
         *([f"Output basis: {basis['description']}; truncation error sd {basis['truncation_sd']:.3g}.", ""]
           if basis else ["The Stan simulator is evaluated at every measured value (no output basis).", ""]),
         *_parameters_and_sampler(summary, table),
-        "", "## Curves", "", "![curves per experiment](curves.png)", ""]
+        "", "## Figures", "", "![curves per experiment](curves.png)", "![theta](theta.png)", ""]
     (folder / "report.md").write_text("\n".join(lines))
+    write_html(folder / "report.md")
     return summary

@@ -20,7 +20,7 @@ def write_sbc_report(result: SBCResult, folder: str | Path) -> Path:
     names = list(result.tests)
     columns = min(4, len(names))
     rows = -(-len(names) // columns)
-    fig, axes = plt.subplots(rows, columns, figsize=(3.4 * columns, 2.8 * rows), squeeze=False)
+    fig, axes = plt.subplots(rows, columns, figsize=(3.4 * columns, 2.8 * rows), squeeze=False, layout="constrained")
     for ax, name in zip(axes.ravel(), names, strict=False):
         test = result.tests[name]
         ax.fill_between(test.grid, *test.band, color="grey", alpha=0.3, label=f"{test.level:.0%} band")
@@ -31,6 +31,5 @@ def write_sbc_report(result: SBCResult, folder: str | Path) -> Path:
     for ax in axes.ravel()[len(names):]:
         ax.set_visible(False)
     axes[0][0].set_ylabel("ECDF - uniform")
-    fig.tight_layout()
     finish(fig, folder / "ecdf.png")
     return folder / "sbc.json"

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import logging
 import warnings
 from dataclasses import asdict, dataclass, field
 from typing import TYPE_CHECKING
@@ -10,16 +9,18 @@ from typing import TYPE_CHECKING
 import numpy as np
 import xarray as xr
 
+from stancal.problem import advice
+
 if TYPE_CHECKING:  # annotations only: results do not depend on the model's options
     from stancal.problem.options import ModelOptions
 
-logger = logging.getLogger("stancal")
 
 
 class SamplerWarning(UserWarning):
     """The sampler did not explore the posterior reliably."""
 
 
+THETA_NAME_DIM = "theta_name"  # the dimensions whose coordinates are theta's names end so
 RHAT_LIMIT = 1.01
 ESS_PER_CHAIN = 100  # Vehtari et al. (2021): at least 100 bulk/tail ESS per chain
 
@@ -67,6 +68,19 @@ def _as_chains(posterior: xr.Dataset, chains: list[int]) -> xr.Dataset:
     return xr.concat([one.isel(draw=slice(0, half)), one.isel(draw=slice(half, 2 * half))], dim="chain")
 
 
+def component_name(da: xr.DataArray, flat: int) -> str:
+    """One component of a variable as the user names it: a theta by its own
+    name (``omega``), a per-experiment theta with its experiment
+    (``k[run 2]``), any other by its coordinates (``delta_length_scale[T]``)."""
+    index = np.unravel_index(flat, da.shape) if da.ndim else ()
+    labels = [(str(dim), str(da[dim].values[i]) if dim in da.coords else str(i))
+              for dim, i in zip(da.dims, index, strict=True)]
+    # a dimension of parameter names (results.result, results.vector_result) names the component itself
+    own = [label for dim, label in labels if dim.endswith(THETA_NAME_DIM)]
+    rest = [label for dim, label in labels if not dim.endswith(THETA_NAME_DIM)]
+    return (own[0] if own else str(da.name)) + (f"[{', '.join(rest)}]" if rest else "")
+
+
 def _extreme(ds: xr.Dataset, largest: bool) -> tuple[float, str]:
     """The largest (or smallest) value over every variable, and where it is."""
     best, where = (-np.inf if largest else np.inf), ""
@@ -77,7 +91,7 @@ def _extreme(ds: xr.Dataset, largest: bool) -> tuple[float, str]:
         i = int(np.argmax(values) if largest else np.argmin(values))
         value = values[i]
         if (value > best) if largest else (value < best):
-            best, where = float(value), name + (f"[{i}]" if values.size > 1 else "")
+            best, where = float(value), component_name(da.rename(name), i)
     return best, where
 
 
@@ -111,32 +125,36 @@ def check_sampler(posterior: xr.Dataset, sample_stats: xr.Dataset, max_treedepth
 
 
 def _messages(d: Diagnostics, chains: int, max_treedepth: int, bfmi: np.ndarray, several_modes: bool) -> list[str]:
-    """Each problem of the fit, with its numbers, where it is, and what to do."""
+    """Each problem of the fit, with its numbers, where it is, and what to do
+    (the options named as the reader writes them: stancal.problem.advice)."""
     messages = []
+    longer = 2 * d.draws // chains  # twice the draws per chain
     if d.divergences:
         messages.append(
             f"{d.divergences} of {d.draws} transitions diverged ({100 * d.divergences / d.draws:.1f} %): "
-            "the posterior has regions the sampler cannot follow. Raise adapt_delta "
-            "(e.g. 0.95 or 0.99), or rescale the problem; do not trust the draws near them."
+            f"the posterior has regions the sampler cannot follow. Raise the target acceptance "
+            f"({advice.option('adapt_delta', 0.95)} or 0.99), or rescale the problem; do not trust the draws "
+            "near them."
         )
     if d.max_rhat > RHAT_LIMIT:
         messages.append(
             f"R-hat up to {d.max_rhat:.3f} ({d.worst_rhat}) > {RHAT_LIMIT}: chains "
             + ("within a theta mode " if several_modes else "") + "disagree. "
-            "Run longer (more warmup and draws)"
-            + ("." if several_modes else "; if chains sit in different theta modes, see result.modes.")
+            f"Run longer ({advice.options(warmup=longer, draws=longer)})"
+            + ("." if several_modes else f"; if chains sit in different theta modes, see {advice.place('modes')}.")
         )
     min_ess = min(d.min_ess_bulk, d.min_ess_tail)
     if min_ess < ESS_PER_CHAIN * chains:
         messages.append(
             f"effective sample size down to {min_ess:.0f} ({d.worst_ess}; bulk {d.min_ess_bulk:.0f}, "
             f"tail {d.min_ess_tail:.0f}) < {ESS_PER_CHAIN * chains} ({ESS_PER_CHAIN} per chain): "
-            "intervals are imprecise. Draw more samples."
+            f"intervals are imprecise. Draw more samples ({advice.option('draws', longer)})."
         )
     if d.treedepth_hits:
         messages.append(
             f"{d.treedepth_hits} of {d.draws} transitions hit the maximum tree depth {max_treedepth}: "
-            "sampling was slow and may be incomplete. Raise max_treedepth or rescale."
+            f"sampling was slow and may be incomplete. Raise it ({advice.option('max_treedepth', max_treedepth + 2)})"
+            " or rescale the problem."
         )
     if d.low_bfmi_chains:
         messages.append(
@@ -148,8 +166,9 @@ def _messages(d: Diagnostics, chains: int, max_treedepth: int, bfmi: np.ndarray,
 
 
 def report(diagnostics: Diagnostics) -> None:
+    """Each message as a warning, once: the caller shows it (Python's warnings,
+    the command line's "warning:" lines, a fit runner naming the fit)."""
     for message in diagnostics.messages:
-        logger.warning(message)
         warnings.warn(message, SamplerWarning, stacklevel=3)
 
 
@@ -167,4 +186,5 @@ def parametrization_advice(options: ModelOptions, diagnostics: Diagnostics) -> l
     when = ("suits noisy or sparse data, which leave theta(x) loosely pinned" if other == "non_centred"
             else "suits data that pin theta(x) closely")
     return [(f"theta(x)'s latent GP was sampled {options.functional_parametrization}; if the trouble "
-            f"above involves theta_function_*, try functional_parametrization = \"{other}\" ({when}).")]
+            f"above involves theta_function_*, try "
+             f"{advice.config_key('model', 'functional_parametrization', other)} ({when}).")]

@@ -3,15 +3,13 @@ instead of reporting a blended mean."""
 
 from __future__ import annotations
 
-import logging
 import warnings
 from dataclasses import dataclass, replace
 
 import numpy as np
 
 from stancal.numerics.mode_mass import bridge_log_mass, mode_weights
-
-logger = logging.getLogger("stancal")
+from stancal.problem import advice
 
 
 class MultimodalWarning(UserWarning):
@@ -81,9 +79,9 @@ def find_modes(theta: np.ndarray, lp: np.ndarray, names: list[str],
         pooled = theta[members].reshape(-1, theta.shape[-1])
         modes.append(Mode(
             chains=members,
-            theta_mean=dict(zip(names, pooled.mean(0).tolist(), strict=False)),
-            theta_q05=dict(zip(names, np.quantile(pooled, 0.05, axis=0).tolist(), strict=False)),
-            theta_q95=dict(zip(names, np.quantile(pooled, 0.95, axis=0).tolist(), strict=False)),
+            theta_mean=dict(zip(names, pooled.mean(0).tolist(), strict=True)),
+            theta_q05=dict(zip(names, np.quantile(pooled, 0.05, axis=0).tolist(), strict=True)),
+            theta_q95=dict(zip(names, np.quantile(pooled, 0.95, axis=0).tolist(), strict=True)),
             mean_log_density=float(lp[members].mean()),
         ))
     return sorted(modes, key=lambda m: -m.mean_log_density)
@@ -105,7 +103,7 @@ def weigh(modes: list[Mode], unconstrained: np.ndarray, log_density, lp: np.ndar
     weights, low, high = mode_weights(masses, rng)
     weighed = [replace(mode, weight=float(w), weight_q05=float(lo), weight_q95=float(hi),
                        log_mass=m.log_mass, log_mass_se=m.log_mass_se)
-               for mode, w, lo, hi, m in zip(modes, weights, low, high, masses, strict=False)]
+               for mode, w, lo, hi, m in zip(modes, weights, low, high, masses, strict=True)]
     return sorted(weighed, key=lambda m: -m.weight)
 
 
@@ -149,8 +147,7 @@ def report(modes: list[Mode], weights_unavailable: str | None = None) -> None:
                    "necessarily the heaviest")
         message = (
             f"the chains found {len(modes)} separate theta modes: {describe(modes)}. {how}. "
-            "Summaries per mode are in result.summary(); more chains, or narrower theta bounds, "
+            f"Summaries per mode are in {advice.place('summary by mode')}; more chains, or narrower theta bounds, "
             "show whether there are modes no chain found."
         )
-        logger.warning(message)
         warnings.warn(message, MultimodalWarning, stacklevel=3)

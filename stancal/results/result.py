@@ -19,6 +19,7 @@ from stancal.results.diagnostics import Diagnostics
 from stancal.results.modes import Mode
 from stancal.results.summaries import band, summary_by_mode, theta_function_summary, theta_summary
 from stancal.stan.backends.base import Draws, SampleOutput
+from stancal.stan.registry import Program, program
 from stancal.stan.source import FlatProgram
 from stancal.stan.standata import EMULATOR_HYPERPARAMETERS, mean_terms_of
 
@@ -178,6 +179,14 @@ class CalibrationResult:
     emulator: dict[str, Any] = field(default_factory=dict)  # stage-1 results of modular
     # L2 calibration (l2.py): theta is the projection of each zeta draw; empty otherwise
     l2: dict[str, Any] = field(default_factory=dict)
+    # the registry row that ran: it travels with the result (to Dask workers, say), so a
+    # program registered in one process predicts in another; None for a result loaded from disk
+    registry_row: Program | None = None
+
+    @property
+    def row(self) -> Program:
+        """The registry row of the program that made this result."""
+        return self.registry_row or program(self.method)
 
     @property
     def estimator(self) -> str:
@@ -205,7 +214,7 @@ class CalibrationResult:
 
     # ---- prediction ------------------------------------------------------
     def predict(self, new_points: pd.DataFrame | None = None, *, backend: str | None = None,
-                seed: int = 1) -> pd.DataFrame:
+                seed: int = 1, max_draws: int | None = None) -> pd.DataFrame:
         """zeta (the real process), f(x, theta) and delta at ``new_points``
         (columns: simulator inputs and covariates), with 5/50/95 % quantiles,
         plus ``y`` with measurement noise. Without ``new_points``, the points
@@ -213,7 +222,7 @@ class CalibrationResult:
         # imported here: rerunning Stan at new points is fitting's job, and a result holds data only
         from stancal.fitting.predict import predict
 
-        return predict(self, new_points, backend=backend, seed=seed)
+        return predict(self, new_points, backend=backend, seed=seed, max_draws=max_draws)
 
     # ---- persistence -----------------------------------------------------
     def _metadata(self) -> dict[str, Any]:

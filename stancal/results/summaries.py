@@ -18,7 +18,7 @@ def band(draws: np.ndarray) -> dict[str, np.ndarray]:
     """Mean and quantiles over the first axis (the draws): keys mean, q05, q50, q95."""
     draws = np.asarray(draws, dtype=float)
     out = {"mean": draws.mean(0)}
-    for q, value in zip(QUANTILES, np.quantile(draws, QUANTILES, axis=0), strict=False):
+    for q, value in zip(QUANTILES, np.quantile(draws, QUANTILES, axis=0), strict=True):
         out[f"q{round(q * 100):02d}"] = value
     return out
 
@@ -89,7 +89,7 @@ def theta_summary(posterior: xr.Dataset, modes: list[Mode], theta_names: list[st
             label = f"theta[{name}]"
             out[name] = dict(zip(keys, [mean, sd, *weighted_quantiles(draws[:, j], weights, QUANTILES),
                                         max(float(t.loc[label, "rhat"]) for t in per_mode),
-                                        min(float(t.loc[label, "ess_bulk"]) for t in per_mode)], strict=False))
+                                        min(float(t.loc[label, "ess_bulk"]) for t in per_mode)], strict=True))
         return out
     if len(modes) > 1:  # masses unknown (see modes.report)
         posterior = posterior.isel(chain=modes[0].chains)

@@ -167,6 +167,11 @@ def default_program(output: str, *, simulator: bool) -> Program:
     return for_method("koh" if simulator else "koh_emulator" if output == "scalar" else "modular", output)
 
 
+def commands_taking(command: str, output: str) -> list[str]:
+    """The programs of an output kind that a command (gap, compare, sbc, l2) takes."""
+    return [p.name for p in PROGRAMS.values() if command in p.commands and p.output == output]
+
+
 def register(row: Program) -> Program:
     """Add a program (a user's copy of a shipped one, say) under a new name."""
     if row.name in PROGRAMS:

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import os
+import threading
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -19,6 +21,24 @@ def cache_root() -> Path:
     if os.environ.get("STANCAL_CACHE"):
         return Path(os.environ["STANCAL_CACHE"])
     return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "stancal"
+
+
+def end_when_orphaned(parent: int, every: float = 0.5, clean_up: Callable[[], None] | None = None) -> None:
+    """End this process within ``every`` seconds of its parent's end (the
+    process ``parent``, which started it), after ``clean_up``. A process
+    killed by a signal runs no clean-up, so what it started would otherwise
+    keep sampling and writing (a chain's process, a local Dask cluster's
+    scheduler and workers). A thread checks the parent: an orphan is handed
+    to another one."""
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(every)
+        if clean_up is not None:
+            clean_up()
+        os._exit(1)  # nothing else: this process's work belongs to a command that is gone
+
+    threading.Thread(target=watch, name="stancal-end-when-orphaned", daemon=True).start()
+
 
 # Stan's sampler columns -> ArviZ sample_stats names
 SAMPLER_STATS = {
@@ -62,7 +82,7 @@ class SampleOutput:
     draws: Draws
     sample_stats: Draws  # lp, diverging, tree_depth, n_steps, step_size, energy, ...
     max_treedepth: int
-    compile_seconds: float
+    load_seconds: float  # loading the compiled program with the data (compiling came before, in compile)
     sample_seconds: float
     messages: list[str] = field(default_factory=list)
 
@@ -74,10 +94,11 @@ class StanBackend(Protocol):
         """Raise StanProgramError, with the user's file and line, if stanc rejects the program."""
         ...
 
-    def compile(self, programs: list[FlatProgram]) -> None:
+    def compile(self, programs: list[FlatProgram]) -> float:
         """Compile the programs that are not compiled yet (each once, however
         often it is listed), in parallel over the machine's cores, so that the
-        fits after it start at once."""
+        fits after it start at once. Returns the seconds spent compiling:
+        0.0 when every program came from a cache (compiled earlier)."""
         ...
 
     def sample(
@@ -96,6 +117,14 @@ class StanBackend(Protocol):
 
     def parameter_names(self, program: FlatProgram) -> list[str]:
         """The names in the program's parameters block, read by stanc."""
+        ...
+
+    def start_error(self, program: FlatProgram, data: dict[str, Any],
+                    inits: list[dict[str, Any]] | None) -> str | None:
+        """Stan's message (with the user's files and lines) if the log density
+        fails at the first chain's start (its init, the other parameters
+        inside their constraints), else None: a check before sampling, on
+        the program already compiled."""
         ...
 
     def generate_quantities(

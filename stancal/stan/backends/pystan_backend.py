@@ -6,18 +6,37 @@ import contextlib
 import functools
 import json
 import logging
+import multiprocessing
+import os
+import signal
 import subprocess
-import sys
 import tempfile
 import time
 from collections.abc import Callable
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from stancal.stan.backends.base import SAMPLER_STATS, Draws, SampleOutput, StanRuntimeError, fresh_prediction_normals
-from stancal.stan.backends.pystan_compile import compile_programs, held_output, is_compiled, stanc
+from stancal.stan.backends.base import (
+    SAMPLER_STATS,
+    Draws,
+    SampleOutput,
+    StanRuntimeError,
+    end_when_orphaned,
+    fresh_prediction_normals,
+)
+from stancal.stan.backends.pystan_compile import (
+    STANC_TIMEOUT_S,
+    compile_programs,
+    ensure_private_httpstan_cache,
+    held_output,
+    program_file,
+    stanc,
+    stored_module,
+)
+from stancal.stan.progress import progress_lines, sampling_progress
 from stancal.stan.source import FlatProgram, StanProgramError
 
 logger = logging.getLogger("stancal")
@@ -39,7 +58,7 @@ def _by_variable(flat: np.ndarray, model, leading: tuple[int, ...]) -> Draws:
     Stan does) -> variable name -> (*leading, *its shape)."""
     out: Draws = {}
     offset = 0
-    for name, shape in zip(model.param_names, model.dims, strict=False):
+    for name, shape in zip(model.param_names, model.dims, strict=True):
         size = int(np.prod(shape))
         block = flat[:, offset : offset + size].reshape(*leading, *reversed(shape))
         n = len(leading)
@@ -52,15 +71,45 @@ def _interior_point(model) -> dict[str, Any]:
     """0.1 for every variable: inside every constraint stancal's programs use,
     the Hilbert-space programs' upper bounds on length scales (0.19 at the
     least) among them (transform_inits reads the parameters and ignores the rest)."""
-    return {name: np.full(dims, 0.1).tolist() for name, dims in zip(model.param_names, model.dims, strict=False)}
+    return {name: np.full(dims, 0.1).tolist() for name, dims in zip(model.param_names, model.dims, strict=True)}
+
+
+def _chain_process_started(parent: int) -> None:
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # as httpstan's: Ctrl-C is the command's to handle
+    end_when_orphaned(parent)
+
+
+_chain_pool: ProcessPoolExecutor | None = None
+
+
+def _chains_in_processes_that_end_with_this_one() -> None:
+    """httpstan samples each chain in a process forked from this one (its
+    services_stub.executor; a chain run in a thread of this process instead
+    crashed it, a segmentation fault with httpstan 4.17). Its processes outlive
+    this one when it is killed, and multiprocessing refuses them to a
+    daemonic process, such as a stock Dask worker (started by its nanny),
+    for that reason. The pool put in its place here is the same (forked, as
+    many at a time), so the draws are the same, but each of its processes
+    ends when this one does (end_when_orphaned), which is what the rule
+    protects: so a daemonic process may start them."""
+    global _chain_pool
+    import httpstan.services_stub
+
+    process = multiprocessing.current_process()
+    if process.daemon:
+        process.daemon = False
+    if _chain_pool is None or httpstan.services_stub.executor is not _chain_pool:
+        _chain_pool = ProcessPoolExecutor(mp_context=multiprocessing.get_context("fork"),
+                                          initializer=_chain_process_started, initargs=(os.getpid(),))
+        httpstan.services_stub.executor = _chain_pool
 
 
 @contextlib.contextmanager
-def _sampling_output(model_name: str):
-    """PyStan's sampling output, tamed. In a terminal its progress bar stays;
-    otherwise (a log file, CI) its line per progress step and Stan's
-    informational messages are held back (shown if sampling fails), stancal
-    logs one line per fit instead. httpstan keeps every seeded fit's draws in
+def _sampling_output(model_name: str, label: str, total: int):
+    """PyStan's sampling output, tamed. Its progress lines drive stancal's
+    progress (stancal.stan.progress: a bar on a terminal, a compact log
+    elsewhere); Stan's informational messages and what else it prints are
+    held back (shown if sampling fails). httpstan keeps every seeded fit's draws in
     its cache, gigabytes over time, and would serve the same draws again for
     the same seed and data: the fits made here are deleted once read."""
     import httpstan.cache
@@ -68,7 +117,7 @@ def _sampling_output(model_name: str):
     fits = httpstan.cache.model_directory(model_name) / "fits"
     before = set(fits.glob("*")) if fits.is_dir() else set()
     try:
-        with contextlib.nullcontext() if sys.stderr.isatty() else held_output():
+        with sampling_progress(label, total) as progress, held_output(descriptors=False), progress_lines(progress):
             yield
     finally:
         for path in (set(fits.glob("*")) if fits.is_dir() else set()) - before:
@@ -84,7 +133,8 @@ def _program_info(code: str) -> dict[str, Any]:
     with tempfile.TemporaryDirectory(prefix="stancal_") as folder:
         path = Path(folder) / "program.stan"
         path.write_text(code)
-        done = subprocess.run([str(stanc), "--info", str(path)], capture_output=True, text=True, timeout=60)
+        done = subprocess.run([str(stanc), "--info", str(path)], capture_output=True, text=True,
+                              timeout=STANC_TIMEOUT_S)
     if done.returncode != 0:
         raise StanProgramError(done.stderr.strip())
     return json.loads(done.stdout)
@@ -98,6 +148,7 @@ class PyStanBackend:
 
         # compiled here rather than by stan.build, whose HTTP request to httpstan
         # times out after 5 minutes: a compile can take longer on a busy 2-core machine
+        ensure_private_httpstan_cache()
         self.compile([program])
         try:
             with held_output():
@@ -107,10 +158,10 @@ class PyStanBackend:
         except RuntimeError as err:
             raise StanRuntimeError(program.explain(str(err))) from None
 
-    def compile(self, programs: list[FlatProgram]) -> None:
-        for program in {p.code: p for p in programs if not is_compiled(p.code)}.values():
+    def compile(self, programs: list[FlatProgram]) -> float:
+        for program in {p.code: p for p in programs if not stored_module(p.code).is_file()}.values():
             self.check(program, show_warnings=True)  # stanc's errors first, with the user's lines
-        compile_programs(programs)
+        return compile_programs(programs)
 
     @staticmethod
     def check(program: FlatProgram, show_warnings: bool = False) -> None:
@@ -127,6 +178,22 @@ class PyStanBackend:
 
     def parameter_names(self, program: FlatProgram) -> list[str]:
         return list(_program_info(program.code)["parameters"])
+
+    def start_error(self, program: FlatProgram, data: dict[str, Any],
+                    inits: list[dict[str, Any]] | None) -> str | None:
+        """In this process, through the compiled model's services module:
+        no HTTP round trip and none of httpstan's log lines."""
+        import httpstan.models
+
+        model = self._build(program, data, seed=1)
+        services = httpstan.models.import_services_extension_module(model.model_name)
+        point = _interior_point(model)
+        point.update(inits[0] if inits else {})
+        try:
+            services.log_prob(model.data, services.transform_inits(model.data, point), True)
+        except (RuntimeError, ValueError) as err:  # Stan's domain errors arrive as ValueError
+            return program.explain(str(err))
+        return None
 
     def sample(
         self,
@@ -150,8 +217,9 @@ class PyStanBackend:
         }
         if inits is not None:
             kwargs["init"] = inits
+        _chains_in_processes_that_end_with_this_one()
         try:
-            with _sampling_output(model.model_name):
+            with _sampling_output(model.model_name, f"sampling {program_file(program)}", chains * (warmup + draws)):
                 fit = model.sample(**kwargs)
         except RuntimeError as err:
             raise StanRuntimeError(self._explain_failure(model, program, inits, err)) from None
@@ -171,7 +239,7 @@ class PyStanBackend:
             draws=draws_out,
             sample_stats=stats,
             max_treedepth=max_treedepth,
-            compile_seconds=compiled - started,
+            load_seconds=compiled - started,
             sample_seconds=finished - compiled,
         )
 

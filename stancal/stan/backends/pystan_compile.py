@@ -12,6 +12,7 @@ version), and installs it into httpstan's cache on demand.
 
 from __future__ import annotations
 
+import atexit
 import contextlib
 import fcntl
 import hashlib
@@ -23,11 +24,12 @@ import subprocess
 import sys
 import tempfile
 import time
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import ThreadPoolExecutor, as_completed
 from importlib.machinery import EXTENSION_SUFFIXES
 from pathlib import Path
 
 from stancal.stan.backends.base import StanRuntimeError, cache_root
+from stancal.stan.progress import ticking
 from stancal.stan.source import FlatProgram
 
 logger = logging.getLogger("stancal")
@@ -160,33 +162,44 @@ def _install(code: str, module: Path) -> None:
 
 def build_into_store(code: str) -> Path:
     """The program's module in the machine's store, built if no process of
-    this machine built it before. Processes that ask at once (Dask workers,
-    two commands) take a lock per program: one builds, the others wait and
-    find it built."""
+    this machine built it before."""
+    build_if_absent(code)
+    return stored_module(code)
+
+
+def build_if_absent(code: str) -> bool:
+    """Build the program's module into the store unless it is there; True if
+    this process built it. Processes that ask at once (Dask workers, two
+    commands) take a lock per program: one builds, the others wait and find
+    it built."""
     stored = stored_module(code)
     if stored.is_file():
-        return stored
+        return False
     stored.parent.mkdir(parents=True, exist_ok=True)
     with open(stored.parent / f"{stored.name.split('.')[0]}.lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes
-        if not stored.is_file():
-            logger.info("building %s", stored.name)
-            with tempfile.TemporaryDirectory(dir=stored.parent) as folder:
-                built = _build_module(code, Path(folder))
-                os.replace(built, stored)  # atomic: a reader without the lock sees all or nothing
-    return stored
+        if stored.is_file():
+            return False
+        logger.info("building %s", stored.name)
+        with tempfile.TemporaryDirectory(dir=stored.parent) as folder:
+            built = _build_module(code, Path(folder))
+            os.replace(built, stored)  # atomic: a reader without the lock sees all or nothing
+    return True
 
 
 def use_private_httpstan_cache(folder: Path) -> None:
     """Give this process's httpstan a cache of its own. Processes that share
     one race: each deletes the fits that appeared while it sampled
     (_sampling_output), which may be another process's fit not read yet
-    ("Fit ... not found"). Modules still come from the machine's store, by
-    hard link, so nothing is compiled again."""
+    ("Fit ... not found"), and two fits with the same seed and data share
+    one name. Modules still come from the machine's store, by hard link, so
+    nothing is compiled again."""
     import httpstan.cache
 
+    global _private_folder
     folder.mkdir(parents=True, exist_ok=True)
     httpstan.cache.cache_directory = lambda: folder  # httpstan looks it up at every use
+    _private_folder = folder
 
 
 def release_private_httpstan_cache(folder: Path) -> None:
@@ -198,20 +211,74 @@ def release_private_httpstan_cache(folder: Path) -> None:
     shutil.rmtree(folder, ignore_errors=True)
 
 
+_private_folder: Path | None = None
+_held_lock = None  # this process's lock on its folder, held until it exits
+
+
+def _sweep_abandoned(root: Path) -> None:
+    """Remove the folders of processes that died without cleaning up (killed,
+    or out of memory): a folder whose lock no process holds."""
+    for lock_path in root.glob("*.lock"):
+        try:
+            if time.time() - lock_path.stat().st_mtime < 60:
+                continue  # perhaps made a moment ago, and not locked yet by its process
+        except FileNotFoundError:
+            continue  # another process swept it
+        with open(lock_path, "a") as lock:
+            try:
+                fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except OSError:
+                continue  # its process is alive
+            shutil.rmtree(lock_path.with_suffix(""), ignore_errors=True)
+            lock_path.unlink(missing_ok=True)
+
+
+def ensure_private_httpstan_cache() -> Path:
+    """This process's own httpstan cache, made on first use, so that any
+    number of stancal processes of one machine (commands, scripts, notebooks,
+    Dask workers) sample side by side without touching each other's fits.
+    The folder lives under the machine's cache, locked by this process while
+    it runs, and is removed at exit (or by the next process, after a kill)."""
+    global _held_lock
+    if _private_folder is not None:
+        return _private_folder
+    root = cache_root() / "pystan" / "processes"
+    root.mkdir(parents=True, exist_ok=True)
+    _sweep_abandoned(root)
+    folder = root / f"{os.getpid()}-{os.urandom(6).hex()}"
+    _held_lock = open(folder.with_suffix(".lock"), "w")  # held for the process's life
+    fcntl.flock(_held_lock, fcntl.LOCK_EX)
+    use_private_httpstan_cache(folder)
+    atexit.register(_remove_own_folder, folder, os.getpid())
+    return folder
+
+
+def _remove_own_folder(folder: Path, owner: int) -> None:
+    if os.getpid() == owner:  # not in a forked child (httpstan's sampling processes)
+        shutil.rmtree(folder, ignore_errors=True)
+        folder.with_suffix(".lock").unlink(missing_ok=True)
+        if _held_lock is not None:
+            _held_lock.close()
+
+
 @contextlib.contextmanager
-def held_output():
+def held_output(descriptors: bool = True):
     """Hold back what a build or a run prints: PyStan's stanc warnings about the flat
-    program (print) and g++'s pages of warnings (a subprocess writing to file
-    descriptors 1 and 2). Shown only if it fails."""
+    program and its messages while sampling (print, sys.stderr) and, with
+    ``descriptors``, g++'s pages of warnings (a subprocess writing to file
+    descriptors 1 and 2). Shown only if it fails. Sampling holds Python's
+    streams only, so that stancal's log lines (its progress among them) still
+    reach the terminal while a fit runs."""
     with tempfile.TemporaryFile(mode="w+b") as held, \
             contextlib.redirect_stdout(io.StringIO()) as printed, contextlib.redirect_stderr(printed):
-        saved = [os.dup(1), os.dup(2)]
+        fds = (1, 2) if descriptors else ()
+        saved = [os.dup(fd) for fd in fds]
         try:
-            for fd in (1, 2):
+            for fd in fds:
                 os.dup2(held.fileno(), fd)
             yield
         except Exception:
-            for fd, copy in zip((1, 2), saved, strict=False):
+            for fd, copy in zip(fds, saved, strict=True):
                 os.dup2(copy, fd)
             held.seek(0)
             tail = (printed.getvalue() + held.read().decode(errors="replace")).strip().splitlines()[-20:]
@@ -219,41 +286,58 @@ def held_output():
                 logger.warning("before failing, it printed:\n%s", "\n".join(tail))
             raise
         finally:
-            for fd, copy in zip((1, 2), saved, strict=False):
+            for fd, copy in zip(fds, saved, strict=True):
                 os.dup2(copy, fd)
                 os.close(copy)
 
 
-def _compile_in_subprocess(program: FlatProgram) -> None:
+def _compile_in_subprocess(program: FlatProgram) -> bool:
     """One build into the store in its own Python process (its g++ output held back), so
     that several run side by side; a subprocess rather than multiprocessing,
-    which would re-import the user's script in every worker."""
-    script = ("import sys; from stancal.stan.backends.pystan_compile import build_into_store; "
-              "build_into_store(sys.stdin.read())")
+    which would re-import the user's script in every worker. True if it built
+    the program, False if another process had built it meanwhile."""
+    script = ("import sys; from stancal.stan.backends.pystan_compile import build_if_absent; "
+              "print(int(build_if_absent(sys.stdin.read())))")
     done = subprocess.run([sys.executable, "-c", script], input=program.code, capture_output=True, text=True)
     if done.returncode != 0:
         tail = "\n".join((done.stdout + done.stderr).strip().splitlines()[-20:])
-        raise StanRuntimeError(f"compiling {program.origin[0][0] if program.origin else 'the program'} "
-                               f"failed:\n{tail}")
+        raise StanRuntimeError(f"compiling {program_file(program)} failed:\n{tail}")
+    return done.stdout.strip().splitlines()[-1] == "1"
 
 
-def compile_programs(programs: list[FlatProgram]) -> None:
-    """Compile (or fetch from the store) the programs httpstan lacks, one per core at a time."""
+def program_file(program: FlatProgram) -> str:
+    """The program's file name, for progress and messages."""
+    return Path(program.origin[0][0]).name if program.origin else "the program"
+
+
+def compile_programs(programs: list[FlatProgram]) -> float:
+    """Compile (or fetch from the store) the programs this process's httpstan
+    cache lacks, one per core at a time. Another process compiling the same
+    program at the same moment is waited for, not repeated. Returns the
+    seconds spent building: 0.0 when every program was built earlier."""
+    ensure_private_httpstan_cache()
     todo = {p.code: p for p in programs if not is_compiled(p.code)}
     if not todo:
-        return
+        return 0.0
     building = [p for p in todo.values() if not stored_module(p.code).is_file()]
     workers = max(1, min(len(building), os.cpu_count() or 1))
     if building:
         logger.warning("Compiling %d Stan program%s with PyStan, %d at a time (%s); each takes two to "
                        "four minutes on a 2-core machine, once per machine.",
                        len(building), "s" if len(building) > 1 else "", workers,
-                       ", ".join(Path(p.origin[0][0]).name if p.origin else "?" for p in building))
+                       ", ".join(program_file(p) for p in building))
     started = time.perf_counter()
-    with ThreadPoolExecutor(max_workers=workers) as pool:  # each thread waits on one subprocess
-        list(pool.map(_compile_in_subprocess, building))
-    for code in todo:  # into this process's httpstan cache, which may be private to it
+    names = [f"{program_file(p)} ({i + 1}/{len(building)})" for i, p in enumerate(building)]
+    built = {}  # program -> True if this process built it, False if another did meanwhile
+    with ticking(names) as done, ThreadPoolExecutor(max_workers=workers) as pool:  # a thread waits on a subprocess
+        builds = {pool.submit(_compile_in_subprocess, p): (p, name) for p, name in zip(building, names, strict=True)}
+        for build in as_completed(builds):
+            program, name = builds[build]
+            built[program_file(program)] = build.result()  # a failure is raised here
+            done(name)
+    for code in todo:  # into this process's httpstan cache
         _install(code, stored_module(code))
-    if building:
-        logger.info("compiled %d program%s in %.0f s", len(building), "s" if len(building) > 1 else "",
+    for name, here in built.items():
+        logger.info("%s %s in %.0f s", "compiled" if here else "another process compiled", name,
                     time.perf_counter() - started)
+    return time.perf_counter() - started if building else 0.0
