@@ -1,4 +1,4 @@
-"""The package's layout: the README lists every module, folders import only
+"""The package's layout: docs/architecture.md lists every module, folders import only
 from the folders before them in the flow, no module imports another's private
 name, and nothing outside the registry names a program."""
 
@@ -24,11 +24,11 @@ def _imports(path: Path) -> list[ast.ImportFrom]:
     return nodes
 
 
-def test_the_readme_lists_every_module():
-    layout = (ROOT / "README.md").read_text().split("## Layout", 1)[1]
+def test_the_architecture_page_lists_every_module():
+    layout = (ROOT / "docs" / "architecture.md").read_text().split("## The package", 1)[1]
     missing = [name for name, path in _modules().items()
                if path.name != "__init__.py" and f"`{path.name}`" not in layout]
-    assert not missing, f"README's layout leaves out {missing}"
+    assert not missing, f"docs/architecture.md's layout leaves out {missing}"
 
 
 def test_folders_import_only_from_earlier_folders_and_no_private_names():

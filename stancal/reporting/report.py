@@ -7,21 +7,38 @@ import json
 from pathlib import Path
 
 from stancal.reporting.html import write_html
+from stancal.results.vector_result import VectorCalibrationResult
 
 
-def write_calibration(result, folder: Path, warning_messages: list[str], units: dict[str, str] | None = None) -> dict:
+def write_calibration(result, folder: str | Path, warning_messages: list[str] | None = None,
+                      units: dict[str, str] | None = None) -> dict:
     """summary.json, summary.csv, figures, report.md and report.html of one
-    calibration. ``units``: name -> unit for the figures' axes (the config's [units])."""
+    calibration, in ``folder`` (made if missing). A vector-output result gets
+    its curves instead of the scalar figures.
+
+    ``warning_messages`` are the warnings the report lists: by default the
+    sampler's checks recorded on the result (``result.diagnostics.messages``);
+    the command line passes every stancal warning the fit raised.
+    ``units``: name -> unit for the figures' axes (the config's [units])."""
     from stancal.reporting.plots import write_plots
 
+    if isinstance(result, VectorCalibrationResult):
+        return write_vector_calibration(result, folder, warning_messages, units)
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
     summary = result.to_summary_json()
-    summary["warnings"] = warning_messages
+    summary["warnings"] = _recorded(result) if warning_messages is None else list(warning_messages)
     (folder / "summary.json").write_text(json.dumps(summary, indent=2))
     result.summary().to_csv(folder / "summary.csv")
     plots = write_plots(result, folder, units)
     (folder / "report.md").write_text(_report(summary, result.summary(), plots))
     write_html(folder / "report.md")
     return summary
+
+
+def _recorded(result) -> list[str]:
+    """The sampler's warnings kept on the result (none for a result without checks)."""
+    return list(result.diagnostics.messages) if result.diagnostics else []
 
 
 def stage_times(timing: dict) -> str:
@@ -84,14 +101,16 @@ def _report(summary: dict, table, plots: list[Path]) -> str:
     return "\n".join(lines)
 
 
-def write_vector_calibration(result, folder: Path, warning_messages: list[str],
+def write_vector_calibration(result, folder: str | Path, warning_messages: list[str] | None = None,
                              units: dict[str, str] | None = None) -> dict:
     """summary.json, summary.csv, the curves per experiment, report.md and
-    report.html of one vector-output calibration."""
+    report.html of one vector-output calibration, in ``folder`` (made if
+    missing); ``warning_messages`` and ``units`` as for :func:`write_calibration`."""
     from stancal.reporting.plots import plot_theta, plot_vector_curves
 
+    folder = Path(folder)
     summary = result.to_summary_json()
-    summary["warnings"] = warning_messages
+    summary["warnings"] = _recorded(result) if warning_messages is None else list(warning_messages)
     folder.mkdir(parents=True, exist_ok=True)
     (folder / "summary.json").write_text(json.dumps(summary, indent=2))
     table = result.summary()
