@@ -104,6 +104,10 @@ def _parser() -> argparse.ArgumentParser:
     cal.add_argument("--discrepancy", choices=list(DISCREPANCIES),
                      help="gp (KOH), orthogonal (Plumlee 2017), scaled (S-GaSP) or none; "
                           "default: the config's [model] discrepancy, else gp")
+    gap.add_argument("--discrepancy", choices=[d for d in DISCREPANCIES if d != "none"],
+                     help="the discrepancy every fit carries (the gap is measured in it): gp (KOH), orthogonal "
+                          "(Plumlee 2017) or scaled (S-GaSP, scalar outputs); default: the config's [model] "
+                          "discrepancy, else gp")
     comp.add_argument("--methods", nargs="+", choices=METHODS, default=list(METHODS), help="the methods compared")
     for command in (gap, comp, sbc):
         command.add_argument("--scheduler", default=None, metavar="ADDRESS",
@@ -139,6 +143,7 @@ def run_gap(args: argparse.Namespace) -> dict:
         warnings.simplefilter("always")
         analysis = diagnose_gap(problem.data, problem.candidates, simulator=problem.simulator,
                                 method=method, kernel=model.get("kernel", "se"),
+                                discrepancy=_gap_discrepancy(args, model),
                                 **({} if vector else {"approximation": args.approximation
                                                       or model.get("approximation", "auto")}),
                                 **sampler_options(args), backend=args.backend,
@@ -150,6 +155,14 @@ def run_gap(args: argparse.Namespace) -> dict:
     for message in _stancal_warnings(caught):
         print(f"warning: {message}", file=sys.stderr)
     return summary
+
+
+def _gap_discrepancy(args: argparse.Namespace, model: dict) -> str:
+    discrepancy = args.discrepancy or model.get("discrepancy", "gp")
+    if discrepancy == "none":
+        raise ConfigError("config: `stancal gap` measures the gap in the discrepancy: [model] discrepancy = "
+                          "'none' leaves none to measure; use gp, orthogonal or scaled")
+    return discrepancy
 
 
 def _scalar_only(problem, command: str) -> None:

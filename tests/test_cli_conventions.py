@@ -354,3 +354,31 @@ def test_main_leaves_the_callers_logging_as_it_was(tmp_path):
     before = logger.level
     assert main(["calibrate", str(tmp_path / "missing.toml"), "--out", str(tmp_path / "out")]) == 2
     assert logger.level == before
+
+
+def test_gap_takes_the_discrepancy_from_the_flag_or_the_config(tmp_path, monkeypatch, capsys):
+    """`stancal gap --discrepancy` (issue 29) reaches every fit's plan; without
+    it the config's [model] discrepancy does (gap ignored it before); 'none',
+    which leaves no gap to measure, is refused in one line."""
+    import stancal.diagnosing.gap
+    from stancal.cli import main
+
+    seen = []
+
+    def planned(data, candidates, **options):
+        seen.append(options["discrepancy"])
+        raise ValueError("stopped before sampling")
+
+    monkeypatch.setattr(stancal.diagnosing.gap, "diagnose_gap", planned)
+    config = COOLING / "config.toml"
+    assert main(["gap", str(config), "--out", str(tmp_path / "a"), "--discrepancy", "orthogonal"]) == 2
+    assert main(["gap", str(config), "--out", str(tmp_path / "b")]) == 2
+    assert seen == ["orthogonal", "gp"]
+    study = tmp_path / "study"
+    shutil.copytree(COOLING, study)
+    text = (study / "config.toml").read_text().replace('discrepancy = "gp"', 'discrepancy = "none"')
+    (study / "config.toml").write_text(text)
+    capsys.readouterr()
+    assert main(["gap", str(study / "config.toml"), "--out", str(tmp_path / "c")]) == 2
+    assert "leaves none to measure" in capsys.readouterr().err
+    assert seen == ["orthogonal", "gp"] and not (tmp_path / "c").exists()
