@@ -183,8 +183,15 @@ class PyStanBackend:
                     inits: list[dict[str, Any]] | None) -> str | None:
         """In this process, through the compiled model's services module:
         no HTTP round trip and none of httpstan's log lines."""
+        import threading
+
         import httpstan.models
 
+        if threading.current_thread() is not threading.main_thread():
+            # a Dask worker's thread: this call before sampling crashed stock workers (signal 11,
+            # httpstan 4.17, tests/test_cluster.py); there the sampler's own failure is explained
+            # instead (stancal.fitting.simulator_check.explained)
+            return None
         model = self._build(program, data, seed=1)
         services = httpstan.models.import_services_extension_module(model.model_name)
         point = _interior_point(model)
