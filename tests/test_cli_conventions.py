@@ -382,3 +382,16 @@ def test_gap_takes_the_discrepancy_from_the_flag_or_the_config(tmp_path, monkeyp
     assert main(["gap", str(study / "config.toml"), "--out", str(tmp_path / "c")]) == 2
     assert "leaves none to measure" in capsys.readouterr().err
     assert seen == ["orthogonal", "gp"] and not (tmp_path / "c").exists()
+
+
+def test_a_gap_in_a_discrepancy_that_cannot_take_the_covariates_stops_before_any_fit(tmp_path, capsys):
+    """The orthogonal discrepancy integrates over the simulator inputs' box: with
+    the cooling case's covariates, gap refuses it once, before compiling or
+    fitting (each fit failed on its own before)."""
+    from stancal.cli import main
+
+    assert main(["gap", str(COOLING / "config.toml"), "--out", str(tmp_path / "out"), "--discrepancy",
+                 "orthogonal", "--scheduler", "in-process"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "cannot take the covariates ['humidity', 'operator']" in err[0]
+    assert not (tmp_path / "out").exists()

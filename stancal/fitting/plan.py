@@ -111,6 +111,11 @@ def plan_scalar(data: CalibrationData, simulator: str | Path | None = None, meth
     base = _requested(data, simulator, None if l2 else method, "scalar")
     chosen = _latent_version(base, latent_reason(data, options), options) or _scalable_version(data, base, options)
     _check_options(chosen, options)
+    if (l2 or options.discrepancy in RESTRICTED_DISCREPANCIES) and data.covariates:
+        # both integrate over the box of the simulator's inputs (stancal.numerics.quadrature)
+        raise ValueError(f"{'method l2' if l2 else f'discrepancy {options.discrepancy!r}'} integrates over the "
+                         f"simulator inputs' box, so the discrepancy cannot take the covariates "
+                         f"{data.covariates}; leave them out of the data, or use discrepancy 'gp'")
     basis_given = bool(options.basis_functions)
     if chosen.approximation == "hsgp":
         options = replace(options, approximation="hsgp")
