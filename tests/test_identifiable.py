@@ -107,9 +107,9 @@ def _mode_nearest(comparison, theta_star):
     return mode.theta_mean["theta"], (mode.weight if len(result.modes) > 1 else 1.0)
 
 
+@pytest.mark.slow  # 95 s: the default run stays within 12 minutes; the five-seed study below holds the bar
 def test_tuo_wu_one_seed(tuo_wu_seed_1, theta_star):
-    """The default run's check of the review's example (the five-seed study is
-    slow): L2 within 0.12 of theta* (the estimator's own noise over seeds is
+    """One seed of the review's example (the five-seed study below): L2 within 0.12 of theta* (the estimator's own noise over seeds is
     about 0.04), and theta* among the orthogonal GP's modes with a real share
     of the mass."""
     assert_comparison_healthy(tuo_wu_seed_1)
