@@ -46,18 +46,9 @@ def pytest_xdist_make_scheduler(config, log):
     return ByGroup(config, log)
 
 
-# the groups that take longest (measured on the fresh-clone run), handed out first so that
-# the two workers finish together (longest-first scheduling); the others follow in file order
-LONGEST_FIRST = ("test_gap.py", "test_identifiable.py", "test_vector_outputs.py", "cooling_fits", "test_scale.py",
-                 "test_vector_koh.py", "test_cluster.py", "test_latent.py", "test_concurrency.py", "test_resume.py")
-
-
 def pytest_collection_modifyitems(items):
-    """Order the files longest first (see LONGEST_FIRST), and refuse to run
-    when files that read one session fit are in different worker groups:
-    each worker would make the fit again."""
-    rank = {group: i for i, group in enumerate(LONGEST_FIRST)}
-    items.sort(key=lambda item: rank.get(_group(item.path.name), len(rank)))  # stable: a file keeps its order
+    """Refuse to run when files that read one session fit are in different
+    worker groups: each worker would make the fit again."""
     for fit in SESSION_FITS:
         files = set()
         for item in items:
