@@ -165,7 +165,7 @@ def _gap_discrepancy(args: argparse.Namespace, model: dict) -> str:
     return discrepancy
 
 
-def _scalar_only(problem, command: str) -> None:
+def _require_command(problem, command: str) -> None:
     """Refuse an output kind none of whose programs the command takes (the
     registry's Program.commands)."""
     output = "vector" if isinstance(problem.data, VectorCalibrationData) else "scalar"
@@ -210,7 +210,7 @@ def run_compare(args: argparse.Namespace) -> dict:
     from stancal.reporting.compare_report import write_comparison
 
     problem = load_config(args.config)
-    _scalar_only(problem, "compare")
+    _require_command(problem, "compare")
     model = {k: v for k, v in problem.model.items() if k not in ("method", "discrepancy")}
     if args.approximation:
         model["approximation"] = args.approximation
@@ -236,7 +236,7 @@ def run_sbc(args: argparse.Namespace) -> dict:
     from stancal.reporting.sbc_report import write_sbc_report
 
     problem = load_config(args.config)
-    _scalar_only(problem, "sbc")
+    _require_command(problem, "sbc")
     model = {k: v for k, v in problem.model.items() if k != "approximation"}
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")

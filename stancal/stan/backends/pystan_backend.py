@@ -34,6 +34,7 @@ from stancal.stan.backends.pystan_compile import (
     held_output,
     program_file,
     stanc,
+    stanc_binary,
     stored_module,
 )
 from stancal.stan.progress import progress_lines, sampling_progress
@@ -127,13 +128,10 @@ def _sampling_output(model_name: str, label: str, total: int):
 @functools.cache
 def _program_info(code: str) -> dict[str, Any]:
     """stanc's --info on a program: its variables by block."""
-    import httpstan
-
-    stanc = Path(httpstan.__file__).parent / "stanc"
     with tempfile.TemporaryDirectory(prefix="stancal_") as folder:
         path = Path(folder) / "program.stan"
         path.write_text(code)
-        done = subprocess.run([str(stanc), "--info", str(path)], capture_output=True, text=True,
+        done = subprocess.run([str(stanc_binary()), "--info", str(path)], capture_output=True, text=True,
                               timeout=STANC_TIMEOUT_S)
     if done.returncode != 0:
         raise StanProgramError(done.stderr.strip())

@@ -160,13 +160,6 @@ def _install(code: str, module: Path) -> None:
         shutil.copy2(module, target)
 
 
-def build_into_store(code: str) -> Path:
-    """The program's module in the machine's store, built if no process of
-    this machine built it before."""
-    build_if_absent(code)
-    return stored_module(code)
-
-
 def build_if_absent(code: str) -> bool:
     """Build the program's module into the store unless it is there; True if
     this process built it. Processes that ask at once (Dask workers, two
