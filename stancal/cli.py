@@ -225,7 +225,7 @@ def run_compare(args: argparse.Namespace) -> dict:
         if fit.result is not None:
             write_calibration(fit.result, args.out / fit.name,
                               fit.result.diagnostics.messages if fit.result.diagnostics else [], problem.units)
-    summary = write_comparison(comparison, args.out)
+    summary = write_comparison(comparison, args.out, problem.units)
     for message in _stancal_warnings(caught):
         print(f"warning: {message}", file=sys.stderr)
     return summary

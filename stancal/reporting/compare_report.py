@@ -12,11 +12,16 @@ import pandas as pd
 from stancal.diagnosing.compare import Comparison, discrepancy_rms
 from stancal.reporting.html import write_html
 from stancal.reporting.plots import finish, pyplot
+from stancal.reporting.series import axis_label
 from stancal.results.summaries import band
 
 
-def plot_comparison(comparison: Comparison, path: str | Path | None = None):
-    """theta (median and 90 % interval) and discrepancy size per method."""
+def plot_comparison(comparison: Comparison, path: str | Path | None = None,
+                    units: dict[str, str] | None = None):
+    """theta (median and 90 % interval) and discrepancy size per method,
+    in the config's [units]."""
+    from matplotlib.ticker import MaxNLocator
+
     plt = pyplot()
     fitted = [f for f in comparison.fits if f.result is not None]
     names = comparison.theta_names
@@ -28,19 +33,25 @@ def plot_comparison(comparison: Comparison, path: str | Path | None = None):
             s = fit.result.theta_summary()[name]
             ax.errorbar(s["q50"], i, xerr=[[s["q50"] - s["q05"]], [s["q95"] - s["q50"]]], fmt="o", capsize=3)
         ax.set_yticks(list(rows), [f.name for f in fitted])
-        ax.set_xlabel(f"{name} (median, 90 %)")
+        ax.set_xlabel(f"{axis_label(name, units)}\nmedian and 90 % interval")
     ax = axes[-1]
     for i, fit in enumerate(fitted):
         size = band(discrepancy_rms(fit.result, comparison.quadrature))
         q05, q50, q95 = size["q05"], size["q50"], size["q95"]
         ax.errorbar(q50, i, xerr=[[q50 - q05], [q95 - q50]], fmt="s", capsize=3, color="C3")
     ax.set_yticks(list(rows), [f.name for f in fitted])
-    ax.set_xlabel("discrepancy RMS over the input box (median, 90 %)")
+    output = fitted[0].result.data.output if fitted else ""
+    ax.set_xlabel(axis_label("discrepancy RMS over the input box", {"discrepancy RMS over the input box":
+                                                                     (units or {}).get(output, "")})
+                  + "\nmedian and 90 % interval")
+    for ax in axes:  # a few ticks: theta's interval is narrow, and long tick labels run together
+        ax.xaxis.set_major_locator(MaxNLocator(4))
     fig.suptitle("Calibration methods compared")
     return finish(fig, path)
 
 
-def write_comparison(comparison: Comparison, folder: str | Path) -> dict[str, Any]:
+def write_comparison(comparison: Comparison, folder: str | Path,
+                     units: dict[str, str] | None = None) -> dict[str, Any]:
     """comparison.csv, comparison.json, comparison.png and report.md."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
@@ -51,7 +62,7 @@ def write_comparison(comparison: Comparison, folder: str | Path) -> dict[str, An
                "quadrature_nodes": len(comparison.quadrature.weights)}
     (folder / "comparison.json").write_text(json.dumps(summary, indent=2))
     figure = folder / "comparison.png"
-    plot_comparison(comparison, figure)
+    plot_comparison(comparison, figure, units)
     (folder / "report.md").write_text(_report(table, figure))
     write_html(folder / "report.md")
     return summary

@@ -23,7 +23,7 @@ def write_sbc_report(result: SBCResult, folder: str | Path) -> Path:
     fig, axes = plt.subplots(rows, columns, figsize=(3.4 * columns, 2.8 * rows), squeeze=False, layout="constrained")
     for ax, name in zip(axes.ravel(), names, strict=False):
         test = result.tests[name]
-        ax.fill_between(test.grid, *test.band, color="grey", alpha=0.3, label=f"{test.level:.0%} band")
+        ax.fill_between(test.grid, *test.band, color="grey", alpha=0.3)
         ax.plot(test.grid, test.ecdf_difference, color="tab:red" if test.rejected else "tab:blue")
         ax.axhline(0, color="black", lw=0.8)
         ax.set_title(f"{name} (p = {test.p_value:.2g})", fontsize=8)
@@ -31,5 +31,11 @@ def write_sbc_report(result: SBCResult, folder: str | Path) -> Path:
     for ax in axes.ravel()[len(names):]:
         ax.set_visible(False)
     axes[0][0].set_ylabel("ECDF - uniform")
+    level = next(iter(result.tests.values())).level if result.tests else 0.95
+    handles = [plt.Rectangle((0, 0), 1, 1, color="grey", alpha=0.3), plt.Line2D([], [], color="tab:blue"),
+               plt.Line2D([], [], color="tab:red")]
+    fig.legend(handles, [f"{level:.0%} simultaneous band of a uniform rank", "ranks consistent with uniform",
+                         f"uniformity rejected (p < {1 - level:.2g})"], loc="outside lower center", ncol=3,
+               fontsize=8)
     finish(fig, folder / "ecdf.png")
     return folder / "sbc.json"
