@@ -24,7 +24,7 @@ from stancal.problem.options import APPROXIMATIONS, DISCREPANCIES, EXACT_SIZE_LI
 from stancal.problem.sampling import NAMES as SAMPLER_NAMES
 from stancal.problem.sampling import SamplerOptions
 from stancal.problem.vector_data import VectorCalibrationData
-from stancal.reporting.report import write_calibration, write_vector_calibration
+from stancal.reporting.report import write_calibration
 from stancal.stan.backends import BACKENDS, StanRuntimeError, get_backend
 from stancal.stan.registry import L2, PROGRAMS, commands_taking, entry_methods, method_names
 from stancal.stan.source import FlatProgram, StanProgramError
@@ -149,8 +149,7 @@ def run_gap(args: argparse.Namespace) -> dict:
                                 **sampler_options(args), backend=args.backend,
                                 out_dir=args.out, kfold=args.kfold, scheduler=args.scheduler)
     summary = write_gap_report(analysis, args.out, problem.units)
-    write = write_vector_calibration if vector else write_calibration
-    write(analysis.baseline, args.out / "baseline",
+    write_calibration(analysis.baseline, args.out / "baseline",
           analysis.baseline.diagnostics.messages if analysis.baseline.diagnostics else [], problem.units)
     for message in _stancal_warnings(caught):
         print(f"warning: {message}", file=sys.stderr)
@@ -198,8 +197,7 @@ def run_calibrate(args: argparse.Namespace) -> dict:
         else:
             result = calibrate(problem.data, simulator=problem.simulator, method=args.method or configured_method,
                                **sampler, **model)
-    write = write_vector_calibration if vector else write_calibration
-    summary = write(result, args.out, _stancal_warnings(caught), problem.units)
+    summary = write_calibration(result, args.out, _stancal_warnings(caught), problem.units)
     for message in summary["warnings"]:
         print(f"warning: {message}", file=sys.stderr)
     return summary

@@ -93,10 +93,8 @@ def fit_curves(result, units: dict[str, str] | None = None) -> Curves:
     data = result.data
     along = along_input(data, result.options.functional_inputs)
     series = series_rows(data, along)
-    if len(data.discrepancy_inputs) == 1:
-        return Curves(along, result.predict().assign(series=0), [""], "", True)
-    if series is None:
-        return Curves(along, result.predict().assign(series=0), [""], "", False)
+    if len(data.discrepancy_inputs) == 1 or series is None:  # the fit's own grid, or the data points
+        return Curves(along, result.predict().assign(series=0), [""], "", len(data.discrepancy_inputs) == 1)
     grid = _grid(data, along, series)
     table = result.predict(grid.drop(columns="series"), max_draws=GRID_DRAWS).assign(series=grid["series"].to_numpy())
     return Curves(along, table, [_series_label(fixed, units) for fixed, _ in series], _held(data, along), True)

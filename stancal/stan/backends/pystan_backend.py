@@ -30,7 +30,6 @@ from stancal.stan.backends.base import (
 from stancal.stan.backends.pystan_compile import (
     STANC_TIMEOUT_S,
     compile_programs,
-    ensure_private_httpstan_cache,
     held_output,
     program_file,
     stanc,
@@ -146,8 +145,7 @@ class PyStanBackend:
 
         # compiled here rather than by stan.build, whose HTTP request to httpstan
         # times out after 5 minutes: a compile can take longer on a busy 2-core machine
-        ensure_private_httpstan_cache()
-        self.compile([program])
+        self.compile([program])  # into this process's own httpstan cache (compile_programs)
         try:
             with held_output():
                 return stan.build(program.code, data=data, random_seed=seed)
