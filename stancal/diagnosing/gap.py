@@ -7,7 +7,14 @@ the discrepancy mean as h(x, z)' beta beside the GP, or a simulator variant:
 another Stan ``simulator`` with extra parameters and possibly covariates as
 inputs. Every fit keeps the baseline's discrepancy inputs and a constant
 discrepancy mean, so the remaining discrepancies (GP plus constant) are
-comparable. Candidates are ranked by the ELPD difference to the baseline
+comparable; unless a calibration parameter already carries that level:
+under a log link a source strength that scales the simulator's output is a
+constant on the link scale, and trades with the constant along a ridge that
+NUTS walks at its maximum tree depth. Such a parameter is found before
+sampling (stancal.fitting.confounding) and the constant is then dropped
+from every fit alike, the candidates' terms staying centred, so the
+comparison stays fair: the parameter is the level in every fit. Candidates
+are ranked by the ELPD difference to the baseline
 (PSIS-LOO on the exact conditional, with exact refits where Pareto k is
 high, or K-fold).
 
@@ -52,6 +59,7 @@ from stancal.diagnosing.scoring import (
 )
 from stancal.fitting.calibrate import calibrate
 from stancal.fitting.cluster import FitFailure, FitRunner, FitTask, fit_runner
+from stancal.fitting.confounding import Confounding, resolve_confounding
 from stancal.fitting.plan import Plan, make_plan, model_keywords, plan_scalar
 from stancal.fitting.postfit import DRAWS_FILE
 from stancal.fitting.resume import Resume
@@ -96,6 +104,8 @@ class GapAnalysis:
     # wall-clock seconds of each stage: compile, fits, refits (K-fold or exact LOO), locate
     timing: dict[str, float] = field(default_factory=dict)
     failed: list[FitFailure] = field(default_factory=list)  # candidates left out: a fit failed twice
+    # theta confounded with the discrepancy mean's constant, found before sampling: every fit dropped it
+    confounding: list[Confounding] = field(default_factory=list)
 
     def to_json(self) -> dict[str, Any]:
         y = self.baseline.data.physical[self.baseline.data.output].to_numpy()
@@ -119,6 +129,7 @@ class GapAnalysis:
             "where": self.location.to_json(),
             "candidates": [],
             "failed": [{"name": f.name, "error": f.error} for f in self.failed],
+            "confounding": [c.to_json() for c in self.confounding],
             "timing": {k: round(v, 1) for k, v in self.timing.items()},
         }
         for fit in self.candidates:
@@ -276,7 +287,6 @@ def diagnose_gap(
     resume = Resume(out_dir, seed)  # a rerun into the same folder reuses the fits and refits it finished
     seed = resume.seed
     out = Path(out_dir) if out_dir is not None else None
-    task = functools.partial(_fit_task, vector=vector, plan=plan, seed=seed, sampling=calibrate_options)
     # a vector result cannot be read back from its files yet, so its fits always run
     run = functools.partial(resume.map, restore=_restored) if not vector else lambda runner, tasks: runner.map(tasks)
 
@@ -296,6 +306,9 @@ def diagnose_gap(
         compiled = runner.prepare([*plan.stan_programs(), *(variant_program(data, c, plan) for c in candidates
                                                             if c.kind == "variant")],
                                   calibrate_options.get("backend"))
+        # a theta that carries the constant's level: the constant leaves every fit alike (checked once, here)
+        plan, confounding = resolve_confounding(plan, data, stan_backend)
+        task = functools.partial(_fit_task, vector=vector, plan=plan, seed=seed, sampling=calibrate_options)
         clock.lap("compile" if compiled else COMPILED_EARLIER)
         fits = run(runner, [task(label_name(c), c, data_for(c),
                                  None if vector else data_for(c).source.reset_index(drop=True),
@@ -323,7 +336,7 @@ def diagnose_gap(
     ranked = sorted(
         (CandidateFit(c, r, s) for c, r, s in zip(labels[1:], fits[1:], scores[1:], strict=False)),
         key=lambda f: -(f.score.elpd_i - scores[0].elpd_i).sum())
-    return GapAnalysis(fits[0], scores[0], location, ranked, clock.laps, failed)
+    return GapAnalysis(fits[0], scores[0], location, ranked, clock.laps, failed, confounding)
 
 
 def _restored(task: FitTask, folder: Path, kept: None) -> CalibrationResult:

@@ -12,6 +12,7 @@ import numpy as np
 import pandas as pd
 
 from stancal.fitting.approximation_checks import check_basis, check_emulator_variance
+from stancal.fitting.confounding import resolve_confounding
 from stancal.fitting.inits import spread_theta_inits
 from stancal.fitting.l2 import l2_result
 from stancal.fitting.plan import Plan, model_options, plan_scalar
@@ -122,6 +123,7 @@ def calibrate(
     estimate_rho: bool = False,
     mean_formula: str | None = None,
     mean_intercept: bool = False,
+    mean_centred: bool = False,
     scaled_lambda: float | None = None,
     functional: tuple[str, ...] | list[str] = (),
     functional_inputs: tuple[str, ...] | list[str] = (),
@@ -164,7 +166,10 @@ def calibrate(
     koh_latent_emulator (runs).
     ``mean_formula``: terms h(x, z) of a discrepancy mean h' beta, a formula
     over the physical data's columns such as ``"I(v**2) + C(batch)"``;
-    ``mean_intercept`` adds a constant term ``Intercept``.
+    ``mean_intercept`` adds a constant term ``Intercept``; it is dropped when a
+    theta's effect on the link scale is a constant (a scale under a log link),
+    found before sampling (stancal.fitting.confounding), and the terms are
+    then ``mean_centred``: centred over the points as beside a constant.
     ``approximation``: exact (dense GPs), hsgp (for thousands of points and
     runs: a Hilbert-space discrepancy, Riutort-Mayol et al. 2023, and with
     runs a modular emulator of precomputed weights; programs koh_hsgp and
@@ -182,7 +187,7 @@ def calibrate(
     sampling = SamplerOptions(chains, warmup, draws, seed, adapt_delta, max_treedepth)
     options = model_options(discrepancy, kernel, estimate_rho, mean_formula, mean_intercept, scaled_lambda,
                             functional, functional_inputs, functional_parametrization, approximation,
-                            basis_functions, boundary_factor)
+                            basis_functions, boundary_factor, mean_centred)
     if plan is None:
         plan = plan_scalar(data, simulator, method, options, program)
     else:
@@ -190,6 +195,8 @@ def calibrate(
     programs = plan.stan_programs()
     stan_backend = get_backend(backend)
     compile_s = stan_backend.compile(programs)  # 0.0: compiled earlier
+    # theta against the model's own terms, on the compiled program, before any sampling
+    plan, confounding = resolve_confounding(plan, data, stan_backend)
     seed = command_seed(seed)
     new_points, fit_points, quadrature = _prediction_points(data, new_points, plan.l2)
     emulator = run_stage_one(plan.program.stage_one, data, plan.options, programs, backend=stan_backend,
@@ -216,4 +223,5 @@ def calibrate(
             lambda: stan_backend.log_density_functions(flat, fit.stan_json)),
         max_treedepth=max_treedepth, seed=seed,
         diagnosed=lambda names: [v for v in names if v in _DIAGNOSED or v in fit.parameter_names],
-        advice=lambda d: parametrization_advice(options, d) + messages, out_dir=out_dir)
+        advice=lambda d: [c.line() for c in confounding] + parametrization_advice(options, d) + messages,
+        out_dir=out_dir)

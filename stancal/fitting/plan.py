@@ -30,6 +30,8 @@ class Plan:
     user_program: Path | None = None
     l2: bool = False
     basis_given: bool = False  # the Hilbert-space basis is the user's: checked, never rebuilt
+    # theta checked against the model's own terms (stancal.fitting.confounding), once per plan
+    confounding_checked: bool = False
 
     @property
     def name(self) -> str:
@@ -58,14 +60,14 @@ def model_options(discrepancy: str | None = None, kernel: str = "se", estimate_r
                   mean_formula: str | None = None, mean_intercept: bool = False,
                   scaled_lambda: float | None = None, functional=(), functional_inputs=(),
                   functional_parametrization: str = "centred", approximation: str = "auto",
-                  basis_functions=(), boundary_factor=()) -> ModelOptions:
+                  basis_functions=(), boundary_factor=(), mean_centred: bool = False) -> ModelOptions:
     """calibrate()'s model keywords as ModelOptions; the discrepancy defaults
     to gp, or none with functional theta (flexible enough without one,
     review section 8.2)."""
     return ModelOptions("none" if discrepancy is None and functional else discrepancy or "gp", kernel,
                         estimate_rho, mean_formula, mean_intercept, scaled_lambda, tuple(functional),
                         tuple(functional_inputs), functional_parametrization, approximation,
-                        tuple(basis_functions), tuple(boundary_factor))
+                        tuple(basis_functions), tuple(boundary_factor), mean_centred)
 
 
 def make_plan(data: CalibrationData | VectorCalibrationData, simulator: str | Path | None = None,

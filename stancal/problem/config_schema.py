@@ -124,6 +124,8 @@ TABLES: tuple[Table, ...] = (
         Key("mean_formula", "string", "none", 'discrepancy mean terms over the physical columns, a formula '
             'such as "I(v**2)"'),
         Key("mean_intercept", "boolean", "false", "a constant term in the discrepancy mean"),
+        Key("mean_centred", "boolean", "false", "centre the mean terms without a constant term (set by "
+            "stancal when a theta carries the level: see the gap page)", SCALAR),
         Key("scaled_lambda", "number", "sqrt(N)", "the scaled GP's penalty lambda_z (discrepancy = "
             '"scaled")', SCALAR),
         Key("functional", "list of names (or one name)", "[]", "theta that vary over functional_inputs: "

@@ -70,10 +70,13 @@ class MeanTerms:
         return (values - self.center) / self.scale
 
 
-def build_mean_terms(formula: str | None, physical: pd.DataFrame, intercept: bool = False) -> MeanTerms:
+def build_mean_terms(formula: str | None, physical: pd.DataFrame, intercept: bool = False,
+                     centred: bool = False) -> MeanTerms:
     """Terms of ``formula``; categorical terms use treatment coding against
     their first level. Without ``intercept`` the GP carries the level; with
-    it, a constant term ``Intercept`` comes first (``formula`` may then be None)."""
+    it, a constant term ``Intercept`` comes first (``formula`` may then be None).
+    ``centred``: centre the terms as beside a constant, without one (a
+    calibration parameter carries the level: stancal.fitting.confounding)."""
     from formulaic import model_matrix
     from formulaic.errors import FormulaicError
 
@@ -88,11 +91,13 @@ def build_mean_terms(formula: str | None, physical: pd.DataFrame, intercept: boo
     if formula is not None and names in ([], ["Intercept"]):
         raise FormulaError(f"formula {formula!r} has no terms besides a constant")
     values = np.asarray(matrix[names], dtype=float)
-    center = np.where(intercept & (np.array(names) != "Intercept"), values.mean(axis=0), 0.0)
+    center = np.where((intercept or centred) & (np.array(names) != "Intercept"), values.mean(axis=0), 0.0)
     scale = np.sqrt(np.mean((values - center) ** 2, axis=0))
     if (scale == 0).any():
         flat = [n for n, s in zip(names, scale, strict=True) if s == 0]
         raise FormulaError(f"formula {formula!r}: term(s) {flat} are "
                            + ("constant at every physical point, which the constant term already is"
-                              if intercept else "zero at every physical point"))
+                              if intercept else "constant at every physical point, which the calibration "
+                              "parameter that carries the level already is" if centred
+                              else "zero at every physical point"))
     return MeanTerms(formula, names, center, scale, (values - center) / scale, matrix.model_spec)

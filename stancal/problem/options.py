@@ -33,6 +33,9 @@ class ModelOptions:
     # empty: chosen by stancal from the length scales, and checked after the fit
     basis_functions: tuple[int, ...] = ()
     boundary_factor: tuple[float, ...] = ()
+    # the mean terms centred over the physical points without a constant term: a theta carries
+    # the level (stancal.fitting.confounding dropped the constant it would trade with)
+    mean_centred: bool = False
 
     def __post_init__(self) -> None:
         # lists from a config or a saved result

@@ -184,6 +184,8 @@ def report_markdown(summary: dict, figures: list[Path]) -> str:
     base, cands = summary["baseline"], summary["candidates"]
     lines = [*_where_section(summary), "", "## Which effect explains it, and how far does the gap shrink?", "",
              *_which_section(base, cands)]
+    if summary.get("confounding"):
+        lines += ["", "Before sampling: " + "; ".join(c["message"] for c in summary["confounding"]) + "."]
     if summary.get("failed"):
         lines += ["", "Left out, their fit having failed twice: "
                   + "; ".join(f"{f['name']} ({f['error']})" for f in summary["failed"]) + "."]

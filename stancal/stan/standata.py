@@ -42,7 +42,8 @@ def default_new_points(data: CalibrationData, size: int = 60) -> pd.DataFrame:
 def mean_terms_of(data: CalibrationData, options: ModelOptions) -> MeanTerms | None:
     if options.mean_formula is None and not options.mean_intercept:
         return None
-    return build_mean_terms(options.mean_formula, data.source, intercept=options.mean_intercept)
+    return build_mean_terms(options.mean_formula, data.source, intercept=options.mean_intercept,
+                            centred=options.mean_centred)
 
 
 @dataclass(frozen=True)

@@ -119,6 +119,12 @@ class StanBackend(Protocol):
         """The names in the program's parameters block, read by stanc."""
         ...
 
+    def parameter_shapes(self, program: FlatProgram, data: dict[str, Any]) -> dict[str, tuple[int, ...]]:
+        """Each parameter's shape given the data (the data fix the sizes), in
+        the parameters block's order: what generated quantities need, for
+        draws stancal makes itself (stancal.fitting.confounding)."""
+        ...
+
     def start_error(self, program: FlatProgram, data: dict[str, Any],
                     inits: list[dict[str, Any]] | None) -> str | None:
         """Stan's message (with the user's files and lines) if the log density

@@ -106,6 +106,15 @@ class CmdStanPyBackend:
     def parameter_names(self, program: FlatProgram) -> list[str]:
         return list(self._model(program).src_info()["parameters"])
 
+    def parameter_shapes(self, program: FlatProgram, data: dict[str, Any]) -> dict[str, tuple[int, ...]]:
+        # CmdStan reports the sizes only with values: one fixed-parameter iteration at its default inits
+        fit = self._model(program).sample(data=data, fixed_param=True, chains=1, iter_warmup=0,
+                                          iter_sampling=1, seed=1, show_progress=False)
+        values = fit.stan_variables()
+        # a parameter of size zero has no column, so no value
+        return {name: np.shape(values[name])[1:] if name in values else (0,)
+                for name in self.parameter_names(program)}
+
     def generate_quantities(
         self, program: FlatProgram, data: dict[str, Any], parameters: Draws, seed: int
     ) -> Draws:

@@ -175,6 +175,11 @@ class PyStanBackend:
     def parameter_names(self, program: FlatProgram) -> list[str]:
         return list(_program_info(program.code)["parameters"])
 
+    def parameter_shapes(self, program: FlatProgram, data: dict[str, Any]) -> dict[str, tuple[int, ...]]:
+        model = self._build(program, data, seed=1)
+        shapes = dict(zip(model.param_names, model.dims, strict=True))  # every variable of the program
+        return {name: tuple(shapes[name]) for name in self.parameter_names(program)}
+
     def start_error(self, program: FlatProgram, data: dict[str, Any],
                     inits: list[dict[str, Any]] | None) -> str | None:
         """In this process, through the compiled model's services module:

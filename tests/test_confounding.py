@@ -1,0 +1,163 @@
+"""Confounding between theta and the model's own terms, found before
+sampling (stancal.fitting.confounding): the share of a theta's link-scale
+sensitivity that a constant (or rho * f) explains, and what the calibration
+and the gap diagnosis do about it, on a log-link problem with a scale
+parameter: counts ~ Poisson(S exp(-mu s))."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+from conftest import ROOT, assert_healthy, fit
+
+import stancal
+from stancal.diagnosing.gap import diagnose_gap
+from stancal.fitting.cluster import IN_PROCESS, FitRunner
+from stancal.fitting.confounding import (
+    SHARE_LIMIT,
+    explained_share,
+    find_confounding,
+    link_sensitivity,
+    resolve_confounding,
+    theta_design,
+)
+from stancal.fitting.plan import model_options, plan_scalar
+from stancal.problem.candidates import Candidate
+from stancal.stan.backends import get_backend
+from stancal.stan.standata import mean_terms_of
+
+SOURCE = ROOT / "tests" / "stan" / "source_attenuation.stan"
+THICKNESS = np.repeat(np.arange(0.0, 8.0, 0.5), 2)  # cm: 32 points, two counts each
+S_TRUE, MU_TRUE = 500.0, 0.35
+BOX = {"S": (100.0, 1000.0), "mu": (0.05, 1.0)}
+
+
+def source_counts(seed: int = 3) -> stancal.CalibrationData:
+    """Counts from the simulator itself, with a recorded covariate (pressure)
+    that plays no part: a formula candidate for the gap."""
+    rng = np.random.default_rng(seed)
+    frame = pd.DataFrame({"s": THICKNESS, "pressure": 1016 + 5 * rng.standard_normal(THICKNESS.size),
+                          "counts": rng.poisson(S_TRUE * np.exp(-MU_TRUE * THICKNESS))})
+    return stancal.CalibrationData(frame, ["s"], "counts", BOX, likelihood="poisson")
+
+
+# ---- the measure, numpy only ------------------------------------------------
+
+def test_a_scaling_theta_is_all_constant_and_an_attenuation_is_not():
+    """log(S exp(-mu s)) = log S - mu s: d/dS = 1/S at every point (share 1),
+    d/dmu = -s, whose share is mean(s)^2 / mean(s^2) (0.74 here)."""
+    lower, upper = np.array([100.0, 0.05]), np.array([1000.0, 1.0])
+
+    def log_counts(theta_unit):
+        S, mu = (lower + theta_unit * (upper - lower)).T
+        return np.log(S[:, None]) - mu[:, None] * THICKNESS[None]
+
+    _, sensitivity = link_sensitivity(log_counts, theta_design(8, 2))
+    share = explained_share(sensitivity, np.ones((THICKNESS.size, 1)))
+    assert np.allclose(share[:, 0], 1.0, atol=1e-9)
+    expected_mu = THICKNESS.mean() ** 2 / np.mean(THICKNESS**2)
+    assert np.allclose(share[:, 1], expected_mu, atol=1e-6) and expected_mu < SHARE_LIMIT
+
+
+def test_a_scale_on_the_identity_link_is_rho_not_the_constant():
+    """f = S exp(-mu s) on the identity link: d/dS = f / S, all of it
+    explained by the column f (rho's), a fraction of it by a constant."""
+    f = 500 * np.exp(-0.35 * THICKNESS)
+    sensitivity = (f / 500)[None, :, None]
+    assert explained_share(sensitivity, f[:, None])[0, 0] == pytest.approx(1.0, abs=1e-12)
+    assert explained_share(sensitivity, np.ones((f.size, 1)))[0, 0] < 0.7
+
+
+def test_a_theta_without_effect_is_not_called_confounded():
+    share = explained_share(np.zeros((1, 5, 1)), np.ones((5, 1)))
+    assert np.isnan(share).all()
+
+
+# ---- through the compiled program, before sampling --------------------------
+
+@pytest.fixture(scope="module")
+def source_plan():
+    data = source_counts()
+    plan = plan_scalar(data, SOURCE, None, model_options(mean_intercept=True, mean_formula="pressure"))
+    backend = get_backend(None)
+    backend.compile(plan.stan_programs())
+    return data, plan, backend
+
+
+def test_detection_names_the_source_strength_and_not_the_attenuation(source_plan):
+    data, plan, backend = source_plan
+    found = find_confounding(plan, data, backend)
+    assert [(c.theta, c.term) for c in found] == [("S", "constant")]
+    assert found[0].share == pytest.approx(1.0, abs=1e-6)
+
+
+def test_the_plan_drops_the_constant_and_keeps_the_terms_centred(source_plan):
+    data, plan, backend = source_plan
+    resolved, found = resolve_confounding(plan, data, backend)
+    assert resolved.options.mean_intercept is False and resolved.options.mean_centred is True
+    assert resolved.confounding_checked and found[0].dropped
+    assert "S" in found[0].line() and "dropped" in found[0].line()
+    terms = mean_terms_of(data, resolved.options)
+    assert terms.names == ["pressure"] and abs(terms.h.mean()) < 1e-12  # centred: no level left in it
+    again, none = resolve_confounding(resolved, data, backend)  # checked once per plan
+    assert again == resolved and none == []
+
+
+class _Stop(Exception):
+    pass
+
+
+class _RecordingRunner(FitRunner):
+    """Compiles as the gap's runner does, records the fits it is given, and
+    stops there: the gap's plan without sampling."""
+
+    def __init__(self):
+        super().__init__(IN_PROCESS, progress=False)
+        self.tasks = []
+
+    def map(self, tasks):
+        self.tasks += tasks
+        raise _Stop
+
+
+def test_every_gap_fit_drops_the_constant_alike(source_plan, tmp_path):
+    data, _, _ = source_plan
+    runner = _RecordingRunner()
+    with pytest.raises(_Stop):
+        diagnose_gap(data, [Candidate("pressure", formula="pressure")], simulator=SOURCE,
+                     scheduler=runner, chains=2, warmup=100, draws=100, seed=1)
+    plans = [task.kwargs["plan"] for task in runner.tasks]
+    assert len(plans) == 2  # the baseline and the candidate
+    assert all(not p.options.mean_intercept and p.options.mean_centred and p.confounding_checked for p in plans)
+    assert plans[1].options.mean_formula == "pressure"
+
+
+@pytest.mark.parametrize("form", ["orthogonal", "scaled"])
+def test_the_restricted_discrepancies_keep_the_constant_beside_them(form, source_plan):
+    """The restriction is on the GP part only, so the mean's terms trade with
+    theta as beside the plain GP. On the identity link S scales f: it is
+    not a constant there, but with the constant it is rho's direction."""
+    data, _, backend = source_plan
+    gaussian = stancal.CalibrationData(data.source.assign(counts=data.source["counts"].astype(float)), ["s"],
+                                       "counts", BOX)
+    plan = plan_scalar(gaussian, SOURCE, None, model_options(discrepancy=form, mean_intercept=True,
+                                                            estimate_rho=True))
+    backend.compile(plan.stan_programs())
+    found = {(c.theta, c.term): c.share for c in find_confounding(plan, gaussian, backend)}
+    assert list(found) == [("S", "rho")]  # S scales f: rho's column; no theta is a constant here
+    assert found["S", "rho"] > 0.999
+
+
+# ---- the sampler, before and after ------------------------------------------
+
+def test_the_source_strength_no_longer_saturates_the_tree_depth():
+    """Without the constant, S carries the level and the fit is healthy
+    (2 x (200 + 200)); with it (mean_intercept = True on the code before
+    this check) most transitions hit the maximum tree depth."""
+    result = fit(source_counts(), simulator=SOURCE, mean_intercept=True, warmup=200, draws=200)
+    assert not result.options.mean_intercept and result.options.mean_centred
+    assert any("S's effect on the link scale is constant" in m for m in result.diagnostics.messages)
+    assert_healthy(result)
+    S = result.theta_summary()["S"]
+    assert S["q05"] < S_TRUE < S["q95"]
