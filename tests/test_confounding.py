@@ -18,6 +18,7 @@ from stancal.diagnosing.gap import diagnose_gap
 from stancal.fitting.cluster import IN_PROCESS, FitRunner
 from stancal.fitting.confounding import (
     SHARE_LIMIT,
+    ConfoundingWarning,
     explained_share,
     find_confounding,
     link_sensitivity,
@@ -149,6 +150,17 @@ def test_the_restricted_discrepancies_keep_the_constant_beside_them(form, source
     found = {(c.theta, c.term): c.share for c in find_confounding(plan, gaussian, backend)}
     assert list(found) == [("S", "rho")]  # S scales f: rho's column; no theta is a constant here
     assert found["S", "rho"] > 0.999
+
+
+def test_rho_is_the_users_so_stancal_says_so_and_keeps_the_model(source_plan):
+    data, _, backend = source_plan
+    gaussian = stancal.CalibrationData(data.source.assign(counts=data.source["counts"].astype(float)), ["s"],
+                                       "counts", BOX)
+    plan = plan_scalar(gaussian, SOURCE, None, model_options(mean_intercept=True, estimate_rho=True,
+                                                            discrepancy="orthogonal"))
+    with pytest.warns(ConfoundingWarning, match=r"S's effect follows the simulator's output .* S and rho"):
+        resolved, found = resolve_confounding(plan, gaussian, backend)
+    assert resolved.options == plan.options and not found[0].dropped
 
 
 # ---- the sampler, before and after ------------------------------------------
