@@ -196,3 +196,25 @@ def test_the_source_strength_no_longer_walks_a_ridge_at_the_maximum_tree_depth()
     assert before.options.mean_intercept
     # 340 of 600 when measured; the health bar is 5 %
     assert before.diagnostics.treedepth_hits > 0.25 * before.diagnostics.draws
+
+
+def test_the_gap_report_says_the_constant_was_dropped_and_what_carries_the_level():
+    from stancal.fitting.confounding import Confounding
+    from stancal.reporting.gap_report import report_markdown
+
+    est = {"mean": 0.1, "q05": 0.05, "q95": 0.2}
+    fitted = {"theta": {"S": est}, "discrepancy_rms": est, "discrepancy_variation": est, "holdout_rmse": 1.0,
+              "refits": 0, "diagnostics": {}}
+    summary = {
+        "baseline": {**fitted, "method": "koh_latent", "discrepancy_scale": "log of the mean count",
+                     "scheme": "psis-loo"},
+        "where": {"importance": {"s": est}, "observations_with_credible_gap": 3, "regions": []},
+        "candidates": [{**fitted, "name": "pressure", "kind": "formula", "effect": "pressure", "elpd_diff": 0.5,
+                        "elpd_diff_se": 1.0, "shrinkage": est, "theta_change": {"S": 0.0}}],
+        "confounding": [Confounding("S", "constant", 1.0, dropped=True).to_json()],
+    }
+    text = report_markdown(summary, [])
+    assert "Before sampling: S's effect on the link scale is constant" in text
+    assert "the discrepancy mean's constant term was dropped" in text
+    assert "every fit has S carrying the level (no constant in the discrepancy's mean)" in text
+    assert "every fit has a constant" in report_markdown({**summary, "confounding": []}, [])

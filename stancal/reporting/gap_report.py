@@ -151,8 +151,10 @@ def _where_section(summary: dict) -> list[str]:
     return lines
 
 
-def _which_section(base: dict, cands: list[dict]) -> list[str]:
-    """The best candidate, its shrinkage of the gap and the table of all candidates."""
+def _which_section(base: dict, cands: list[dict], level: str = "a constant in the discrepancy's mean"
+                   ) -> list[str]:
+    """The best candidate, its shrinkage of the gap and the table of all
+    candidates; ``level``: what carries the discrepancy's level in every fit."""
     if not cands:
         return []
     best = cands[0]
@@ -168,9 +170,9 @@ def _which_section(base: dict, cands: list[dict]) -> list[str]:
         f"{_fmt(base['discrepancy_variation'])}): shrinkage {_fmt(best['shrinkage'])}. "
         f"θ moves: {moved}. Held-out RMSE {base['holdout_rmse']:.4g} → {best['holdout_rmse']:.4g}."), "",
         ("Shrinkage is 1 − (variation with the candidate) / (variation of the baseline). It "
-        "leaves out the discrepancy's level: every fit has a constant in the discrepancy's "
-        "mean, and a term that is nearly constant over the points trades its level with that "
-        "constant, so only the variation is identified."), "",
+        f"leaves out the discrepancy's level: every fit has {level}, and a term that is "
+        "nearly constant over the points trades its level with it, so only the variation is "
+        "identified."), "",
 
         "| candidate | kind | ELPD diff ± se | shrinkage (90 %) | remaining RMS | θ | held-out RMSE |",
         "|---|---|---|---|---|---|---|",
@@ -182,10 +184,12 @@ def _which_section(base: dict, cands: list[dict]) -> list[str]:
 
 def report_markdown(summary: dict, figures: list[Path]) -> str:
     base, cands = summary["baseline"], summary["candidates"]
-    lines = [*_where_section(summary), "", "## Which effect explains it, and how far does the gap shrink?", "",
-             *_which_section(base, cands)]
-    if summary.get("confounding"):
-        lines += ["", "Before sampling: " + "; ".join(c["message"] for c in summary["confounding"]) + "."]
+    carriers = [c["theta"] for c in summary.get("confounding", []) if c["dropped"]]
+    lines = [*_where_section(summary), "", "## Which effect explains it, and how far does the gap shrink?", ""]
+    if summary.get("confounding"):  # found before sampling (stancal.fitting.confounding): said first
+        lines += ["Before sampling: " + "; ".join(c["message"] for c in summary["confounding"]) + ".", ""]
+    level = f"{' and '.join(carriers)} carrying the level (no constant in the discrepancy's mean)"
+    lines += _which_section(base, cands, level) if carriers else _which_section(base, cands)
     if summary.get("failed"):
         lines += ["", "Left out, their fit having failed twice: "
                   + "; ".join(f"{f['name']} ({f['error']})" for f in summary["failed"]) + "."]
