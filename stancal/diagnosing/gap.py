@@ -59,11 +59,12 @@ from stancal.diagnosing.scoring import (
 )
 from stancal.fitting.calibrate import calibrate
 from stancal.fitting.cluster import FitFailure, FitRunner, FitTask, fit_runner
-from stancal.fitting.confounding import Confounding, resolve_confounding
+from stancal.fitting.confounding import Confounding, resolve_confounding, stage_one_emulator
 from stancal.fitting.plan import Plan, make_plan, model_keywords, plan_scalar
 from stancal.fitting.postfit import DRAWS_FILE
 from stancal.fitting.resume import Resume
 from stancal.fitting.seeds import fit_seed
+from stancal.fitting.stage_one import run_stage_one
 from stancal.fitting.stopwatch import COMPILED_EARLIER, Stopwatch
 from stancal.fitting.vector_calibrate import calibrate_vector
 from stancal.problem.candidates import Candidate, CandidateError
@@ -306,8 +307,11 @@ def diagnose_gap(
         compiled = runner.prepare([*plan.stan_programs(), *(variant_program(data, c, plan) for c in candidates
                                                             if c.kind == "variant")],
                                   calibrate_options.get("backend"))
-        # a theta that carries the constant's level: the constant leaves every fit alike (checked once, here)
-        plan, confounding = resolve_confounding(plan, data, stan_backend)
+        # a theta that carries the constant's level: the constant leaves every fit alike (checked once, here;
+        # from runs, on stage 1's emulator, which each fit then fits again)
+        emulator = run_stage_one(plan.program.stage_one, data, plan.options, plan.stan_programs(),
+                                 backend=stan_backend, seed=seed) if stage_one_emulator(plan) else None
+        plan, confounding = resolve_confounding(plan, data, stan_backend, emulator)
         task = functools.partial(_fit_task, vector=vector, plan=plan, seed=seed, sampling=calibrate_options)
         clock.lap("compile" if compiled else COMPILED_EARLIER)
         fits = run(runner, [task(label_name(c), c, data_for(c),

@@ -195,12 +195,12 @@ def calibrate(
     programs = plan.stan_programs()
     stan_backend = get_backend(backend)
     compile_s = stan_backend.compile(programs)  # 0.0: compiled earlier
-    # theta against the model's own terms, on the compiled program, before any sampling
-    plan, confounding = resolve_confounding(plan, data, stan_backend)
     seed = command_seed(seed)
     new_points, fit_points, quadrature = _prediction_points(data, new_points, plan.l2)
     emulator = run_stage_one(plan.program.stage_one, data, plan.options, programs, backend=stan_backend,
                              seed=seed) or {}
+    # theta against the model's own terms (simulator or stage 1's emulator), before any sampling
+    plan, confounding = resolve_confounding(plan, data, stan_backend, emulator)
     sampler = replace(sampling, seed=seed).keywords()
     flat = programs[-1]
     fit, options, messages = _sample_checked(

@@ -40,8 +40,12 @@ The terms checked are the model's own:
 
 The sensitivity is a central finite difference through the program the fit
 runs anyway (its generated quantities' f_new at the physical points, on the
-compiled program): no other program is compiled. Problems from simulator
-runs, functional theta and vector outputs are not checked yet.
+compiled program): no other program is compiled. From simulator runs, it is
+that of stage 1's emulator mean (modular, koh_latent_emulator: the GP
+emulator's mean given the runs at stage 1's hyperparameters, on the link
+scale), the simulator as the fit sees it. Not checked yet: koh_emulator
+(its emulator's hyperparameters are sampled with theta, so none exist
+before sampling), the scalable and vector emulators, and functional theta.
 """
 
 from __future__ import annotations
@@ -55,8 +59,10 @@ import numpy as np
 from scipy.stats import qmc
 
 from stancal.fitting.plan import Plan
+from stancal.fitting.stage_one import emulator_mean_function
 from stancal.problem.data import CalibrationData
 from stancal.problem.observations import LINKS
+from stancal.stan.registry import STAGE_ONE_GP
 from stancal.stan.standata import build_stan_data, to_stan_json
 
 logger = logging.getLogger("stancal")
@@ -152,6 +158,13 @@ def program_simulator(plan: Plan, data: CalibrationData, stan_backend):
     return at
 
 
+def emulator_simulator(plan: Plan, data: CalibrationData, emulator: dict):
+    """unit theta (S, Q) -> g(f) at the physical points (S, N) through stage
+    1's emulator mean."""
+    mean = emulator_mean_function(data, emulator["hyperparameters"], plan.options.kernel_id)
+    return lambda theta_unit: mean(data.physical, theta_unit)
+
+
 def checked_terms(plan: Plan) -> list[str]:
     """The model's own terms that a theta can be confounded with, in this plan."""
     options = plan.options
@@ -159,11 +172,15 @@ def checked_terms(plan: Plan) -> list[str]:
                                        ("rho", getattr(options, "estimate_rho", False))) if present]
 
 
-def find_confounding(plan: Plan, data: CalibrationData, stan_backend) -> list[Confounding]:
-    """Each theta confounded with the constant or rho (never dropped here)."""
+def find_confounding(plan: Plan, data: CalibrationData, stan_backend,
+                     emulator: dict | None = None) -> list[Confounding]:
+    """Each theta confounded with the constant or rho (never dropped here):
+    through the program's simulator, or stage 1's ``emulator``."""
     terms = checked_terms(plan)
+    simulator = program_simulator(plan, data, stan_backend) if plan.program.simulator \
+        else emulator_simulator(plan, data, emulator or {})
     theta_unit = theta_design(THETA_POINTS, len(data.theta_names))
-    link_f, sensitivity = link_sensitivity(program_simulator(plan, data, stan_backend), theta_unit)
+    link_f, sensitivity = link_sensitivity(simulator, theta_unit)
     ones = np.ones(link_f.shape[:2] + (1,))
     # rho multiplies the standardised simulator, (f - y_center) / y_scale: the shift matters, the
     # scale does not; beside a constant term, rho's direction is the span of both
@@ -180,24 +197,36 @@ def find_confounding(plan: Plan, data: CalibrationData, stan_backend) -> list[Co
     return found
 
 
-def resolve_confounding(plan: Plan, data: CalibrationData, stan_backend) -> tuple[Plan, list[Confounding]]:
+def checkable(plan: Plan, data, emulator: dict | None) -> bool:
+    """Whether this module can check the plan: a scalar output and scalar
+    theta, with a Stan simulator or stage 1's GP emulator."""
+    return (isinstance(data, CalibrationData) and not getattr(plan.options, "functional", ())
+            and (plan.program.simulator or (stage_one_emulator(plan) and bool(emulator))))
+
+
+def stage_one_emulator(plan: Plan) -> bool:
+    """The plan's simulator is stage 1's GP emulator (modular, koh_latent_emulator)."""
+    return not plan.program.simulator and plan.program.stage_one == STAGE_ONE_GP
+
+
+def resolve_confounding(plan: Plan, data: CalibrationData, stan_backend,
+                        emulator: dict | None = None) -> tuple[Plan, list[Confounding]]:
     """The plan with the discrepancy mean's constant dropped when a theta is
     confounded with it (the other mean terms stay centred), and every
     finding; a theta confounded with rho is said as a ConfoundingWarning.
-    The plan comes back marked as checked, so that its fits do not check
-    again. Plans with nothing to check, or that this module cannot check
-    yet (simulator runs, functional theta, vector outputs), come back
-    unchanged but for the mark."""
+    ``emulator``: stage 1's results, for a plan from simulator runs. The
+    plan comes back marked as checked, so that its fits do not check again.
+    Plans with nothing to check, or that this module cannot check yet
+    (checkable), come back unchanged but for the mark."""
     checked = replace(plan, confounding_checked=True)
-    if (plan.confounding_checked or not checked_terms(plan) or not plan.program.simulator
-            or not isinstance(data, CalibrationData) or getattr(plan.options, "functional", ())):
+    if plan.confounding_checked or not checked_terms(plan) or not checkable(plan, data, emulator):
         return checked, []
-    if threading.current_thread() is not threading.main_thread():
+    if plan.program.simulator and threading.current_thread() is not threading.main_thread():
         # a Dask worker's thread: loading a program there before sampling crashed workers
         # (stancal.stan.backends.pystan_backend.start_error); the command that planned the fit checks
         logger.info("confounding of theta not checked in a worker thread")
         return checked, []
-    found = find_confounding(plan, data, stan_backend)
+    found = find_confounding(plan, data, stan_backend, emulator)
     if any(c.term == "constant" for c in found):
         checked = replace(checked, options=replace(plan.options, mean_intercept=False, mean_centred=True))
         found = [replace(c, dropped=True) if c.term == "constant" else c for c in found]

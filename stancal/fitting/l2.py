@@ -18,7 +18,7 @@ import numpy as np
 import pandas as pd
 from scipy.stats import qmc
 
-from stancal.numerics.kernels import ard_cross_cov
+from stancal.fitting.stage_one import emulator_mean_function
 from stancal.numerics.quadrature import Quadrature
 from stancal.problem.options import ModelOptions
 from stancal.stan.backends import get_backend
@@ -73,30 +73,16 @@ def stan_simulator(result) -> SimulatorAt:
 def emulator_mean(result) -> SimulatorAt:
     """f through the emulator's mean given the runs (hyperparameters at their
     posterior medians; for modular, stage 1's), in original units."""
-    data, s = result.data, result.data.scaling
+    data = result.data
     if result.emulator.get("hyperparameters"):
         hyper = result.emulator["hyperparameters"]
     else:
         posterior = result.idata["posterior"]
         hyper = {k: _posterior_median(posterior[k])
                  for k in ("emulator_mean", "emulator_sd", "emulator_length_scale", "emulator_nugget")}
-    runs_xt = np.hstack([s.to_unit(data.runs, data.inputs), s.to_unit(data.runs, data.theta_names)])
-    y_runs = s.standardise(data.runs[data.output])
-    kernel_id, sd = result.options.kernel_id, float(hyper["emulator_sd"])
-    length = np.asarray(hyper["emulator_length_scale"], float)
-    k_runs = ard_cross_cov(runs_xt, runs_xt, kernel_id, sd, length)
-    k_runs[np.diag_indices_from(k_runs)] += float(hyper["emulator_nugget"]) ** 2
-    weights = np.linalg.solve(k_runs, y_runs - float(hyper["emulator_mean"]))
-
-    def at(points: pd.DataFrame, theta: np.ndarray) -> np.ndarray:
-        x_unit = s.to_unit(points, data.inputs)
-        theta_unit = _theta_unit(data, theta)
-        S, P = len(theta_unit), len(x_unit)
-        xt = np.hstack([np.repeat(x_unit, S, axis=0), np.tile(theta_unit, (P, 1))])
-        f = float(hyper["emulator_mean"]) + ard_cross_cov(xt, runs_xt, kernel_id, sd, length) @ weights
-        return s.original(f.reshape(P, S).T)
-
-    return at
+    # l2 is for Gaussian outputs, whose link scale is the output's
+    mean = emulator_mean_function(data, hyper, result.options.kernel_id)
+    return lambda points, theta: mean(points, _theta_unit(data, theta))
 
 
 def _posterior_median(draws) -> np.ndarray:

@@ -12,6 +12,7 @@ from typing import Any
 
 import numpy as np
 
+from stancal.numerics.kernels import ard_cross_cov
 from stancal.numerics.scalable_emulator import (
     ERROR_RANK_SHARE,
     NEIGHBOURS,
@@ -109,3 +110,27 @@ def fit_vector_emulator(data: VectorCalibrationData, seed: int) -> VectorEmulato
                 "on %d of %d runs) in %.1f s", data.basis.describe(), emulator.hyperparameter_runs,
                 len(xt), time.perf_counter() - started)
     return emulator
+
+
+def emulator_mean_function(data: CalibrationData, hyperparameters: dict[str, Any], kernel_id: int):
+    """The GP emulator's mean given the runs, on the link scale in original
+    units (the output's units for a Gaussian output), at fixed
+    hyperparameters (stage 1's, or a fit's posterior medians): a function
+    of (points with the simulator inputs, theta on the unit box (S, Q)) ->
+    (S, points). With the kernels of stancal.numerics.kernels, as the
+    programs' emulator."""
+    s = data.scaling
+    runs_xt = np.hstack([s.to_unit(data.runs, data.inputs), s.to_unit(data.runs, data.theta_names)])
+    sd, mean = float(hyperparameters["emulator_sd"]), float(hyperparameters["emulator_mean"])
+    length = np.asarray(hyperparameters["emulator_length_scale"], float)
+    k_runs = ard_cross_cov(runs_xt, runs_xt, kernel_id, sd, length)
+    k_runs[np.diag_indices_from(k_runs)] += float(hyperparameters["emulator_nugget"]) ** 2
+    weights = np.linalg.solve(k_runs, s.standardise(data.runs_on_link_scale()) - mean)
+
+    def at(points, theta_unit: np.ndarray) -> np.ndarray:
+        x_unit = s.to_unit(points, data.inputs)
+        S, P = len(theta_unit), len(x_unit)
+        xt = np.hstack([np.repeat(x_unit, S, axis=0), np.tile(theta_unit, (P, 1))])
+        return s.original((mean + ard_cross_cov(xt, runs_xt, kernel_id, sd, length) @ weights).reshape(P, S).T)
+
+    return at
