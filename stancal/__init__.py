@@ -5,6 +5,7 @@ import logging
 from stancal.diagnosing.compare import Comparison, compare_methods
 from stancal.diagnosing.gap import Candidate, CandidateError, GapWarning, diagnose_gap
 from stancal.fitting.calibrate import calibrate
+from stancal.fitting.confounding import ConfoundingWarning
 from stancal.problem.codes import Kernel
 from stancal.problem.data import CalibrationData, DataError, InputRangeWarning
 from stancal.problem.mean_terms import FormulaError
@@ -22,7 +23,8 @@ logging.getLogger("stancal").addHandler(logging.NullHandler())
 load_result = CalibrationResult.load
 
 __all__ = [
-    "CalibrationData", "CalibrationResult", "Candidate", "CandidateError", "Comparison", "DataError",
+    "CalibrationData", "CalibrationResult", "Candidate", "CandidateError", "Comparison", "ConfoundingWarning",
+    "DataError",
     "FormulaError", "GapWarning", "InputRangeWarning", "Kernel", "MODELS", "PROGRAMS", "Program",
     "MultimodalWarning", "SamplerWarning", "StanProgramError", "calibrate", "diagnose_gap",
     "compare_methods", "load_result", "register", "write_calibration", "write_comparison", "write_gap_report",

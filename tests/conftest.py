@@ -167,7 +167,7 @@ def assert_healthy_summary(diagnostics: dict, divergences: int = 0, treedepth_sh
 
 
 STANCAL_WARNINGS = (stancal.SamplerWarning, stancal.MultimodalWarning, stancal.GapWarning,
-                    stancal.InputRangeWarning)
+                    stancal.InputRangeWarning, stancal.ConfoundingWarning)
 
 
 @contextmanager
