@@ -211,7 +211,7 @@ def calibrate(
         registry_row=plan.program,
         timing={"compile_s": compile_s,
                 "sample_s": fit.sample.load_seconds + fit.sample.sample_seconds + emulator.get("fit_s", 0.0)},
-        emulator=emulator)
+        emulator=emulator, confounding=[c.to_json() for c in confounding])
     save_draws(result, out_dir)
     if quadrature is not None:
         logger.info("L2 calibration: projecting the draws of zeta onto the simulator")
@@ -223,5 +223,4 @@ def calibrate(
             lambda: stan_backend.log_density_functions(flat, fit.stan_json)),
         max_treedepth=max_treedepth, seed=seed,
         diagnosed=lambda names: [v for v in names if v in _DIAGNOSED or v in fit.parameter_names],
-        advice=lambda d: [c.line() for c in confounding] + parametrization_advice(options, d) + messages,
-        out_dir=out_dir)
+        advice=lambda d: parametrization_advice(options, d) + messages, out_dir=out_dir)

@@ -74,6 +74,9 @@ def _report(summary: dict, table, plots: list[Path]) -> str:
         f"{summary['likelihood']} likelihood)"), "",
         *_parameters_and_sampler(summary, table),
     ]
+    if summary.get("confounding"):  # found before sampling (stancal.fitting.confounding)
+        lines += ["", "## Before sampling: theta against the model's own terms", "",
+                  *(f"- {c['message']}" for c in summary["confounding"])]
     if "censoring" in summary:
         counts = summary["censoring"]
         lines += ["", "## Censored observations", "",

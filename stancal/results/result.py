@@ -182,6 +182,9 @@ class CalibrationResult:
     # the registry row that ran: it travels with the result (to Dask workers, say), so a
     # program registered in one process predicts in another; None for a result loaded from disk
     registry_row: Program | None = None
+    # a theta confounded with a model term, found before sampling (stancal.fitting.confounding):
+    # each finding as JSON, with what was done (the constant dropped) or said
+    confounding: list[dict[str, Any]] = field(default_factory=list)
 
     @property
     def row(self) -> Program:
@@ -232,7 +235,7 @@ class CalibrationResult:
             "program": {"code": self.program.code, "origin": self.program.origin},
             "data": self.data.to_dict(),
             "diagnostics": self.diagnostics and self.diagnostics.to_dict(), "modes": [m.__dict__ for m in self.modes],
-            "timing": self.timing, "emulator": self.emulator, "l2": self.l2,
+            "timing": self.timing, "emulator": self.emulator, "l2": self.l2, "confounding": self.confounding,
         }
 
     def save(self, path: str | Path) -> Path:
@@ -255,7 +258,7 @@ class CalibrationResult:
                                 tuple(tuple(o) for o in meta["program"]["origin"])),
             diagnostics=meta["diagnostics"] and Diagnostics(**meta["diagnostics"]),
             modes=[Mode(**m) for m in meta["modes"]], timing=meta["timing"],
-            emulator=meta["emulator"], l2=meta.get("l2", {}),
+            emulator=meta["emulator"], l2=meta.get("l2", {}), confounding=meta.get("confounding", []),
         )
 
     def to_summary_json(self) -> dict[str, Any]:
@@ -271,6 +274,7 @@ class CalibrationResult:
             "timing": self.timing,
             "emulator": {k: v for k, v in self.emulator.items() if k != "hyperparameters"},
             **({"l2": self.l2} if self.l2 else {}),
+            **({"confounding": self.confounding} if self.confounding else {}),
             "likelihood": self.data.observations.likelihood.name.lower(),
             **({"censoring": self.data.observations.counts_by_kind()}
                if self.data.observations.any_censored else {}),
