@@ -12,6 +12,7 @@ from stancal.numerics.hsgp import first_basis
 from stancal.problem.data import CalibrationData
 from stancal.problem.functional import check_functional
 from stancal.problem.options import EXACT_SIZE_LIMIT, RESTRICTED_DISCREPANCIES, ModelOptions, VectorOptions
+from stancal.problem.parametrization import choose_parametrization
 from stancal.problem.vector_data import VectorCalibrationData
 from stancal.stan.registry import L2, PROGRAMS, STAGE_ONE_PROGRAM, Program, default_program, for_method
 from stancal.stan.source import FlatProgram, flatten
@@ -30,6 +31,8 @@ class Plan:
     user_program: Path | None = None
     l2: bool = False
     basis_given: bool = False  # the Hilbert-space basis is the user's: checked, never rebuilt
+    # the latent discrepancy's parametrisation is the user's: never refitted the other way
+    parametrization_given: bool = False
 
     @property
     def name(self) -> str:
@@ -58,14 +61,14 @@ def model_options(discrepancy: str | None = None, kernel: str = "se", estimate_r
                   mean_formula: str | None = None, mean_intercept: bool = False,
                   scaled_lambda: float | None = None, functional=(), functional_inputs=(),
                   functional_parametrization: str = "centred", approximation: str = "auto",
-                  basis_functions=(), boundary_factor=()) -> ModelOptions:
+                  basis_functions=(), boundary_factor=(), discrepancy_parametrization: str = "auto") -> ModelOptions:
     """calibrate()'s model keywords as ModelOptions; the discrepancy defaults
     to gp, or none with functional theta (flexible enough without one,
     review section 8.2)."""
     return ModelOptions("none" if discrepancy is None and functional else discrepancy or "gp", kernel,
                         estimate_rho, mean_formula, mean_intercept, scaled_lambda, tuple(functional),
                         tuple(functional_inputs), functional_parametrization, approximation,
-                        tuple(basis_functions), tuple(boundary_factor))
+                        tuple(basis_functions), tuple(boundary_factor), discrepancy_parametrization)
 
 
 def make_plan(data: CalibrationData | VectorCalibrationData, simulator: str | Path | None = None,
@@ -117,12 +120,14 @@ def plan_scalar(data: CalibrationData, simulator: str | Path | None = None, meth
                          f"simulator inputs' box, so the discrepancy cannot take the covariates "
                          f"{data.covariates}; leave them out of the data, or use discrepancy 'gp'")
     basis_given = bool(options.basis_functions)
+    parametrization_given = options.discrepancy_parametrization != "auto"
+    options = _latent_parametrization(data, chosen, options)
     if chosen.approximation == "hsgp":
         options = replace(options, approximation="hsgp")
         if not options.basis_functions:
             basis = first_basis(options.kernel, data.discrepancy_inputs)
             options = replace(options, basis_functions=basis.counts, boundary_factor=basis.boundary_factors)
-    return Plan(chosen, options, _path(simulator), _path(program), l2, basis_given)
+    return Plan(chosen, options, _path(simulator), _path(program), l2, basis_given, parametrization_given)
 
 
 def plan_vector(data: VectorCalibrationData, simulator: str | Path | None = None, method: str | None = None,
@@ -168,6 +173,21 @@ def _latent_version(base: Program, reason: str | None, options: ModelOptions) ->
     if unsupported:
         raise ValueError(f"{reason} runs on the latent-GP programs, which do not support {', '.join(unsupported)}")
     return latent
+
+
+def _latent_parametrization(data: CalibrationData, chosen: Program, options: ModelOptions) -> ModelOptions:
+    """The latent programs' discrepancy GP centred or non-centred, decided
+    once: the user's choice, or the data's (stancal.problem.parametrization,
+    Papaspiliopoulos, Roberts & Sköld 2007), said in one line."""
+    if not (chosen.latent and options.has_discrepancy) or options.discrepancy_parametrization_reason:
+        return options
+    if options.discrepancy_parametrization != "auto":
+        return replace(options, discrepancy_parametrization_reason=(
+            f"{options.discrepancy_parametrization} (set by the user: model.discrepancy_parametrization)"))
+    choice = choose_parametrization(data.observations)
+    logger.info("the discrepancy's latent GP is sampled %s", choice.reason)
+    return replace(options, discrepancy_parametrization=choice.parametrization,
+                   discrepancy_parametrization_reason=choice.reason)
 
 
 def dense_size(data: CalibrationData, program: Program) -> int:

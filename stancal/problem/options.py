@@ -8,6 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from stancal.problem.codes import NOISE_MODES, Kernel
+from stancal.problem.parametrization import PARAMETRIZATIONS
 
 APPROXIMATIONS = ("auto", "exact", "hsgp")
 KERNELS = ("se", "matern52")
@@ -33,6 +34,10 @@ class ModelOptions:
     # empty: chosen by stancal from the length scales, and checked after the fit
     basis_functions: tuple[int, ...] = ()
     boundary_factor: tuple[float, ...] = ()
+    # the latent programs' discrepancy GP: centred, non_centred, or auto (the plan chooses from the
+    # data's information per point: stancal.problem.parametrization); the reason says who chose and why
+    discrepancy_parametrization: str = "auto"
+    discrepancy_parametrization_reason: str = ""
 
     def __post_init__(self) -> None:
         # lists from a config or a saved result
@@ -52,6 +57,9 @@ class ModelOptions:
         if self.functional_parametrization not in FUNCTIONAL_PARAMETRIZATIONS:
             raise ValueError(f"functional_parametrization must be one of "
                              f"{', '.join(FUNCTIONAL_PARAMETRIZATIONS)}; got {self.functional_parametrization!r}")
+        if self.discrepancy_parametrization not in PARAMETRIZATIONS:
+            raise ValueError(f"discrepancy_parametrization must be one of {', '.join(PARAMETRIZATIONS)}; "
+                             f"got {self.discrepancy_parametrization!r}")
         if self.kernel not in KERNELS:
             raise ValueError(f"kernel must be 'se' or 'matern52'; got {self.kernel!r}")
         if self.scaled_lambda is not None and not (np.isfinite(self.scaled_lambda) and self.scaled_lambda > 0):
