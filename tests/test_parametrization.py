@@ -1,5 +1,5 @@
 """The latent discrepancy's parametrisation: the plan's choice from the data
-(stancal.problem.parametrization), the user's override, the refit the other
+(stancal.numerics.parametrization), the user's override, the refit the other
 way after a fit that saturates the tree depth, and what the report says. No
 sampling here: the short fits are in test_latent_parametrization.py."""
 
@@ -9,71 +9,101 @@ import numpy as np
 import pandas as pd
 import pytest
 import xarray as xr
+from scipy import stats
 
 import stancal
 from stancal.fitting.parametrization_fallback import SATURATED_SHARE, saturated_share, with_fallback
 from stancal.fitting.plan import make_plan
+from stancal.numerics import parametrization as rule
+from stancal.problem.codes import Kernel
 from stancal.problem.options import ModelOptions
-from stancal.problem.parametrization import DOMINANCE, choose_parametrization, information_per_point
 
 COUNTS_SIMULATOR = "case_studies/detector_counts/simulator.stan"
+SE = int(Kernel.SE)
 
 
 def counts_data(mean_count: float, likelihood: str = "poisson", points: int = 30, trials: int | None = None,
-                seed: int = 0) -> stancal.CalibrationData:
+                seed: int = 0, corners: bool = False) -> stancal.CalibrationData:
+    """Counts on a line of ``points`` distances (close together against the
+    prior's length scale), or at the four corners of the (d, s) box (far apart)."""
     rng = np.random.default_rng(seed)
-    x = np.linspace(0.5, 3.0, points)
-    frame = pd.DataFrame({"d": x, "s": np.zeros(points), "y": rng.poisson(mean_count, points)})
+    d, s = (np.array([0.5, 3.0, 0.5, 3.0]), np.array([0.0, 0.0, 5.0, 5.0])) if corners else (
+        np.linspace(0.5, 3.0, points), np.zeros(points))
+    frame = pd.DataFrame({"d": d, "s": s, "y": rng.poisson(mean_count, len(d))})
     if trials is not None:
         frame["n"] = trials
-        frame["y"] = rng.binomial(trials, 0.5, points)
+        frame["y"] = rng.binomial(trials, 0.5, len(d))
     return stancal.CalibrationData(frame, ["d", "s"], "y", {"mu": (0.05, 1.0)}, likelihood=likelihood,
                                    trials="n" if trials is not None else None)
 
 
-def test_large_counts_are_centred_and_small_counts_non_centred():
-    large = choose_parametrization(counts_data(500).observations)
+def choose(data: stancal.CalibrationData, kernel: int = SE) -> rule.Choice:
+    x_delta = data.scaling.to_unit(data.physical, data.discrepancy_inputs)
+    return rule.choose_parametrization(data.observations, x_delta, len(data.inputs), kernel)
+
+
+def test_the_prior_medians_are_the_programs_priors():
+    assert rule.INPUT_LENGTH_SCALE == pytest.approx(stats.invgamma(3).median(), abs=1e-3)
+    assert rule.COVARIATE_LENGTH_SCALE == pytest.approx(1 / stats.halfnorm(scale=2).median(), abs=1e-3)
+    assert rule.NOISE_PRIOR_MEDIAN == pytest.approx(stats.halfnorm().median(), abs=1e-4)
+
+
+def test_the_prior_precision_at_a_point_counts_its_neighbours():
+    # far apart against the length scale: the prior's variance sigma^2; close: far less
+    far = rule.prior_conditional_variance(np.array([[0.0], [10.0]]), 1, SE)
+    np.testing.assert_allclose(far, rule.DISCREPANCY_PRIOR_SD**2 * (1 + rule.JITTER), rtol=1e-9)
+    close = rule.prior_conditional_variance(np.linspace(0, 1, 30)[:, None], 1, SE)
+    assert np.all(close < 1e-3 * rule.DISCREPANCY_PRIOR_SD**2)
+    # a covariate's length scale is longer: its neighbours tie it more
+    pair = np.array([[0.0], [0.5]])
+    assert rule.prior_conditional_variance(pair, 0, SE)[0] < rule.prior_conditional_variance(pair, 1, SE)[0]
+
+
+def test_large_counts_at_separate_points_are_centred_small_or_close_ones_not():
+    large = choose(counts_data(1e5, corners=True))
     assert large.parametrization == "centred"
-    assert "information per point is" in large.reason and "100 % of the points" in large.reason
-    assert choose_parametrization(counts_data(3).observations).parametrization == "non_centred"
-    # the threshold: a count of 4 DOMINANCE (prior sd 0.5, precision 4) is where a point is dominated
-    assert choose_parametrization(counts_data(4 * DOMINANCE * 0.8).observations).parametrization == "non_centred"
-    assert choose_parametrization(counts_data(4 * DOMINANCE * 1.5).observations).parametrization == "centred"
+    assert "information per point is" in large.reason and "at 100 % of the points" in large.reason
+    assert choose(counts_data(3, corners=True)).parametrization == "non_centred"
+    # the threshold: DOMINANCE times the prior's precision 1 / 0.5^2 = 4, at points nearly independent
+    assert choose(counts_data(4 * rule.DOMINANCE * 0.8, corners=True)).parametrization == "non_centred"
+    assert choose(counts_data(4 * rule.DOMINANCE * 1.5, corners=True)).parametrization == "centred"
+    # the same large counts at 30 points close together: the GP ties each to its neighbours
+    assert choose(counts_data(1e5)).parametrization == "non_centred"
 
 
 def test_information_per_likelihood():
-    binomial = counts_data(0, "binomial", trials=1000)
+    binomial = counts_data(0, "binomial", trials=10**6, corners=True)
     y = binomial.observations.value
-    p = (y + 0.5) / 1001
-    np.testing.assert_allclose(information_per_point(binomial.observations), 1000 * p * (1 - p))
-    assert choose_parametrization(binomial.observations).parametrization == "centred"
-    assert choose_parametrization(counts_data(0, "binomial", trials=10).observations).parametrization \
-        == "non_centred"
+    p = (y + 0.5) / (10**6 + 1)
+    np.testing.assert_allclose(rule.information_per_point(binomial.observations), 10**6 * p * (1 - p))
+    assert choose(binomial).parametrization == "centred"
+    assert choose(counts_data(0, "binomial", trials=10, corners=True)).parametrization == "non_centred"
     # unknown overdispersion caps what a count says: large negative binomial counts stay non-centred
-    assert choose_parametrization(counts_data(500, "negbinomial").observations).parametrization == "non_centred"
+    assert choose(counts_data(1e5, "negbinomial", corners=True)).parametrization == "non_centred"
 
 
 def test_noisy_gaussian_and_censored_outputs_are_non_centred():
     rng = np.random.default_rng(1)
     frame = pd.DataFrame({"d": np.linspace(0.5, 3, 20), "s": 0.0, "y": rng.normal(size=20)})
-    frame.loc[:9, "y"] = np.nan  # censored below 0: no information counted
+    frame.loc[:9, "y"] = np.nan
     frame["hi"] = np.where(frame.y.isna(), 0.0, np.nan)  # left-censored (an open lower bound)
     data = stancal.CalibrationData(frame, ["d", "s"], "y", {"mu": (0.05, 1.0)}, upper="hi")
-    info = information_per_point(data.observations)
+    info = rule.information_per_point(data.observations)
     assert np.all(info[:10] == 0) and np.all(info[10:] > 0)
-    assert choose_parametrization(data.observations).parametrization == "non_centred"
+    assert choose(data).parametrization == "non_centred"
 
 
 def test_the_plan_decides_once_and_the_user_overrides():
-    data = counts_data(500)
-    plan = make_plan(data, COUNTS_SIMULATOR)
+    plan = make_plan(counts_data(1e5, corners=True), COUNTS_SIMULATOR)
     assert plan.program.latent and not plan.parametrization_given
     assert plan.options.discrepancy_parametrization == "centred"
     assert plan.options.discrepancy_parametrization_reason.startswith("centred (chosen from the data)")
-    told = make_plan(data, COUNTS_SIMULATOR, discrepancy_parametrization="non_centred")
-    assert told.parametrization_given and told.options.discrepancy_parametrization == "non_centred"
+    data = counts_data(500)
+    assert make_plan(data, COUNTS_SIMULATOR).options.discrepancy_parametrization == "non_centred"
+    told = make_plan(data, COUNTS_SIMULATOR, discrepancy_parametrization="centred")
+    assert told.parametrization_given and told.options.discrepancy_parametrization == "centred"
     assert "set by the user" in told.options.discrepancy_parametrization_reason
-    # no discrepancy, or a Gaussian program: nothing to choose
+    # no discrepancy: nothing to choose
     assert make_plan(data, COUNTS_SIMULATOR, discrepancy="none").options.discrepancy_parametrization == "auto"
     with pytest.raises(ValueError, match="discrepancy_parametrization must be one of auto, centred, non_centred"):
         ModelOptions(discrepancy_parametrization="partial")

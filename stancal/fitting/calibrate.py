@@ -168,7 +168,7 @@ def calibrate(
     ``discrepancy_parametrization`` of the latent programs' discrepancy GP:
     centred, non_centred, or auto (centred when the data's information per
     point dominates the prior's precision at most points, Papaspiliopoulos,
-    Roberts & Sköld 2007: stancal.problem.parametrization); under auto, a fit
+    Roberts & Sköld 2007: stancal.numerics.parametrization); under auto, a fit
     with more than 5 % of its transitions at the maximum tree depth is
     refitted once the other way and the better kept. The summary says which
     ran and why (options.discrepancy_parametrization_reason).

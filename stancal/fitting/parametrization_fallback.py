@@ -1,5 +1,5 @@
 """The latent discrepancy's other parametrisation, after a fit that
-saturates the tree depth: the plan's choice (stancal.problem.parametrization)
+saturates the tree depth: the plan's choice (stancal.numerics.parametrization)
 is a rule of thumb, and the sampler's tree depth is the measurement that
 settles it (Betancourt & Girolami 2015: a latent GP in the wrong form shows as
 long trajectories, at the maximum tree depth, or as divergences)."""

@@ -9,10 +9,10 @@ from dataclasses import dataclass, fields, replace
 from pathlib import Path
 
 from stancal.numerics.hsgp import first_basis
+from stancal.numerics.parametrization import choose_parametrization
 from stancal.problem.data import CalibrationData
 from stancal.problem.functional import check_functional
 from stancal.problem.options import EXACT_SIZE_LIMIT, RESTRICTED_DISCREPANCIES, ModelOptions, VectorOptions
-from stancal.problem.parametrization import choose_parametrization
 from stancal.problem.vector_data import VectorCalibrationData
 from stancal.stan.registry import L2, PROGRAMS, STAGE_ONE_PROGRAM, Program, default_program, for_method
 from stancal.stan.source import FlatProgram, flatten
@@ -177,14 +177,15 @@ def _latent_version(base: Program, reason: str | None, options: ModelOptions) ->
 
 def _latent_parametrization(data: CalibrationData, chosen: Program, options: ModelOptions) -> ModelOptions:
     """The latent programs' discrepancy GP centred or non-centred, decided
-    once: the user's choice, or the data's (stancal.problem.parametrization,
+    once: the user's choice, or the data's (stancal.numerics.parametrization,
     Papaspiliopoulos, Roberts & Sköld 2007), said in one line."""
     if not (chosen.latent and options.has_discrepancy) or options.discrepancy_parametrization_reason:
         return options
     if options.discrepancy_parametrization != "auto":
         return replace(options, discrepancy_parametrization_reason=(
             f"{options.discrepancy_parametrization} (set by the user: model.discrepancy_parametrization)"))
-    choice = choose_parametrization(data.observations)
+    x_delta = data.scaling.to_unit(data.physical, data.discrepancy_inputs)
+    choice = choose_parametrization(data.observations, x_delta, len(data.inputs), options.kernel_id)
     logger.info("the discrepancy's latent GP is sampled %s", choice.reason)
     return replace(options, discrepancy_parametrization=choice.parametrization,
                    discrepancy_parametrization_reason=choice.reason)

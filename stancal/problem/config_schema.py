@@ -18,9 +18,9 @@ from stancal.problem.options import (
     EXACT_SIZE_LIMIT,
     FUNCTIONAL_PARAMETRIZATIONS,
     KERNELS,
+    PARAMETRIZATIONS,
 )
 from stancal.problem.output_basis import DEFAULT_VARIANCE_SHARE
-from stancal.problem.parametrization import PARAMETRIZATIONS
 
 SCALAR, VECTOR, BOTH = "scalar", "vector", "both"  # which outputs a key applies to
 

@@ -8,7 +8,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from stancal.problem.codes import NOISE_MODES, Kernel
-from stancal.problem.parametrization import PARAMETRIZATIONS
 
 APPROXIMATIONS = ("auto", "exact", "hsgp")
 KERNELS = ("se", "matern52")
@@ -35,7 +34,7 @@ class ModelOptions:
     basis_functions: tuple[int, ...] = ()
     boundary_factor: tuple[float, ...] = ()
     # the latent programs' discrepancy GP: centred, non_centred, or auto (the plan chooses from the
-    # data's information per point: stancal.problem.parametrization); the reason says who chose and why
+    # data's information per point: stancal.numerics.parametrization); the reason says who chose and why
     discrepancy_parametrization: str = "auto"
     discrepancy_parametrization_reason: str = ""
 
@@ -75,6 +74,8 @@ class ModelOptions:
 
 
 FUNCTIONAL_PARAMETRIZATIONS = ("centred", "non_centred")
+# the latent discrepancy: auto = chosen by the plan (stancal.numerics.parametrization)
+PARAMETRIZATIONS = ("auto", "centred", "non_centred")
 
 # approximation = "auto" switches to the scalable programs when the dense
 # matrix factorised at every gradient would be larger than this: N physical
