@@ -3,7 +3,7 @@ the scalar and vector programs, and the limits they are checked against."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -36,7 +36,7 @@ class ModelOptions:
     # the latent programs' discrepancy GP: centred, non_centred, or auto (the plan chooses from the
     # data's information per point: stancal.numerics.parametrization); the reason says who chose and why
     discrepancy_parametrization: str = "auto"
-    discrepancy_parametrization_reason: str = ""
+    discrepancy_parametrization_reason: str = field(default="", metadata={"set_by": "stancal"})  # not a user's key
 
     def __post_init__(self) -> None:
         # lists from a config or a saved result
