@@ -46,7 +46,7 @@ def steps(result) -> tuple[float, float]:
     return float(np.mean(np.asarray(stats["tree_depth"]) >= 10)), float(np.mean(stats["n_steps"]))
 
 
-@pytest.mark.slow  # 4 fits, two of them at the maximum tree depth: about 8 minutes on 2 busy cores
+@pytest.mark.slow  # 4 fits, two at the maximum tree depth: 40 s on 2 quiet cores, 8 minutes on busy ones
 def test_the_chosen_parametrization_saves_tree_depth():
     """Measured (2 chains x (200 + 200), seed 1): separate counts, centred
     4 of 400 transitions at the maximum depth and 395 leapfrog steps each,
