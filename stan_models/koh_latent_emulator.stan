@@ -64,6 +64,7 @@ data {
   array[N_fun] vector[D_fun] x_fun;     // the distinct values, scaled to [0, 1]
   array[F > 0 ? N : 0] int<lower=1, upper=N_fun> fun_point;  // which of them each physical point has
   int<lower=0, upper=1> functional_centred;  // 1 = sample theta(x)'s logit values, 0 = their standard normals
+  int<lower=0, upper=1> delta_centred;  // 1 = sample the discrepancy's values, 0 = their standard normals
   int<lower=0> G;                       // number of grid points for the theta(x) curves
   array[G] vector[D_fun] x_fun_grid;    // the grid, scaled like x_fun
   int<lower=0, upper=1> prior_only;     // 1 = ignore y (the runs still inform the emulator)
@@ -92,7 +93,7 @@ parameters {
   array[use_discrepancy] real<lower=0> delta_sd;          // model-scale units
   array[use_discrepancy ? D : 0] real<lower=0> delta_input_length_scale;  // simulator inputs: fraction of input range
   array[use_discrepancy ? D_delta - D : 0] real<lower=0> delta_relevance;  // covariates: inverse length scale
-  vector[use_discrepancy ? N : 0] delta_z;                // non-centred discrepancy
+  vector[use_discrepancy ? N : 0] delta_raw;              // the discrepancy (centred) or its standard normals
   vector[H] beta;                                         // mean-term coefficients, model-scale units
   vector<lower=0>[F] theta_function_sd;                   // logit scale
   array[F] vector<lower=0>[D_fun] theta_function_length_scale;  // fraction of input range
@@ -121,7 +122,7 @@ transformed parameters {
                                     emulator_length_scale, emulator_z);
   vector[N] delta = rep_vector(0, N);   // discrepancy at the physical points, model scale
   if (use_discrepancy) {
-    delta = latent_gp(x_delta, kernel_id, delta_sd[1], delta_length_scale, delta_z);
+    delta = latent_gp_values(delta_raw, delta_centred, x_delta, kernel_id, delta_sd[1], delta_length_scale);
   }
 }
 model {
@@ -130,7 +131,11 @@ model {
   delta_sd ~ discrepancy_sd();                       // half-normal(0, 0.5)
   delta_input_length_scale ~ discrepancy_length_scale();  // inverse gamma(3, 1)
   delta_relevance ~ covariate_relevance();           // half-normal(0, 2)
-  delta_z ~ std_normal();
+  // the discrepancy's GP (centred) or its standard normals (non-centred)
+  if (use_discrepancy) {
+    target += latent_gp_prior_lupdf(delta_raw | delta_centred, x_delta, kernel_id, delta_sd[1],
+                                    delta_length_scale);
+  }
   beta ~ normal(0, beta_prior_sd);
   theta_function_sd ~ functional_sd();              // half-normal(0, 1.5)
   for (k in 1:F) theta_function_length_scale[k] ~ functional_length_scale();  // inverse gamma(3, 1)

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import COOLING, cooling_data
+from conftest import COOLING, ROOT, cooling_data
 
 from stancal.diagnosing.sbc_ranks import fractional_ranks, rank_of, uniformity
 from stancal.reporting.sbc_report import write_sbc_report
@@ -125,3 +125,30 @@ def test_functional_theta_is_simulated_and_fitted_non_centred_unless_told():
     assert functional_parametrizations({"functional": ["E"]}) == ("non_centred", "non_centred")
     told = {"functional": ["E"], "functional_parametrization": "centred"}
     assert functional_parametrizations(told) == ("non_centred", "centred")
+
+
+def test_the_truths_log_likelihood_reads_the_priors_discrepancy_parametrization():
+    """A latent fit may sample its discrepancy the other way than the prior's
+    draws (stancal.fitting.parametrization_fallback): the truth's delta_raw
+    is read in the prior's parametrisation. At a non-centred draw, the
+    centred values delta (= L z) read as centred give the sampler's log_lik."""
+    import pandas as pd
+
+    import stancal
+    from stancal.diagnosing.sbc import log_likelihood_at, log_likelihood_draws
+
+    d, s = np.meshgrid(np.linspace(0.5, 3.0, 5), [0.0, 2.5])
+    counts = np.random.default_rng(3).poisson(2000 * np.exp(-0.35 * s.ravel()) / d.ravel() ** 2)
+    data = stancal.CalibrationData(pd.DataFrame({"d": d.ravel(), "s": s.ravel(), "counts": counts}), ["d", "s"],
+                                   "counts", {"mu": (0.05, 1.0)}, likelihood="poisson")
+    # health not asserted: 20 draws, read only as parameter values at which two log-likelihoods are compared
+    fit = stancal.calibrate(data, simulator=ROOT / "case_studies" / "detector_counts" / "simulator.stan",
+                            discrepancy_parametrization="non_centred", chains=1, warmup=100, draws=20, seed=2)
+    draw = 5
+    parameters = {k: np.asarray(v)[0, draw] for k, v in fit.idata["stan_parameters"].data_vars.items()}
+    expected = log_likelihood_draws(fit)[draw]
+    assert log_likelihood_at(fit, parameters) == pytest.approx(expected, rel=1e-10)
+    centred = {**parameters, "delta_raw": np.asarray(fit.idata["at_observations"]["delta_gp"])[0, draw]}
+    assert log_likelihood_at(fit, centred, discrepancy_parametrization="centred") == pytest.approx(expected,
+                                                                                                   rel=1e-8)
+    assert log_likelihood_at(fit, centred) != pytest.approx(expected, rel=1e-3)

@@ -419,6 +419,18 @@ def test_latent_program_pieces(gq):
     check_latent_loo(K_delta, gq["point_loo_lik"], gq["point_loo_mean"], (1, 2))
 
 
+def test_latent_gp_centred_and_non_centred(gq):
+    """latent_gp_values and latent_gp_prior_lpdf: the values themselves and
+    their GP density (centred), or L z and the standard normals' density
+    (non-centred), L the Cholesky factor with the jitter."""
+    K = se(X2, X2) + JITTER * SD**2 * np.eye(4)
+    np.testing.assert_allclose(gq["latent_values_centred"], RESID[:4], rtol=1e-14)
+    np.testing.assert_allclose(gq["latent_values_noncentred"], np.linalg.cholesky(K) @ Z_DRAW, rtol=1e-10)
+    np.testing.assert_allclose(gq["latent_prior_centred"],
+                               stats.multivariate_normal(np.zeros(4), K).logpdf(RESID[:4]), rtol=1e-10)
+    np.testing.assert_allclose(gq["latent_prior_noncentred"], stats.norm.logpdf(Z_DRAW).sum(), rtol=1e-10)
+
+
 def test_given_normals_are_checked(gq):
     import stan
 

@@ -1,7 +1,11 @@
 /**
- * Latent GPs in the non-centred parameterisation, for the programs whose
- * likelihood does not let the GP be integrated out (koh_latent*.stan):
- * values = L z, z ~ N(0, I), L the Cholesky factor of the covariance.
+ * Latent GPs, for the programs whose likelihood does not let the GP be
+ * integrated out (koh_latent*.stan). Non-centred: values = L z, z ~ N(0, I),
+ * L the Cholesky factor of the covariance; centred: the values themselves,
+ * values ~ N(0, L L'). Centred suits data that pin the values (much more
+ * information per point than the prior's precision), non-centred data that
+ * do not: each is a funnel, or a long ridge, where the other is not
+ * (Papaspiliopoulos, Roberts & Skold 2007; Betancourt & Girolami 2015).
  */
 
 /**
@@ -33,6 +37,47 @@ matrix latent_gp_cholesky(array[] vector x, int kernel_id, real marginal_sd,
 vector latent_gp(array[] vector x, int kernel_id, real marginal_sd,
                  array[] real length_scale, vector z) {
   return latent_gp_cholesky(x, kernel_id, marginal_sd, length_scale) * z;
+}
+
+/**
+ * A latent GP's values at the points from the sampler's parameters: the
+ * parameters themselves when centred, L z when non-centred.
+ *
+ * @param raw the sampled parameters: the values (centred) or their standard normals z
+ * @param centred 1 = raw are the values, 0 = their standard normals
+ * @param x the points
+ * @param kernel_id 1 = squared exponential, 2 = Matern 5/2
+ * @param marginal_sd the GP's marginal sd
+ * @param length_scale the GP's length scales, one per input
+ * @return the GP's values at the points
+ */
+vector latent_gp_values(vector raw, int centred, array[] vector x, int kernel_id, real marginal_sd,
+                        array[] real length_scale) {
+  if (centred) return raw;
+  return latent_gp(x, kernel_id, marginal_sd, length_scale, raw);
+}
+
+/**
+ * Prior of a latent GP's sampled parameters: the zero-mean GP on the values
+ * when centred, standard normals when non-centred (the values are then a
+ * transform of them, latent_gp_values). One Cholesky factor per call in the
+ * centred case, none here in the non-centred one.
+ *
+ * @param raw the sampled parameters: the values (centred) or their standard normals z
+ * @param centred 1 = raw are the values, 0 = their standard normals
+ * @param x the points
+ * @param kernel_id 1 = squared exponential, 2 = Matern 5/2
+ * @param marginal_sd the GP's marginal sd
+ * @param length_scale the GP's length scales, one per input
+ * @return log density (constants dropped as by ~ when called as _lupdf)
+ */
+real latent_gp_prior_lpdf(vector raw, int centred, array[] vector x, int kernel_id, real marginal_sd,
+                          array[] real length_scale) {
+  if (centred) {
+    return multi_normal_cholesky_lupdf(raw | rep_vector(0, rows(raw)),
+                                       latent_gp_cholesky(x, kernel_id, marginal_sd, length_scale));
+  }
+  return std_normal_lupdf(raw);
 }
 
 /**

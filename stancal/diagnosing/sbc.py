@@ -95,13 +95,17 @@ def log_likelihood_draws(fit: CalibrationResult) -> np.ndarray:
 
 
 def log_likelihood_at(fit: CalibrationResult, parameters: dict[str, np.ndarray],
-                       functional_parametrization: str | None = None) -> float:
+                       functional_parametrization: str | None = None,
+                       discrepancy_parametrization: str | None = None) -> float:
     """The same log-likelihood on the fit's data at the program's own
-    ``parameters`` (one draw, in ``functional_parametrization`` if given),
-    through its generated quantities."""
+    ``parameters`` (one draw, in ``functional_parametrization`` and
+    ``discrepancy_parametrization`` if given: the prior's, which a fit may
+    have left), through its generated quantities."""
     points = fit.idata["predictions_constant_data"].to_dataset().to_dataframe().reset_index(drop=True)
     options = replace(fit.options, functional_parametrization=functional_parametrization
-                      or fit.options.functional_parametrization)
+                      or fit.options.functional_parametrization,
+                      discrepancy_parametrization=discrepancy_parametrization
+                      or fit.options.discrepancy_parametrization)
     stan_data = build_stan_data(fit.data, fit.row.data, options, points,
                                 emulator_hyperparameters=fit.emulator.get("hyperparameters"))
     draws = get_backend(fit.backend).generate_quantities(
@@ -122,7 +126,8 @@ def functional_parametrizations(calibrate_options: dict[str, Any]) -> tuple[str 
 
 def simulated_ranks(data: CalibrationData, truth: dict[str, float], truth_parameters: dict[str, np.ndarray],
                     draws_per_fit: int, prior_parametrization: str | None = None,
-                    out_dir: str | Path | None = None, **calibrate_options: Any) -> dict[str, int]:
+                    prior_discrepancy: str | None = None, out_dir: str | Path | None = None,
+                    **calibrate_options: Any) -> dict[str, int]:
     """Fit one simulated data set and rank each true value among L evenly
     thinned posterior draws, and the log-likelihood at the truth among its
     values at those draws (run where the fit runs: only ranks travel back).
@@ -131,7 +136,7 @@ def simulated_ranks(data: CalibrationData, truth: dict[str, float], truth_parame
     fit = calibrate(data, out_dir=out_dir, **calibrate_options)
     posterior = _scalars(fit.idata["posterior"].to_dataset())
     at_truth = {name: value for name, value in truth.items() if name in posterior}
-    at_truth[LOG_LIKELIHOOD] = log_likelihood_at(fit, truth_parameters, prior_parametrization)
+    at_truth[LOG_LIKELIHOOD] = log_likelihood_at(fit, truth_parameters, prior_parametrization, prior_discrepancy)
     ranked = {name: _thinned(posterior[name], draws_per_fit) for name in at_truth if name != LOG_LIKELIHOOD}
     ranked[LOG_LIKELIHOOD] = _thinned(log_likelihood_draws(fit), draws_per_fit)
     if out_dir is not None:
@@ -198,6 +203,8 @@ def simulation_based_calibration(
     if fit_parametrization:
         calibrate_options["functional_parametrization"] = fit_parametrization
         prior_options["functional_parametrization"] = prior_parametrization
+    # a latent discrepancy's prior without data: non-centred (centred is a funnel there)
+    prior_options["discrepancy_parametrization"] = "non_centred"
     prior_fit = calibrate(data, simulator=simulator, method=method, prior=True, chains=1, warmup=warmup,
                           draws=PRIOR_THINNING * simulations, seed=seed, **prior_options)
     # one plan for every fit (simulated data sets share the design): its programs' code is part of each
@@ -211,8 +218,9 @@ def simulation_based_calibration(
     tasks = [FitTask(f"simulation {s}", simulated_ranks, dict(
         data=data.with_output(replicated[s]), truth={name: float(v[s]) for name, v in prior.items()},
         truth_parameters={name: v[s] for name, v in prior_parameters.items()},
-        prior_parametrization=prior_parametrization, draws_per_fit=draws_per_fit, plan=plan, chains=chains,
-        warmup=warmup, draws=per_chain, seed=fit_seed(seed, f"simulation {s}"),
+        prior_parametrization=prior_parametrization,
+        prior_discrepancy=prior_fit.options.discrepancy_parametrization, draws_per_fit=draws_per_fit, plan=plan,
+        chains=chains, warmup=warmup, draws=per_chain, seed=fit_seed(seed, f"simulation {s}"),
         out_dir=None if out_dir is None else Path(out_dir) / "fits" / f"{s:04d}", **calibrate_options))
         for s in range(simulations)]
     with fit_runner(scheduler) as runner:

@@ -15,6 +15,7 @@ from stancal.fitting.approximation_checks import check_basis, check_emulator_var
 from stancal.fitting.confounding import resolve_confounding
 from stancal.fitting.inits import spread_theta_inits
 from stancal.fitting.l2 import l2_result
+from stancal.fitting.parametrization_fallback import with_fallback
 from stancal.fitting.plan import Plan, model_options, plan_scalar
 from stancal.fitting.postfit import check_fit, save_draws
 from stancal.fitting.seeds import command_seed
@@ -83,12 +84,16 @@ def _sample(stan_backend, flat: FlatProgram, data: CalibrationData, plan: Plan, 
 
 
 def _sample_checked(sample_once, data: CalibrationData, plan: Plan, emulator: dict[str, Any],
-                    chosen_by_user: bool) -> tuple[_Fit, ModelOptions, list[str]]:
+                    chosen_by_user: bool, max_treedepth: int) -> tuple[_Fit, ModelOptions, list[str]]:
     """Sample, then check the approximation the program makes, if it makes
     one: a Hilbert-space basis stancal chose is rebuilt once from the fitted
-    length scales; the scalable emulator's covariance is checked at the draws."""
+    length scales; the scalable emulator's covariance is checked at the draws.
+    A latent discrepancy the plan parametrised whose fit saturates the tree
+    depth is refitted once the other way (parametrization_fallback)."""
     options = plan.options
     fit = sample_once(options)
+    if plan.program.latent and options.has_discrepancy and not plan.parametrization_given:
+        fit, options = with_fallback(sample_once, fit, options, max_treedepth, lambda f: f.tree)
     messages: list[str] = []
     if plan.program.approximation == "hsgp" and options.has_discrepancy:
         options, refit, messages = check_basis(fit.tree, data, options, chosen_by_user=chosen_by_user)
@@ -131,6 +136,7 @@ def calibrate(
     approximation: str = "auto",
     basis_functions: tuple[int, ...] | list[int] = (),
     boundary_factor: tuple[float, ...] | list[float] = (),
+    discrepancy_parametrization: str = "auto",
     new_points: pd.DataFrame | None = None,
     chains: int = 4,
     warmup: int = 1000,
@@ -161,6 +167,13 @@ def calibrate(
     ``functional_parametrization`` of that GP: centred (data that pin theta(x)
     closely) or non_centred (noisy or sparse data); a fit whose sampler
     struggles is told to try the other.
+    ``discrepancy_parametrization`` of the latent programs' discrepancy GP:
+    centred, non_centred, or auto (centred when the data's information per
+    point dominates the prior's precision at most points, Papaspiliopoulos,
+    Roberts & Sköld 2007: stancal.numerics.parametrization); under auto, a fit
+    with more than 5 % of its transitions at the maximum tree depth is
+    refitted once the other way and the better kept. The summary says which
+    ran and why (options.discrepancy_parametrization_reason).
     Non-Gaussian (``CalibrationData(likelihood=...)``) or censored outputs and
     functional theta run on the latent-GP programs koh_latent (simulator) and
     koh_latent_emulator (runs).
@@ -187,7 +200,8 @@ def calibrate(
     sampling = SamplerOptions(chains, warmup, draws, seed, adapt_delta, max_treedepth)
     options = model_options(discrepancy, kernel, estimate_rho, mean_formula, mean_intercept, scaled_lambda,
                             functional, functional_inputs, functional_parametrization, approximation,
-                            basis_functions, boundary_factor, mean_centred)
+                            basis_functions, boundary_factor, mean_centred,
+                            discrepancy_parametrization)
     if plan is None:
         plan = plan_scalar(data, simulator, method, options, program)
     else:
@@ -205,7 +219,7 @@ def calibrate(
     flat = programs[-1]
     fit, options, messages = _sample_checked(
         lambda options: _sample(stan_backend, flat, data, plan, options, fit_points, emulator, prior, sampler),
-        data, plan, emulator, chosen_by_user=plan.basis_given)
+        data, plan, emulator, chosen_by_user=plan.basis_given, max_treedepth=max_treedepth)
     result = CalibrationResult(
         idata=fit.tree, data=data, method=plan.name, backend=stan_backend.name, options=options, program=flat,
         registry_row=plan.program,

@@ -9,6 +9,7 @@ from dataclasses import dataclass, fields, replace
 from pathlib import Path
 
 from stancal.numerics.hsgp import first_basis
+from stancal.numerics.parametrization import choose_parametrization
 from stancal.problem.data import CalibrationData
 from stancal.problem.functional import check_functional
 from stancal.problem.options import EXACT_SIZE_LIMIT, RESTRICTED_DISCREPANCIES, ModelOptions, VectorOptions
@@ -32,6 +33,8 @@ class Plan:
     basis_given: bool = False  # the Hilbert-space basis is the user's: checked, never rebuilt
     # theta checked against the model's own terms (stancal.fitting.confounding), once per plan
     confounding_checked: bool = False
+    # the latent discrepancy's parametrisation is the user's: never refitted the other way
+    parametrization_given: bool = False
 
     @property
     def name(self) -> str:
@@ -60,14 +63,16 @@ def model_options(discrepancy: str | None = None, kernel: str = "se", estimate_r
                   mean_formula: str | None = None, mean_intercept: bool = False,
                   scaled_lambda: float | None = None, functional=(), functional_inputs=(),
                   functional_parametrization: str = "centred", approximation: str = "auto",
-                  basis_functions=(), boundary_factor=(), mean_centred: bool = False) -> ModelOptions:
+                  basis_functions=(), boundary_factor=(), mean_centred: bool = False,
+                  discrepancy_parametrization: str = "auto") -> ModelOptions:
     """calibrate()'s model keywords as ModelOptions; the discrepancy defaults
     to gp, or none with functional theta (flexible enough without one,
     review section 8.2)."""
     return ModelOptions("none" if discrepancy is None and functional else discrepancy or "gp", kernel,
                         estimate_rho, mean_formula, mean_intercept, scaled_lambda, tuple(functional),
                         tuple(functional_inputs), functional_parametrization, approximation,
-                        tuple(basis_functions), tuple(boundary_factor), mean_centred)
+                        tuple(basis_functions), tuple(boundary_factor), mean_centred,
+                        discrepancy_parametrization)
 
 
 def make_plan(data: CalibrationData | VectorCalibrationData, simulator: str | Path | None = None,
@@ -119,12 +124,15 @@ def plan_scalar(data: CalibrationData, simulator: str | Path | None = None, meth
                          f"simulator inputs' box, so the discrepancy cannot take the covariates "
                          f"{data.covariates}; leave them out of the data, or use discrepancy 'gp'")
     basis_given = bool(options.basis_functions)
+    parametrization_given = options.discrepancy_parametrization != "auto"
+    options = _latent_parametrization(data, chosen, options)
     if chosen.approximation == "hsgp":
         options = replace(options, approximation="hsgp")
         if not options.basis_functions:
             basis = first_basis(options.kernel, data.discrepancy_inputs)
             options = replace(options, basis_functions=basis.counts, boundary_factor=basis.boundary_factors)
-    return Plan(chosen, options, _path(simulator), _path(program), l2, basis_given)
+    return Plan(chosen, options, _path(simulator), _path(program), l2, basis_given,
+                parametrization_given=parametrization_given)
 
 
 def plan_vector(data: VectorCalibrationData, simulator: str | Path | None = None, method: str | None = None,
@@ -170,6 +178,22 @@ def _latent_version(base: Program, reason: str | None, options: ModelOptions) ->
     if unsupported:
         raise ValueError(f"{reason} runs on the latent-GP programs, which do not support {', '.join(unsupported)}")
     return latent
+
+
+def _latent_parametrization(data: CalibrationData, chosen: Program, options: ModelOptions) -> ModelOptions:
+    """The latent programs' discrepancy GP centred or non-centred, decided
+    once: the user's choice, or the data's (stancal.numerics.parametrization,
+    Papaspiliopoulos, Roberts & Sköld 2007), said in one line."""
+    if not (chosen.latent and options.has_discrepancy) or options.discrepancy_parametrization_reason:
+        return options
+    if options.discrepancy_parametrization != "auto":
+        return replace(options, discrepancy_parametrization_reason=(
+            f"{options.discrepancy_parametrization} (set by the user: model.discrepancy_parametrization)"))
+    x_delta = data.scaling.to_unit(data.physical, data.discrepancy_inputs)
+    choice = choose_parametrization(data.observations, x_delta, len(data.inputs), options.kernel_id)
+    logger.info("the discrepancy's latent GP is sampled %s", choice.reason)
+    return replace(options, discrepancy_parametrization=choice.parametrization,
+                   discrepancy_parametrization_reason=choice.reason)
 
 
 def dense_size(data: CalibrationData, program: Program) -> int:

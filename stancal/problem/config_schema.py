@@ -18,6 +18,7 @@ from stancal.problem.options import (
     EXACT_SIZE_LIMIT,
     FUNCTIONAL_PARAMETRIZATIONS,
     KERNELS,
+    PARAMETRIZATIONS,
 )
 from stancal.problem.output_basis import DEFAULT_VARIANCE_SHARE
 
@@ -135,6 +136,10 @@ TABLES: tuple[Table, ...] = (
         Key("functional_parametrization", "string", '"centred"', "theta(x)'s latent GP: centred (data that "
             "pin theta(x)) or non_centred", SCALAR,
             choices=FUNCTIONAL_PARAMETRIZATIONS),
+        Key("discrepancy_parametrization", "string", '"auto"', "the latent programs' discrepancy GP (counts, "
+            "binomial, censored outputs, functional theta): centred, non_centred, or auto (centred when the "
+            "data's information per point dominates the prior at most points; refitted the other way once if "
+            "more than 5 % of transitions hit the maximum tree depth)", SCALAR, choices=PARAMETRIZATIONS),
         Key("approximation", "string", '"auto"', "exact (dense GPs), hsgp (Hilbert-space, scalable) or auto "
             f"(hsgp above {EXACT_SIZE_LIMIT:,} points plus runs)", SCALAR,
             choices=APPROXIMATIONS),

@@ -3,7 +3,7 @@ the scalar and vector programs, and the limits they are checked against."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -36,6 +36,10 @@ class ModelOptions:
     # the mean terms centred over the physical points without a constant term: a theta carries
     # the level (stancal.fitting.confounding dropped the constant it would trade with)
     mean_centred: bool = False
+    # the latent programs' discrepancy GP: centred, non_centred, or auto (the plan chooses from the
+    # data's information per point: stancal.numerics.parametrization); the reason says who chose and why
+    discrepancy_parametrization: str = "auto"
+    discrepancy_parametrization_reason: str = field(default="", metadata={"set_by": "stancal"})  # not a user's key
 
     def __post_init__(self) -> None:
         # lists from a config or a saved result
@@ -55,6 +59,9 @@ class ModelOptions:
         if self.functional_parametrization not in FUNCTIONAL_PARAMETRIZATIONS:
             raise ValueError(f"functional_parametrization must be one of "
                              f"{', '.join(FUNCTIONAL_PARAMETRIZATIONS)}; got {self.functional_parametrization!r}")
+        if self.discrepancy_parametrization not in PARAMETRIZATIONS:
+            raise ValueError(f"discrepancy_parametrization must be one of {', '.join(PARAMETRIZATIONS)}; "
+                             f"got {self.discrepancy_parametrization!r}")
         if self.kernel not in KERNELS:
             raise ValueError(f"kernel must be 'se' or 'matern52'; got {self.kernel!r}")
         if self.scaled_lambda is not None and not (np.isfinite(self.scaled_lambda) and self.scaled_lambda > 0):
@@ -70,6 +77,8 @@ class ModelOptions:
 
 
 FUNCTIONAL_PARAMETRIZATIONS = ("centred", "non_centred")
+# the latent discrepancy: auto = chosen by the plan (stancal.numerics.parametrization)
+PARAMETRIZATIONS = ("auto", "centred", "non_centred")
 
 # approximation = "auto" switches to the scalable programs when the dense
 # matrix factorised at every gradient would be larger than this: N physical

@@ -64,8 +64,16 @@ def _parameters_and_sampler(summary: dict, table) -> list[str]:
         (f"- divergences: {d['divergences']}; max R-hat {d['max_rhat']:.3f}; "
         f"min bulk ESS {d['min_ess_bulk']:.0f}; min tail ESS {d['min_ess_tail']:.0f}"),
         f"- {stage_times(summary['timing'])}",
+        *parametrization_line(summary),
         *(f"- **warning**: {w}" for w in summary.get("warnings", [])),
     ]
+
+
+def parametrization_line(summary: dict) -> list[str]:
+    """How the latent discrepancy GP was sampled, and why (the plan's choice,
+    and the refit the other way if the first fit saturated the tree depth)."""
+    reason = summary.get("options", {}).get("discrepancy_parametrization_reason")
+    return [f"- the discrepancy's latent GP was sampled {reason}"] if reason else []
 
 
 def _report(summary: dict, table, plots: list[Path]) -> str:

@@ -43,7 +43,7 @@ AT_OBSERVATIONS = ("delta_gp", "delta_gp_mean", "y_loo_mean")
 # parameter of a program goes into the posterior group as it is
 _REEXPRESSED = {"theta_unit", "noise_sd", "delta_sd", "delta_input_length_scale", "delta_relevance",
                 "rho_free", "beta",
-                "inv_sqrt_phi", "delta_z", "emulator_z", "theta_function_sd",
+                "inv_sqrt_phi", "delta_raw", "emulator_z", "theta_function_sd",
                 "theta_function_length_scale", "theta_function_logit", "theta_function_raw"}
 
 

@@ -183,6 +183,7 @@ def latent_data(data: CalibrationData, options: ModelOptions, new_points: pd.Dat
         "x_fun": distinct if fun_inputs else np.zeros((0, 0)),
         "fun_point": (fun_point.ravel() + 1) if fun_inputs else np.zeros(0, dtype=int),
         "functional_centred": int(options.functional_parametrization == "centred"),
+        "delta_centred": int(options.discrepancy_parametrization == "centred"),
         "G": len(grid),
         "x_fun_grid": data.scaling.to_unit(grid, fun_inputs).reshape(len(grid), len(fun_inputs)),
         "x_fun_new": data.scaling.to_unit(new_points, fun_inputs),

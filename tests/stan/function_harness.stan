@@ -219,6 +219,11 @@ generated quantities {
   real functional_prior_noncentred = functional_theta_prior_lpdf(
     [[0.2], [-0.5], [1.0]] | [[0.3], [-1.1], [0.6]], 0, [0.25, 0.5]', {0, 1}, coordinate(x1[1:3], 1), 1,
     [0.9]', {[0.4]'});
+  // the discrepancy's latent GP at x2, centred (the values resid[1:4]) or non-centred (normals z_draw)
+  vector[n2] latent_values_centred = latent_gp_values(resid[1:4], 1, x2, 1, sd_, ls);
+  vector[n2] latent_values_noncentred = latent_gp_values(z_draw, 0, x2, 1, sd_, ls);
+  real latent_prior_centred = latent_gp_prior_lpdf(resid[1:4] | 1, x2, 1, sd_, ls);
+  real latent_prior_noncentred = latent_gp_prior_lpdf(z_draw | 0, x2, 1, sd_, ls);
   matrix[n2, 1] functional_grid;
   matrix[2, 2] functional_new;
   {
