@@ -223,3 +223,23 @@ def test_a_killed_command_leaves_nothing_running(stop, tmp_path):
     time.sleep(2)
     assert (_files(out) if out.exists() else {}) == written
     assert list(temporary.glob("stancal-*")) == []  # the cluster's scratch folder (the workers' httpstan caches)
+
+
+def test_a_scheduler_slow_to_start_is_stopped_and_named():
+    """On a loaded machine the local scheduler took 54 s to write its address
+    (load average 20). distributed's own start gives it 30 s, then reads the
+    scheduler's stderr to its end, which never comes while the scheduler
+    lives: the command hung for an hour. stancal's start kills it and says so
+    (a deadline of a millisecond stands in for the slow start)."""
+    import asyncio
+
+    from stancal.fitting.local_cluster import PatientScheduler
+
+    scheduler = PatientScheduler(timeout=0.001)
+
+    async def start() -> None:
+        await asyncio.wait_for(scheduler.start(), 60)  # the bug: asyncio.TimeoutError after a minute
+
+    with pytest.raises(RuntimeError, match=r"Dask scheduler did not start within 0 s"):
+        asyncio.run(start())
+    assert scheduler.process is None or scheduler.process.returncode is not None

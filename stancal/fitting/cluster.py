@@ -205,18 +205,14 @@ class FitRunner:
         started = time.perf_counter()
         if self.scheduler is None:
             # workers as fresh `dask spec` processes, not multiprocessing children: these never
-            # re-run the user's script (no __main__ guard needed); a plain Worker, as no nanny
-            # is needed to restart it (the scheduler reruns a lost worker's fits elsewhere)
-            from distributed.deploy.subprocess import SubprocessCluster
+            # re-run the user's script (no __main__ guard needed)
+            from stancal.fitting.local_cluster import local_cluster
 
             self._scratch = Path(tempfile.mkdtemp(prefix="stancal-cluster-"))
-            ending = {"preload_argv": ["--scratch", str(self._scratch)]}  # for dask_setup
-            self._cluster = SubprocessCluster(n_workers=self.workers, threads_per_worker=1,
-                                              worker_class="distributed.Worker", dashboard_address=":0",
-                                              scheduler_kwargs={"preload": [__name__], **ending},
-                                              worker_kwargs={"memory_limit": 0, "preload": [__name__], **ending})
+            ending = {"preload": [__name__], "preload_argv": ["--scratch", str(self._scratch)]}  # dask_setup
+            self._cluster = local_cluster(self.workers, ending, {"memory_limit": 0, **ending})
             self.client = Client(self._cluster)
-            self.client.wait_for_workers(self.workers)
+            self._wait_for_workers()
         else:
             self.client = Client(self.scheduler, timeout="30s")
         self.client.register_plugin(_private_cache_plugin(self._scratch))
@@ -225,6 +221,16 @@ class FitRunner:
                     "local cluster" if self._cluster else self.scheduler,
                     self.client.dashboard_link, time.perf_counter() - started)
         return self
+
+    def _wait_for_workers(self) -> None:
+        from stancal.fitting.local_cluster import START_TIMEOUT_S
+
+        try:
+            self.client.wait_for_workers(self.workers, timeout=START_TIMEOUT_S)
+        except TimeoutError:
+            self.__exit__()
+            raise RuntimeError(f"{self.workers} Dask workers did not all start within {START_TIMEOUT_S:.0f} s "
+                               "(is the machine overloaded?)") from None
 
     def __exit__(self, *exc) -> None:
         if self.client is not None:
