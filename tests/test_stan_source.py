@@ -145,9 +145,9 @@ def test_every_data_line_has_a_comment(tmp_path):
 
 
 def stanc_warnings(flat) -> str:
-    import httpstan.compile
+    from stancal.stan.backends.pystan_compile import stanc
 
-    return httpstan.compile.compile(flat.code, "stancal_check")[1]
+    return stanc(flat.code, "stancal_check")[1]
 
 
 def test_stanc_warnings_in_the_users_file_are_mapped_and_shipped_ones_left_out(tmp_path):
