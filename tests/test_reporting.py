@@ -283,7 +283,9 @@ def test_compile_reports_the_seconds_it_built_for(monkeypatch):
     built: list[str] = []
     monkeypatch.setattr(pystan_compile, "is_compiled", lambda code: False)
     monkeypatch.setattr(pystan_compile, "stored_module", lambda code: Path("/nonexistent/module.so"))
-    monkeypatch.setattr(pystan_compile, "_compile_in_subprocess", lambda p: (time.sleep(0.2), built.append(p.code)))
+    monkeypatch.setattr(pystan_compile, "prepare_toolchain", lambda: pystan_compile.PYTHONS_COMPILER)
+    monkeypatch.setattr(pystan_compile, "_compile_in_subprocess",
+                        lambda p, toolchain: (time.sleep(0.2), built.append(p.code)))
     monkeypatch.setattr(pystan_compile, "_install", lambda code, module: None)
     assert pystan_compile.compile_programs([program]) >= 0.2
     assert built == [program.code]
