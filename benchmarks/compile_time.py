@@ -78,7 +78,7 @@ def variants(clang: str | None) -> list[tuple[str, bool, str | None, tuple[str, 
     return rows
 
 
-def build_all(code: str, work: Path, clang: str | None) -> tuple[list[dict], dict[str, Path]]:
+def build_all(code: str, work: Path, clang: str | None, only: list[str]) -> tuple[list[dict], dict[str, Path]]:
     """Build every variant of ``code``; a row per build (and per header build)."""
     from stancal.stan.backends.pystan_compile import STAN_MACROS, build_module, httpstan_include, store_directory
     from stancal.stan.backends.toolchain import Toolchain, precompiled_header
@@ -86,6 +86,8 @@ def build_all(code: str, work: Path, clang: str | None) -> tuple[list[dict], dic
     rows, modules = [], {}
     store_directory().mkdir(parents=True, exist_ok=True)
     for label, with_header, compiler, args in variants(clang):
+        if only and label not in only and label != "g++ -O3":  # the baseline always
+            continue
         pch = None
         if with_header:
             pch, wall, cpu = timed(lambda a=args: precompiled_header(store_directory(), clang, STAN_MACROS,
@@ -171,6 +173,7 @@ def arguments() -> argparse.Namespace:
     parser.add_argument("--warmup", type=int, default=1000)
     parser.add_argument("--draws", type=int, default=1000)
     parser.add_argument("--no-sampling", action="store_true")
+    parser.add_argument("--variants", nargs="*", default=[], help="builds to measure besides g++ -O3, by label")
     parser.add_argument("--sample", type=Path, help=argparse.SUPPRESS)  # a child process: sample one module
     return parser.parse_args()
 
@@ -189,7 +192,7 @@ def main() -> None:
         os.environ["STANCAL_CACHE"] = str(store / "cache")  # a store of this run's own
         code = cooling_program()
         (store / "builds").mkdir()
-        rows, modules = build_all(code, store / "builds", clang)
+        rows, modules = build_all(code, store / "builds", clang, args.variants)
         pd.options.display.float_format = "{:.2f}".format
         print("compiling the cooling koh program (ratios: to g++ -O3 in this run)")
         print(pd.DataFrame(rows).to_markdown(index=False, floatfmt=".2f"))
