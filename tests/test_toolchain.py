@@ -95,6 +95,10 @@ def test_g_plus_plus_when_clang_is_absent_asked_against_or_broken(tmp_path, monk
     assert choose_toolchain(store, macros, include, args) == Toolchain()
     monkeypatch.setenv("STANCAL_CXX", "g++")
     assert choose_toolchain(store, macros, include, args) == Toolchain()
+    monkeypatch.setenv("STANCAL_CXX", "clang++-99")
+    with caplog.at_level(logging.WARNING, logger="stancal"):
+        assert choose_toolchain(store, macros, include, args) == Toolchain()
+    assert "STANCAL_CXX=clang++-99 is not a compiler on the PATH" in caplog.text
     assert Toolchain().extra_args() == [] and Toolchain().describe() == "g++"
     monkeypatch.setenv("STANCAL_CXX", str(fake_compiler(tmp_path, fail_on="c++-header")))
     with caplog.at_level(logging.WARNING, logger="stancal"):

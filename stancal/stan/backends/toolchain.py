@@ -79,7 +79,10 @@ def wanted_compiler() -> str | None:
     named = os.environ.get(COMPILER_VARIABLE, "").strip()
     if named in ("g++", "gcc", "default"):
         return None
-    return shutil.which(named or "clang++")
+    found = shutil.which(named or "clang++")
+    if named and found is None:
+        logger.warning("%s=%s is not a compiler on the PATH; compiling with g++", COMPILER_VARIABLE, named)
+    return found
 
 
 def compiler_version(compiler: str) -> str:
@@ -158,9 +161,9 @@ def choose_toolchain(store: Path, macros: Sequence[tuple[str, str | None]], incl
     compiler = wanted_compiler()
     if compiler is None:
         return Toolchain()
-    if not is_clang(compiler):
-        return Toolchain(compiler)
     try:
+        if not is_clang(compiler):
+            return Toolchain(compiler)
         return Toolchain(compiler, str(precompiled_header(store, compiler, macros, include, args)))
     except (RuntimeError, OSError, subprocess.SubprocessError) as error:
         logger.warning("%s; compiling with g++ instead", error)
