@@ -6,6 +6,7 @@ figures are drawn from synthetic draws (no Stan), so these take seconds."""
 from __future__ import annotations
 
 import base64
+import logging
 import re
 import shutil
 import subprocess
@@ -269,9 +270,10 @@ def test_stage_times_say_when_the_program_was_compiled_earlier():
     assert stage_times({"compile_s": 473.2, "sample_s": 12.3}) == "compile 473.2 s, sampling 12.3 s"
 
 
-def test_compile_reports_the_seconds_it_built_for(monkeypatch):
+def test_compile_reports_the_seconds_it_built_for(monkeypatch, caplog):
     """compile_programs returns the time spent building, and 0.0 when every
-    program was built earlier (the report then says 'compiled earlier')."""
+    program was built earlier (the report then says 'compiled earlier'); a
+    batch it builds says once which compiler builds it."""
     import time
 
     from stancal.stan.backends import pystan_compile
@@ -283,10 +285,14 @@ def test_compile_reports_the_seconds_it_built_for(monkeypatch):
     built: list[str] = []
     monkeypatch.setattr(pystan_compile, "is_compiled", lambda code: False)
     monkeypatch.setattr(pystan_compile, "stored_module", lambda code: Path("/nonexistent/module.so"))
-    monkeypatch.setattr(pystan_compile, "_compile_in_subprocess", lambda p: (time.sleep(0.2), built.append(p.code)))
+    monkeypatch.setattr(pystan_compile, "prepare_toolchain", lambda: pystan_compile.PYTHONS_COMPILER)
+    monkeypatch.setattr(pystan_compile, "_compile_in_subprocess",
+                        lambda p, toolchain: (time.sleep(0.2), built.append(p.code)))
     monkeypatch.setattr(pystan_compile, "_install", lambda code, module: None)
-    assert pystan_compile.compile_programs([program]) >= 0.2
+    with caplog.at_level(logging.WARNING, logger="stancal"):
+        assert pystan_compile.compile_programs([program]) >= 0.2
     assert built == [program.code]
+    assert caplog.text.count("Compiling 1 Stan program with PyStan and g++, 1 at a time") == 1
 
 
 def test_curves_of_a_fit_are_predicted_at_thinned_draws(koh_fit):

@@ -7,7 +7,10 @@ costs a third of the time and most of the 90 MB of each module. stancal
 builds the extension module itself, as httpstan.models.build_services_extension_module
 does but without debug information, keeps a copy in a store shared by all
 environments of this machine (keyed by program, httpstan and Python
-version), and installs it into httpstan's cache on demand.
+version), and installs it into httpstan's cache on demand. The compiler is
+clang++ with a precompiled Stan header where the machine has clang++, else g++
+(toolchain.py); a module built by either is valid, so the store's key leaves
+the compiler out.
 """
 
 from __future__ import annotations
@@ -17,6 +20,7 @@ import contextlib
 import fcntl
 import hashlib
 import io
+import json
 import logging
 import os
 import shutil
@@ -29,6 +33,7 @@ from importlib.machinery import EXTENSION_SUFFIXES
 from pathlib import Path
 
 from stancal.stan.backends.base import StanRuntimeError, cache_root
+from stancal.stan.backends.toolchain import Toolchain, choose_toolchain
 from stancal.stan.progress import ticking
 from stancal.stan.source import FlatProgram
 
@@ -115,9 +120,26 @@ def _shared_libraries() -> Path:
     return target
 
 
-def _build_module(code: str, folder: Path) -> Path:
+PYTHONS_COMPILER = Toolchain()  # g++, as httpstan builds
+
+
+def httpstan_include() -> Path:
+    """httpstan's headers (Stan, Stan Math, Eigen, Boost)."""
+    import httpstan
+
+    return Path(httpstan.__file__).parent / "include"
+
+
+def prepare_toolchain() -> Toolchain:
+    """The compiler for this machine's builds, its precompiled header built
+    into the store if it needs one (once per machine)."""
+    return choose_toolchain(store_directory(), STAN_MACROS, httpstan_include(), COMPILE_ARGS)
+
+
+def build_module(code: str, folder: Path, toolchain: Toolchain = PYTHONS_COMPILER,
+                 compile_args: tuple[str, ...] = COMPILE_ARGS) -> Path:
     """Build the program's extension module into ``folder`` (a setuptools
-    build, as httpstan does) and return its path."""
+    build, as httpstan does) with ``toolchain`` and return its path."""
     import httpstan
     import httpstan.build_ext
     import setuptools
@@ -132,12 +154,14 @@ def _build_module(code: str, folder: Path) -> Path:
         libraries += ["tbbmalloc", "tbbmalloc_proxy"]
     extension = setuptools.Extension(
         f"stan_services_{stan_name}", language="c++", sources=[str(source)],
-        define_macros=list(STAN_MACROS), include_dirs=[str(folder), str(package / "include")],
-        library_dirs=[str(package / "lib")], libraries=libraries, extra_compile_args=list(COMPILE_ARGS),
+        define_macros=list(STAN_MACROS), include_dirs=[str(folder), str(httpstan_include())],
+        library_dirs=[str(package / "lib")], libraries=libraries,
+        extra_compile_args=[*compile_args, *toolchain.extra_args()],
         extra_link_args=[f"-Wl,-rpath,{_shared_libraries()}", f"-Wl,-rpath,{package / 'lib'}"],
         extra_objects=[str(package / "stan_services.o")],
     )
-    httpstan.build_ext.run_build_ext([extension], str(folder))
+    with toolchain.environment():
+        httpstan.build_ext.run_build_ext([extension], str(folder))
     return next(p for p in folder.iterdir() if p.suffix in EXTENSION_SUFFIXES and p.name.startswith("stan_services"))
 
 
@@ -160,7 +184,7 @@ def _install(code: str, module: Path) -> None:
         shutil.copy2(module, target)
 
 
-def build_if_absent(code: str) -> bool:
+def build_if_absent(code: str, toolchain: Toolchain = PYTHONS_COMPILER) -> bool:
     """Build the program's module into the store unless it is there; True if
     this process built it. Processes that ask at once (Dask workers, two
     commands) take a lock per program: one builds, the others wait and find
@@ -175,7 +199,7 @@ def build_if_absent(code: str) -> bool:
             return False
         logger.info("building %s", stored.name)
         with tempfile.TemporaryDirectory(dir=stored.parent) as folder:
-            built = _build_module(code, Path(folder))
+            built = build_module(code, Path(folder), toolchain)
             os.replace(built, stored)  # atomic: a reader without the lock sees all or nothing
     return True
 
@@ -284,17 +308,20 @@ def held_output(descriptors: bool = True):
                 os.close(copy)
 
 
-def _compile_in_subprocess(program: FlatProgram) -> bool:
+def _compile_in_subprocess(program: FlatProgram, toolchain: Toolchain) -> bool:
     """One build into the store in its own Python process (its g++ output held back), so
     that several run side by side; a subprocess rather than multiprocessing,
     which would re-import the user's script in every worker. True if it built
     the program, False if another process had built it meanwhile."""
-    script = ("import sys; from stancal.stan.backends.pystan_compile import build_if_absent; "
-              "print(int(build_if_absent(sys.stdin.read())))")
-    done = subprocess.run([sys.executable, "-c", script], input=program.code, capture_output=True, text=True)
+    script = ("import json, sys; from stancal.stan.backends.pystan_compile import build_if_absent; "
+              "from stancal.stan.backends.toolchain import Toolchain; "
+              "print(int(build_if_absent(sys.stdin.read(), Toolchain(**json.loads(sys.argv[1])))))")
+    done = subprocess.run([sys.executable, "-c", script, json.dumps(toolchain.__dict__)], input=program.code,
+                          capture_output=True, text=True)
     if done.returncode != 0:
         tail = "\n".join((done.stdout + done.stderr).strip().splitlines()[-20:])
-        raise StanRuntimeError(f"compiling {program_file(program)} failed:\n{tail}")
+        hint = "\n(to compile with g++ instead: STANCAL_CXX=g++)" if toolchain.compiler else ""
+        raise StanRuntimeError(f"compiling {program_file(program)} with {toolchain.describe()} failed:\n{tail}{hint}")
     return done.stdout.strip().splitlines()[-1] == "1"
 
 
@@ -314,16 +341,18 @@ def compile_programs(programs: list[FlatProgram]) -> float:
         return 0.0
     building = [p for p in todo.values() if not stored_module(p.code).is_file()]
     workers = max(1, min(len(building), os.cpu_count() or 1))
-    if building:
-        logger.warning("Compiling %d Stan program%s with PyStan, %d at a time (%s); each takes two to "
-                       "four minutes on a 2-core machine, once per machine.",
-                       len(building), "s" if len(building) > 1 else "", workers,
-                       ", ".join(program_file(p) for p in building))
     started = time.perf_counter()
+    toolchain = prepare_toolchain() if building else Toolchain()
+    if building:
+        logger.warning("Compiling %d Stan program%s with PyStan and %s, %d at a time (%s); each takes one to "
+                       "four minutes on a 2-core machine, once per machine.",
+                       len(building), "s" if len(building) > 1 else "", toolchain.describe(), workers,
+                       ", ".join(program_file(p) for p in building))
     names = [f"{program_file(p)} ({i + 1}/{len(building)})" for i, p in enumerate(building)]
     built = {}  # program -> True if this process built it, False if another did meanwhile
     with ticking(names) as done, ThreadPoolExecutor(max_workers=workers) as pool:  # a thread waits on a subprocess
-        builds = {pool.submit(_compile_in_subprocess, p): (p, name) for p, name in zip(building, names, strict=True)}
+        builds = {pool.submit(_compile_in_subprocess, p, toolchain): (p, name)
+                  for p, name in zip(building, names, strict=True)}
         for build in as_completed(builds):
             program, name = builds[build]
             built[program_file(program)] = build.result()  # a failure is raised here
