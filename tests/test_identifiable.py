@@ -179,15 +179,20 @@ def test_tuo_wu_l2_interval_and_discrepancy(tuo_wu_comparisons, theta_star):
     assert covered >= 4
 
 
-def test_l2_predictions_use_the_projected_theta(tuo_wu_seed_1):
-    result = next(f.result for f in tuo_wu_seed_1.fits if f.name == "l2")
-    assert_healthy(result)
-    points = pd.DataFrame({"x": [0.5, 3.0, 6.0]})
+def test_l2_predictions_use_the_projected_theta(exact_comparison):
+    """The L2 fit's simulator curve is Newton's law (numpy) at its projected
+    k, draw by draw; the comparison's fit serves (the Tuo & Wu fit this test
+    read before is a slow study now)."""
+    comparison, _ = exact_comparison
+    assert_comparison_healthy(comparison)
+    result = next(f.result for f in comparison.fits if f.name == "l2")
+    points = pd.DataFrame({"t": [0.5, 10.0, 40.0], "T0": [95.0, 80.0, 60.0]})
     table = result.predict(points)
-    theta = result.theta_draws()["theta"].to_numpy()
-    f = tuo_wu.simulator(points["x"].to_numpy()[None, :], theta[:, None])
+    f = cooling_at(points, result.theta_draws()["k"].to_numpy())  # (draws, points)
     np.testing.assert_allclose(table["f_q50"], np.median(f, axis=0), rtol=1e-8)
-    np.testing.assert_allclose(table["delta_q50"] + table["f_q50"], table["zeta_q50"], atol=0.35)
+    # the medians of f and of delta need not add up to zeta's exactly; the discrepancy is far
+    # below the noise here (sd 0.3), so they agree to a tenth of it
+    np.testing.assert_allclose(table["delta_q50"] + table["f_q50"], table["zeta_q50"], atol=0.03)
 
 
 def test_projection_searches_globally(theta_star):

@@ -340,3 +340,14 @@ def test_a_calibration_reports_the_compile_its_command_ran(exact_cooling_data, m
     assert result.timing["sample_s"] > 0
     write_calibration(result, tmp_path, [])
     assert "compile 473.0 s, sampling" in (tmp_path / "report.md").read_text()
+
+
+def test_the_comparison_report_names_a_method_whose_loo_is_unreliable():
+    """arviz's Pareto k warning is not repeated by psis_score: the compare
+    report says it, per method, with the number."""
+    from stancal.reporting.compare_report import unreliable_lines
+
+    table = pd.DataFrame({"max_pareto_k": [0.31, 0.92, None]}, index=["koh", "l2", "scaled"])
+    lines = unreliable_lines(table)
+    assert lines[0].startswith("**l2's ELPD is unreliable**: Pareto k up to 0.92 > 0.7") and lines[1:] == [""]
+    assert unreliable_lines(table.iloc[[0]]) == []

@@ -4,7 +4,6 @@
 from __future__ import annotations
 
 import time
-import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -61,10 +60,7 @@ class Comparison:
             row.update({f"{name}_q50": s["q50"], f"{name}_q05": s["q05"], f"{name}_q95": s["q95"]})
         size = band(discrepancy_rms(result, self.quadrature))
         row.update({f"discrepancy_rms_{q}": float(size[q]) for q in ("q05", "q50", "q95")})
-        with warnings.catch_warnings():
-            # Pareto k is reported in the table (max_pareto_k), so its warning is not repeated
-            warnings.filterwarnings("ignore", message=".*Pareto k.*")
-            score = psis_score(result)
+        score = psis_score(result)  # Pareto k goes into the table (max_pareto_k)
         y = result.data.physical[result.data.output].to_numpy()
         row.update(elpd=score.elpd, elpd_se=score.elpd_se,
                    loo_rmse=score.holdout_rmse(y),

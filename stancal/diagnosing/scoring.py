@@ -5,6 +5,7 @@ candidates with them, and compare reports them."""
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -74,7 +75,12 @@ def psis_score(result: CalibrationResult) -> Score:
     held-out mean as the importance-weighted E(y_i | y_-i, params)."""
     import arviz_stats as ast
 
-    loo = ast.loo(result.idata, pointwise=True, var_name="y")
+    with warnings.catch_warnings(record=True) as said:
+        warnings.simplefilter("always")
+        loo = ast.loo(result.idata, pointwise=True, var_name="y")
+    for w in said:  # arviz's Pareto k warning is the Score's pareto_k, which every caller reports
+        if "shape parameter of Pareto" not in str(w.message):
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
     log_w = np.asarray(loo.log_weights.transpose("chain", "draw", "obs")).reshape(-1, loo.n_data_points)
     weights = np.exp(log_w - logsumexp(log_w, axis=0))
     loo_mean = np.asarray(result.idata["at_observations"]["y_loo_mean"])

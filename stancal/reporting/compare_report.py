@@ -10,6 +10,7 @@ from typing import Any
 import pandas as pd
 
 from stancal.diagnosing.compare import Comparison, discrepancy_rms
+from stancal.diagnosing.scoring import PARETO_K_LIMIT
 from stancal.reporting.html import write_html
 from stancal.reporting.plots import finish, pyplot
 from stancal.reporting.series import axis_label
@@ -79,4 +80,16 @@ def _report(table: pd.DataFrame, figure: Path) -> str:
         "- **scaled**: S-GaSP (Gu & Wang 2018): the discrepancy's mean square is penalised.",
         "", ("The discrepancy RMS is sqrt(mean over the input box of (zeta - f(x, theta))^2). "
         "ELPD is PSIS-LOO on the exact conditional likelihood; l2 shares koh's predictive model."), "",
-        table.round(4).to_markdown(), "", f"![comparison]({figure.name})", ""])
+        *unreliable_lines(table), table.round(4).to_markdown(), "", f"![comparison]({figure.name})", ""])
+
+
+def unreliable_lines(table: pd.DataFrame) -> list[str]:
+    """A line per method whose PSIS-LOO is unreliable (Pareto k above the
+    limit of Vehtari et al. 2024): its ELPD is not to be trusted."""
+    if "max_pareto_k" not in table:
+        return []
+    high = table["max_pareto_k"].dropna()
+    high = high[high > PARETO_K_LIMIT]
+    return [f"**{name}'s ELPD is unreliable**: Pareto k up to {k:.2f} > {PARETO_K_LIMIT} (the importance "
+            "weights of some left-out points are too heavy-tailed); `stancal gap` refits such points." for
+            name, k in high.items()] + ([""] if len(high) else [])
