@@ -10,6 +10,7 @@ import importlib.util
 import numpy as np
 import pandas as pd
 import pytest
+import stan
 from conftest import (
     COOLING,
     ROOT,
@@ -21,6 +22,7 @@ from conftest import (
 
 import stancal
 from stancal.diagnosing.gap import Candidate, CandidateError, check_candidates, diagnose_gap, variant_data
+from stancal.fitting.warm_start import refit_draws, refit_warmup
 from stancal.problem.codes import Likelihood
 from stancal.problem.config import ConfigError, load_config
 from stancal.reporting.gap_report import write_gap_report
@@ -376,18 +378,27 @@ def test_kfold_comparison_and_a_failed_candidate(exact_cooling_data, monkeypatch
     """Forced 3-fold on a small problem: every point gets a held-out density,
     and a useless offset per half of the data does not beat the baseline.
     A candidate whose fit fails (twice) is named and left out; the rest
-    are ranked (in-process, so that the failure can be planted)."""
+    are ranked (in-process, so that the failure can be planted). Each fold's
+    refit starts from its full fit (stancal.fitting.warm_start): PyStan is
+    given a draw of the full fit per chain, its step size and a short warm-up."""
     frame = exact_cooling_data.source.assign(half=np.where(np.arange(24) % 2, "odd", "even"))
     data = stancal.CalibrationData(frame, ["t", "T0"], "temperature", {"k": (0.01, 0.2)})
     real_calibrate = stancal.diagnosing.gap.calibrate
-    attempts = []
+    attempts, fits, sampled = [], [], []
 
     def calibrate(data, **options):
         if options["plan"].options.mean_formula == "t":
             attempts.append(1)
             raise RuntimeError("Stan failed while sampling: planted")
-        return real_calibrate(data, **options)
+        fits.append((options, real_calibrate(data, **options)))
+        return fits[-1][1]
 
+    def model_sample(model, **kwargs):  # what reaches httpstan
+        sampled.append(kwargs)
+        return real_sample(model, **kwargs)
+
+    real_sample = stan.model.Model.sample
+    monkeypatch.setattr(stan.model.Model, "sample", model_sample)
     monkeypatch.setattr(stancal.diagnosing.gap, "calibrate", calibrate)
     # the pipeline and loose claims (the held-out error within 0.2-0.6, a difference within 2 se):
     # of the 9 refits at 4 x (300 + 700) on two thirds of the points, one had R-hat 1.01 and one
@@ -406,3 +417,20 @@ def test_kfold_comparison_and_a_failed_candidate(exact_cooling_data, monkeypatch
     assert summary["candidates"][0]["elpd_diff"] < 2 * summary["candidates"][0]["elpd_diff_se"]
     # the exact simulator with noise 0.3 predicts held-out points to about the noise
     assert 0.2 < summary["baseline"]["holdout_rmse"] < 0.6
+    assert_refits_warm(fits, sampled, folds=3)
+
+
+def assert_refits_warm(fits, sampled, folds):
+    """Every refit (a fit to fewer rows than the full one) started from a draw
+    of its own full fit, with that fit's step size, in a short warm-up."""
+    full = {options["plan"].options.mean_formula: result for options, result in fits if "warm_start" not in options}
+    refits = [(options, result) for options, result in fits if "warm_start" in options]
+    assert len(refits) == folds * len(full) and len(sampled) == len(fits)
+    for (options, _), kwargs in zip(refits, sampled[len(full):], strict=True):
+        source = full[options["plan"].options.mean_formula]
+        thetas = np.asarray(source.idata["stan_parameters"]["theta_unit"]).reshape(-1)
+        assert all(np.isin(init["theta_unit"], thetas).all() for init in kwargs["init"])
+        steps = np.asarray(source.idata["sample_stats"]["step_size"])
+        assert kwargs["stepsize"] == pytest.approx(np.median(steps))
+        assert (kwargs["num_warmup"], kwargs["num_samples"]) == (refit_warmup(300), refit_draws(700))
+        assert kwargs["init_buffer"] + kwargs["window"] + kwargs["term_buffer"] == kwargs["num_warmup"]

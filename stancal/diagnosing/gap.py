@@ -55,6 +55,7 @@ from stancal.diagnosing.scoring import (
     psis_score,
     refit_rows,
     rescored,
+    settled,
     unreliable_tests,
 )
 from stancal.fitting.calibrate import calibrate
@@ -67,6 +68,7 @@ from stancal.fitting.seeds import fit_seed
 from stancal.fitting.stage_one import run_stage_one
 from stancal.fitting.stopwatch import COMPILED_EARLIER, Stopwatch
 from stancal.fitting.vector_calibrate import calibrate_vector
+from stancal.fitting.warm_start import warm_refit_options
 from stancal.problem.candidates import Candidate, CandidateError
 from stancal.problem.data import CalibrationData, DataError
 from stancal.problem.mean_terms import FormulaError, build_mean_terms
@@ -231,15 +233,17 @@ def check_candidates(data: CalibrationData | VectorCalibrationData, candidates: 
 
 # ---- the analysis --------------------------------------------------------------
 def _fit_task(name: str, candidate: Candidate | None, data, new_points: pd.DataFrame | None,
-              folder: Path | None, *, vector: bool, plan: Plan, seed: int, sampling: dict[str, Any]) -> FitTask:
+              folder: Path | None, warm: dict[str, Any] | None = None, *, vector: bool, plan: Plan, seed: int,
+              sampling: dict[str, Any]) -> FitTask:
     """The baseline's or a candidate's fit to ``data`` (all of it, or a
     training set), with its own seed, as a task for the runner: the baseline
-    plan, with the candidate's mean terms or on its simulator variant."""
+    plan, with the candidate's mean terms or on its simulator variant.
+    ``warm``: a refit's warm start and short warm-up (warm_refit_options)."""
     if candidate is not None and candidate.kind == "variant":
         plan = plan.with_simulator(candidate.stan)
     elif candidate is not None:
         plan = replace(plan, options=replace(plan.options, mean_formula=candidate.formula))
-    options = dict(data=data, plan=plan, seed=fit_seed(seed, name), out_dir=folder, **sampling)
+    options = dict(data=data, plan=plan, seed=fit_seed(seed, name), out_dir=folder, **{**sampling, **(warm or {})})
     if vector:
         return FitTask(name, calibrate_vector, {**options, "new_rows": new_points})
     return FitTask(name, calibrate, {**options, "new_points": new_points})
@@ -255,6 +259,8 @@ def diagnose_gap(
     out_dir: str | Path | None = None,
     kfold: int | None = None,
     scheduler: str | FitRunner | None = None,
+    warm_refits: bool = True,
+    every_candidate: bool = False,
     **calibrate_options: Any,
 ) -> GapAnalysis:
     """Fit the baseline (KOH with a GP discrepancy over the inputs and
@@ -271,6 +277,12 @@ def diagnose_gap(
     outputs only so far: a vector result is not read back from its files).
     ``calibrate_options`` (kernel, chains, warmup, draws, backend,
     adapt_delta, ...) go to every fit.
+    ``warm_refits``: each refit (a scalar output's) starts from its full
+    fit's draws and adaptation, with a short warm-up
+    (stancal.fitting.warm_start). Unless ``every_candidate`` or ``kfold``,
+    a candidate that cannot lead whatever its unreliable points' held-out
+    densities turn out to be keeps its PSIS scores, unrefitted
+    (scoring.settled; its scheme says so).
     """
     SamplerOptions.from_keywords({**calibrate_options, "seed": seed})  # before anything is planned or compiled
     vector = isinstance(data, VectorCalibrationData)
@@ -324,15 +336,24 @@ def diagnose_gap(
         labels, fits = zip(*((c, fit) for c, fit in zip(labels, fits, strict=True) if not isinstance(fit, FitFailure)),
                            strict=True)
         clock.lap("fits")
-        scores = [psis_score(r) for r in fits]
-        kfold = _scheme(labels, scores, kfold)
-        tests = [kfold_tests(len(data_for(c).physical), kfold, seed) if kfold is not None else unreliable_tests(s)
-                 for c, s in zip(labels, scores, strict=True)]
+        scores, skipped = _settled([psis_score(r) for r in fits], labels, kfold is not None or every_candidate)
+        kfold = _scheme([c for i, c in enumerate(labels) if i not in skipped],
+                        [s for i, s in enumerate(scores) if i not in skipped], kfold)
+        tests = [[] if i in skipped else kfold_tests(len(data_for(c).physical), kfold, seed) if kfold is not None
+                 else unreliable_tests(s) for i, (c, s) in enumerate(zip(labels, scores, strict=True))]
         # every refit of every fit in one batch
         jobs = [(i, j, test) for i, label_tests in enumerate(tests) for j, test in enumerate(label_tests)]
+
+        def warm(i: int, j: int, test: np.ndarray) -> dict[str, Any] | None:
+            if not warm_refits or vector:
+                return None
+            train = np.setdiff1d(np.arange(len(data_for(labels[i]).physical)), test)
+            return warm_refit_options(fits[i], train, calibrate_options, fit_seed(seed, f"warm {i} {j}"))
+
         refits = run(runner, [task(f"{label_name(labels[i])} without {_rows(test)}", labels[i],
                                    *refit_rows(data_for(labels[i]), test),
-                                   folder("refits", *home(labels[i]), f"{j:03d}")) for i, j, test in jobs])
+                                   folder("refits", *home(labels[i]), f"{j:03d}"), warm(i, j, test))
+                              for i, j, test in jobs])
     labels, fits, scores = _rescored(labels, fits, scores, tests, jobs, refits, data_for, kfold, failed)
     clock.lap("refits")
     location = locate_gap(fits[0], seed=seed, along=tuple(data.output_index) if vector else ())
@@ -346,6 +367,17 @@ def diagnose_gap(
 def _restored(task: FitTask, folder: Path, kept: None) -> CalibrationResult:
     """A scalar fit finished by an earlier run, read back from its folder."""
     return CalibrationResult.load(folder / DRAWS_FILE)
+
+
+def _settled(scores: list[Score], labels: list, every: bool) -> tuple[list[Score], set[int]]:
+    """The scores, those of the settled candidates (scoring.settled) marked
+    so, and their indices; none when ``every`` fit is to be refitted."""
+    skipped = set() if every else set(settled(scores))
+    for i in sorted(skipped):
+        logger.info("%s cannot lead whatever its %d unreliable points score: its refits are skipped",
+                    label_name(labels[i]), scores[i].unreliable.size)
+        scores[i] = replace(scores[i], scheme="psis-loo (settled: refits skipped)")
+    return scores, skipped
 
 
 def _scheme(labels: list, scores: list[Score], kfold: int | None) -> int | None:
@@ -376,7 +408,8 @@ def _rescored(labels, fits, scores, tests, jobs, refits, data_for, kfold, failed
         if failure is not None:
             _record_failure(c, failure, failed)
         else:
-            kept.append((c, fit, rescored(score, data_for(c), label_tests, results, kfold=kfold is not None)))
+            kept.append((c, fit, rescored(score, data_for(c), label_tests, results,
+                                          kfold=kfold is not None and bool(label_tests))))
     labels, fits, scores = (list(column) for column in zip(*kept, strict=True))
     return labels, fits, scores
 

@@ -6,7 +6,7 @@ candidates with them, and compare reports them."""
 from __future__ import annotations
 
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import pandas as pd
@@ -17,6 +17,10 @@ from stancal.problem.data import CalibrationData
 from stancal.results.result import CalibrationResult
 
 PARETO_K_LIMIT = 0.7  # above it PSIS-LOO is unreliable (Vehtari et al. 2024)
+# a candidate that trails the leader by more than this many ses, even with the
+# points PSIS cannot score set at its best and the leader's at its worst, keeps
+# its PSIS scores: no refit there can change the ranking (settled())
+SETTLED_SES = 4.0
 
 
 @dataclass
@@ -29,6 +33,10 @@ class Score:
     scheme: str  # "psis-loo", "psis-loo+refits" or "kfold"
     remaining: np.ndarray  # draws (draws, N): the discrepancy GP plus its constant at the physical points
     refits: int = 0  # fits beyond the main one: one per refitted observation, or K under K-fold
+    # per observation, what log p(y_i | y_-i) can be (settled()): at most the full fit's own
+    # log predictive density there, at least the lowest log likelihood over its draws
+    lowest_i: np.ndarray | None = None
+    in_sample_i: np.ndarray | None = None
 
     @property
     def discrepancy_rms(self) -> np.ndarray:
@@ -85,8 +93,48 @@ def psis_score(result: CalibrationResult) -> Score:
     weights = np.exp(log_w - logsumexp(log_w, axis=0))
     loo_mean = np.asarray(result.idata["at_observations"]["y_loo_mean"])
     loo_mean = loo_mean.reshape(-1, loo_mean.shape[-1])
+    log_lik = np.asarray(result.idata["log_likelihood"]["y"]).reshape(-1, loo.n_data_points)
     return Score(np.asarray(loo.elpd_i), (weights * loo_mean).sum(0),
-                 np.asarray(loo.pareto_k), "psis-loo", _remaining_discrepancy(result))
+                 np.asarray(loo.pareto_k), "psis-loo", _remaining_discrepancy(result),
+                 lowest_i=log_lik.min(0), in_sample_i=logsumexp(log_lik, axis=0) - np.log(len(log_lik)))
+
+
+def settled(scores: list[Score]) -> list[int]:
+    """The candidates (indices into ``scores``; 0 is the baseline, always
+    refitted, as every difference is to it) whose refits cannot change which
+    candidate leads. Each fit's log p(y_i | y_-i) at a point where its Pareto
+    k is high is bounded: above by the full fit's log predictive density there
+    (p(y_i | y) = E_-i[p_i^2] / E_-i[p_i] >= E_-i[p_i] = p(y_i | y_-i), with p_i
+    = p(y_i | y_-i, parameters), by Cauchy-Schwarz), below by the lowest
+    log likelihood over the full fit's draws (the refit's posterior stays
+    where the full fit's draws are: a pragmatic bound, loose as it is). The
+    leader is the candidate with the best total at its lower bounds; a
+    candidate whose total at its upper bounds trails it by more than
+    SETTLED_SES ses of their pointwise difference is settled: its refits are
+    skipped and its PSIS scores kept. The identity behind the upper bound,
+    p(y_i | y_-i) = 1 / E_post[1 / p_i], is Gelfand, Dey & Chang (1992), the
+    one PSIS-LOO estimates (Vehtari, Gelman & Gabry 2017); the rule is
+    stancal's, to spend exact refits only where they can change the answer."""
+    if len(scores) < 3 or any(s.lowest_i is None for s in scores[1:]):
+        return []
+    worst = [_total(s, s.lowest_i) for s in scores]
+    best = [_total(s, s.in_sample_i) for s in scores]
+    leader = max(range(1, len(scores)), key=lambda f: worst[f])
+    out = []
+    for f in range(1, len(scores)):
+        if f == leader or not scores[f].unreliable.size:
+            continue
+        diff = scores[leader].elpd_i - scores[f].elpd_i
+        if worst[leader] - best[f] > SETTLED_SES * np.sqrt(len(diff) * np.var(diff)):
+            out.append(f)
+    return out
+
+
+def _total(score: Score, bound: np.ndarray) -> float:
+    """The score's total ELPD with ``bound`` in place of PSIS where its Pareto k is high."""
+    elpd = score.elpd_i.copy()
+    elpd[score.unreliable] = bound[score.unreliable]
+    return float(elpd.sum())
 
 
 def kfold_tests(n: int, k: int, seed: int) -> list[np.ndarray]:
@@ -127,5 +175,5 @@ def rescored(score: Score, data: CalibrationData, tests: list[np.ndarray], refit
         elpd[test], mean[test] = held_out(data, test, result)
     if kfold:
         return Score(elpd, mean, np.full(len(elpd), np.nan), "kfold", score.remaining, refits=len(tests))
-    return Score(elpd, mean, score.pareto_k, "psis-loo+refits" if tests else score.scheme,
-                 score.remaining, refits=len(tests))
+    return replace(score, elpd_i=elpd, heldout_mean=mean, refits=len(tests),
+                   scheme="psis-loo+refits" if tests else score.scheme)

@@ -27,7 +27,7 @@ from stancal.problem.options import ModelOptions
 from stancal.problem.sampling import SamplerOptions
 from stancal.results.diagnostics import parametrization_advice
 from stancal.results.result import CalibrationResult, build_datatree
-from stancal.stan.backends import StanRuntimeError, get_backend
+from stancal.stan.backends import StanRuntimeError, WarmStart, get_backend
 from stancal.stan.registry import STAGE_ONE_SCALABLE
 from stancal.stan.source import FlatProgram
 from stancal.stan.standata import EMULATOR_HYPERPARAMETERS, build_stan_data, default_new_points, to_stan_json
@@ -58,17 +58,20 @@ class _Fit:
 
 
 def _sample(stan_backend, flat: FlatProgram, data: CalibrationData, plan: Plan, options: ModelOptions,
-            fit_points: pd.DataFrame, emulator: dict[str, Any], prior: bool, sampler: dict[str, Any]) -> _Fit:
-    """One fit of the program, with the prior's draws too when asked."""
+            fit_points: pd.DataFrame, emulator: dict[str, Any], prior: bool, sampler: dict[str, Any],
+            warm_start: WarmStart | None = None) -> _Fit:
+    """One fit of the program, with the prior's draws too when asked;
+    ``warm_start``: from an earlier fit's draws and adaptation."""
     stan_json = to_stan_json(build_stan_data(data, plan.program.data, options, fit_points,
                                              emulator_hyperparameters=emulator.get("hyperparameters")))
-    inits = spread_theta_inits(sampler["chains"], len(data.parameters), np.random.default_rng(sampler["seed"]))
+    inits = warm_start.inits if warm_start is not None else spread_theta_inits(
+        sampler["chains"], len(data.parameters), np.random.default_rng(sampler["seed"]))
     simulator, points = plan.simulator if plan.program.simulator else None, data.physical[data.inputs]
     check_simulator_at_start(stan_backend, flat, stan_json, inits, simulator, points)
     logger.info("sampling %s: %d chains x (%d warmup + %d draws) with %s",
                 plan.name, sampler["chains"], sampler["warmup"], sampler["draws"], stan_backend.name)
     try:
-        sample = stan_backend.sample(flat, stan_json, inits=inits, **sampler)
+        sample = stan_backend.sample(flat, stan_json, inits=inits, warm_start=warm_start, **sampler)
     except StanRuntimeError as err:
         raise explained(err, simulator, points) from None
     parameter_names = stan_backend.parameter_names(flat)  # the program's own, edited or not
@@ -148,6 +151,7 @@ def calibrate(
     out_dir: str | Path | None = None,
     prior: bool = False,
     plan: Plan | None = None,
+    warm_start: WarmStart | None = None,
 ) -> CalibrationResult:
     """Calibrate theta (Kennedy & O'Hagan 2001) and return the posterior.
 
@@ -195,6 +199,9 @@ def calibrate(
     the ``prior`` and ``prior_predictive`` groups.
     ``plan``: a plan made earlier (stancal.fitting.plan), which then replaces
     ``simulator``, ``method``, ``program`` and the model's options.
+    ``warm_start``: start the chains from an earlier fit of nearly the same
+    data (stancal.fitting.warm_start; the gap diagnosis's refits), with a
+    ``warmup`` as short as that allows.
     """
     # the sampler's options first: a bad one is said before anything is planned or compiled
     sampling = SamplerOptions(chains, warmup, draws, seed, adapt_delta, max_treedepth)
@@ -218,7 +225,8 @@ def calibrate(
     sampler = replace(sampling, seed=seed).keywords()
     flat = programs[-1]
     fit, options, messages = _sample_checked(
-        lambda options: _sample(stan_backend, flat, data, plan, options, fit_points, emulator, prior, sampler),
+        lambda options: _sample(stan_backend, flat, data, plan, options, fit_points, emulator, prior, sampler,
+                                warm_start),
         data, plan, emulator, chosen_by_user=plan.basis_given, max_treedepth=max_treedepth)
     result = CalibrationResult(
         idata=fit.tree, data=data, method=plan.name, backend=stan_backend.name, options=options, program=flat,

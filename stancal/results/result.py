@@ -78,6 +78,8 @@ def build_datatree(sample: SampleOutput, data: CalibrationData,
             {c: ("grid_point", grid[c].to_numpy()) for c in grid.columns}))
     _add_data_groups(tree, data, new_points)
     tree["stan_parameters"] = xr.DataTree(ab.dict_to_dataset({k: d[k] for k in parameter_names}))
+    if sample.inv_metric is not None:  # the adapted metric, for warm-started refits (stancal.fitting.warm_start)
+        tree["adaptation"] = xr.DataTree(xr.Dataset({"inv_metric": (("chain", "unconstrained"), sample.inv_metric)}))
     return tree
 
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import os
 
-from stancal.stan.backends.base import Draws, SampleOutput, StanBackend, StanRuntimeError
+from stancal.stan.backends.base import Draws, SampleOutput, StanBackend, StanRuntimeError, WarmStart
 from stancal.stan.backends.cmdstanpy_backend import CmdStanPyBackend, cmdstan_available
 from stancal.stan.backends.pystan_backend import PyStanBackend
 
@@ -29,4 +29,4 @@ def get_backend(name: str | None = None) -> StanBackend:
     return PyStanBackend()
 
 
-__all__ = ["Draws", "SampleOutput", "StanBackend", "StanRuntimeError", "get_backend", "BACKENDS"]
+__all__ = ["Draws", "SampleOutput", "StanBackend", "StanRuntimeError", "WarmStart", "get_backend", "BACKENDS"]

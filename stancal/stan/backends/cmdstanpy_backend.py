@@ -12,7 +12,15 @@ from typing import Any
 
 import numpy as np
 
-from stancal.stan.backends.base import SAMPLER_STATS, Draws, SampleOutput, StanRuntimeError, cache_root
+from stancal.stan.backends.base import (
+    SAMPLER_STATS,
+    Draws,
+    SampleOutput,
+    StanRuntimeError,
+    WarmStart,
+    cache_root,
+    warm_windows,
+)
 from stancal.stan.source import FlatProgram, StanProgramError
 
 logger = logging.getLogger("stancal")
@@ -76,6 +84,7 @@ class CmdStanPyBackend:
         inits: list[dict[str, Any]] | None,
         adapt_delta: float,
         max_treedepth: int,
+        warm_start: WarmStart | None = None,
     ) -> SampleOutput:
         started = time.perf_counter()
         model = self._model(program)
@@ -83,8 +92,10 @@ class CmdStanPyBackend:
         try:
             fit = model.sample(
                 data=data, chains=chains, parallel_chains=min(chains, os.cpu_count() or 1),
-                iter_warmup=warmup, iter_sampling=draws, seed=seed, inits=inits,
+                iter_warmup=warmup, iter_sampling=draws, seed=seed,
+                inits=inits if warm_start is None else warm_start.inits,
                 adapt_delta=adapt_delta, max_treedepth=max_treedepth, show_progress=True,
+                **self._warm(warm_start, warmup),
             )
         except RuntimeError as err:
             raise StanRuntimeError(program.explain(f"Stan failed while sampling: {err}")) from None
@@ -101,7 +112,24 @@ class CmdStanPyBackend:
             max_treedepth=max_treedepth,
             load_seconds=compiled - started,
             sample_seconds=finished - compiled,
+            inv_metric=None if fit.metric is None else np.asarray(fit.metric),
         )
+
+    @staticmethod
+    def _warm(warm_start: WarmStart | None, warmup: int) -> dict[str, Any]:
+        """CmdStan's arguments for a warm start besides its inits: the step
+        size, the inverse metric (when the earlier fit reported one) and the
+        adaptation windows."""
+        if warm_start is None:
+            return {}
+        windows = warm_windows(warmup)
+        out: dict[str, Any] = {"step_size": float(warm_start.step_size),
+                               "adapt_init_phase": windows["init_buffer"],
+                               "adapt_metric_window": windows["window"],
+                               "adapt_step_size": windows["term_buffer"]}
+        if warm_start.inv_metric is not None:
+            out["metric"] = [{"inv_metric": row.tolist()} for row in np.atleast_2d(warm_start.inv_metric)]
+        return out
 
     def parameter_names(self, program: FlatProgram) -> list[str]:
         return list(self._model(program).src_info()["parameters"])

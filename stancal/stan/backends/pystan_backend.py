@@ -24,8 +24,10 @@ from stancal.stan.backends.base import (
     Draws,
     SampleOutput,
     StanRuntimeError,
+    WarmStart,
     end_when_orphaned,
     fresh_prediction_normals,
+    warm_windows,
 )
 from stancal.stan.backends.pystan_compile import (
     STANC_TIMEOUT_S,
@@ -215,14 +217,16 @@ class PyStanBackend:
         inits: list[dict[str, Any]] | None,
         adapt_delta: float,
         max_treedepth: int,
+        warm_start: WarmStart | None = None,
     ) -> SampleOutput:
         started = time.perf_counter()
         model = self._build(program, data, seed)
         compiled = time.perf_counter()
         kwargs: dict[str, Any] = {
             "num_chains": chains, "num_warmup": warmup, "num_samples": draws,
-            "delta": adapt_delta, "max_depth": max_treedepth,
+            "delta": adapt_delta, "max_depth": max_treedepth, **self._warm(warm_start, warmup),
         }
+        inits = warm_start.inits if warm_start is not None else inits
         if inits is not None:
             kwargs["init"] = inits
         _chains_in_processes_that_end_with_this_one()
@@ -250,6 +254,16 @@ class PyStanBackend:
             load_seconds=compiled - started,
             sample_seconds=finished - compiled,
         )
+
+    @staticmethod
+    def _warm(warm_start: WarmStart | None, warmup: int) -> dict[str, Any]:
+        """httpstan's sampler arguments for a warm start: the step size and
+        the adaptation windows. Its services take no inverse metric
+        (hmc_nuts_diag_e_adapt_wrapper in httpstan's stan_services.cpp), so
+        the metric starts at the identity and is adapted again in the window."""
+        if warm_start is None:
+            return {}
+        return {"stepsize": float(warm_start.step_size), **warm_windows(warmup)}
 
     @staticmethod
     def _explain_failure(model, program: FlatProgram, inits, err: RuntimeError) -> str:

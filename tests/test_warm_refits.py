@@ -1,0 +1,157 @@
+"""The gap diagnosis's refits cost what they must: warm-started from the full
+fit (stancal.fitting.warm_start), and skipped for candidates whose refits
+cannot change the ranking (scoring.settled)."""
+
+from types import SimpleNamespace
+
+import numpy as np
+import pandas as pd
+import pytest
+import xarray as xr
+from conftest import COOLING, cooling_data
+
+import stancal
+from stancal.diagnosing.scoring import SETTLED_SES, Score, held_out, refit_rows, settled
+from stancal.fitting.warm_start import refit_draws, refit_warmup, warm_refit_options, warm_start
+from stancal.stan.backends import WarmStart
+from stancal.stan.backends.base import warm_windows
+from stancal.stan.backends.cmdstanpy_backend import CmdStanPyBackend
+
+
+def full_fit(rows: int = 5, metric: bool = False) -> SimpleNamespace:
+    """A stand-in for a full fit: 2 chains x 4 draws of a theta, a latent
+    vector with one value per row, a matrix with a row axis, an empty
+    array; step sizes per chain 0.2 and 0.4."""
+    draws = np.arange(2 * 4, dtype=float).reshape(2, 4)
+    parameters = xr.Dataset({
+        "theta_unit": (("chain", "draw", "q"), draws[..., None] / 10),
+        "delta_z": (("chain", "draw", "row"), draws[..., None] + np.arange(rows)),
+        "theta_function_raw": (("chain", "draw", "row", "f"), np.zeros((2, 4, rows, 1))),
+        "noise_sd": (("chain", "draw"), draws + 1),
+        "rho_free": (("chain", "draw", "e"), np.zeros((2, 4, 0))),
+    })
+    groups = {"stan_parameters": parameters,
+              "sample_stats": xr.Dataset({"step_size": (("chain", "draw"), np.repeat([[0.2], [0.4]], 4, 1))})}
+    if metric:
+        groups["adaptation"] = xr.Dataset({"inv_metric": (("chain", "unconstrained"), [[1.0, 2.0], [3.0, 4.0]])})
+    return SimpleNamespace(idata=xr.DataTree.from_dict(groups),
+                           data=SimpleNamespace(physical=pd.DataFrame({"x": np.arange(rows)})))
+
+
+def test_warm_start_starts_each_chain_at_a_draw_of_the_full_fit():
+    train = np.array([0, 1, 3, 4])
+    start = warm_start(full_fit(), train, chains=3, seed=1)
+    assert len(start.inits) == 3
+    for chain, init in enumerate(start.inits):
+        source = chain % 2  # chain c starts at a draw of the full fit's chain c
+        draw = int(round(init["noise_sd"] - 1)) - 4 * source
+        assert 0 <= draw < 4
+        assert init["theta_unit"] == pytest.approx([(4 * source + draw) / 10])
+        # the latent vector keeps the training rows' values; a matrix with a row axis and an
+        # empty array are left to Stan
+        assert init["delta_z"] == pytest.approx(4 * source + draw + train)
+        assert set(init) == {"theta_unit", "delta_z", "noise_sd"}
+    assert start.step_size == pytest.approx(0.3)
+    assert start.inv_metric is None  # PyStan reports none
+    options = warm_refit_options(full_fit(), train, {"chains": 2, "warmup": 1000, "draws": 1000}, seed=1)
+    assert (options["warmup"], options["draws"]) == (200, 500)
+    assert (refit_warmup(300), refit_draws(700), refit_warmup(100), refit_draws(300)) == (150, 500, 100, 300)
+
+
+def test_warm_start_carries_the_metric_when_the_space_keeps_its_size():
+    start = warm_start(full_fit(metric=True), np.arange(4), chains=2, seed=1)
+    assert start.inv_metric is None  # a parameter per row: the unconstrained space shrinks
+    fit = full_fit(metric=True)
+    fit.idata["stan_parameters"] = xr.DataTree(fit.idata["stan_parameters"].to_dataset()[["theta_unit",
+                                                                                          "noise_sd"]])
+    start = warm_start(fit, np.arange(4), chains=2, seed=1)
+    np.testing.assert_array_equal(start.inv_metric, [[1.0, 2.0], [3.0, 4.0]])
+
+
+def test_warm_windows_fit_the_warmup():
+    for warmup in (20, 150, 200, 1000):
+        windows = warm_windows(warmup)
+        assert sum(windows.values()) == warmup and min(windows.values()) >= 1
+    assert warm_windows(200) == {"init_buffer": 25, "term_buffer": 50, "window": 125}
+
+
+def test_cmdstanpy_is_given_the_warm_start(monkeypatch):
+    """CmdStan takes the inits, the step size, the inverse metric per chain and
+    the windows; and the backend reports the metric it adapted."""
+    given = {}
+
+    class Model:
+        def sample(self, **kwargs):
+            given.update(kwargs)
+            return SimpleNamespace(stan_variables=lambda: {"a": np.zeros(2 * 3)},
+                                   method_variables=lambda: {"stepsize__": np.full((3, 2), 0.5)},
+                                   metric=np.ones((2, 1)))
+
+    monkeypatch.setattr(CmdStanPyBackend, "_model", lambda self, program: Model())
+    start = WarmStart([{"a": 0.1}, {"a": 0.2}], 0.3, np.array([[2.0], [3.0]]))
+    out = CmdStanPyBackend().sample(None, {}, chains=2, warmup=200, draws=3, seed=1, inits=[{}, {}],
+                                    adapt_delta=0.9, max_treedepth=10, warm_start=start)
+    assert given["inits"] == start.inits and given["step_size"] == 0.3 and given["iter_warmup"] == 200
+    assert given["metric"] == [{"inv_metric": [2.0]}, {"inv_metric": [3.0]}]
+    assert (given["adapt_init_phase"], given["adapt_metric_window"], given["adapt_step_size"]) == (25, 125, 50)
+    np.testing.assert_array_equal(out.inv_metric, np.ones((2, 1)))
+
+
+# ---- candidates whose refits cannot change the ranking ------------------------------------
+def score(elpd: np.ndarray, unreliable: list[int], lowest: float, in_sample: float) -> Score:
+    """PSIS scores with Pareto k 0.9 at the ``unreliable`` points, and bounds there."""
+    k = np.full(len(elpd), 0.2)
+    k[unreliable] = 0.9
+    n = len(elpd)
+    return Score(elpd, np.zeros(n), k, "psis-loo", np.zeros((4, n)),
+                 lowest_i=np.full(n, lowest), in_sample_i=np.full(n, in_sample))
+
+
+def test_a_candidate_that_cannot_lead_is_settled():
+    rng = np.random.default_rng(1)
+    noise = rng.normal(0, 0.1, 40)
+    base = score(-2.0 + noise, [3], -9.0, -1.0)
+    leader = score(-1.0 + noise, [5], -4.0, -0.5)  # worst case: 39 x -1 - 4 = -43
+    far = score(-3.0 + noise, [7, 8], -9.0, -1.0)  # best case: 38 x -3 - 2 = -116
+    close = score(-1.05 + noise, [9], -9.0, -0.9)  # best case -41.85: could lead
+    reliable = score(-3.0 + noise, [], -9.0, -1.0)  # nothing to refit
+    assert settled([base, leader, far, close, reliable]) == [2]
+    assert settled([base, leader, close]) == []
+    assert settled([base, far]) == []  # one candidate: nothing to rank
+
+
+def test_settled_needs_many_ses():
+    """The same gap in totals settles a candidate when the pointwise
+    differences are steady, not when they are noisy."""
+    rng = np.random.default_rng(2)
+    gap = 12.0 / 40  # the candidate trails by 12 at its best
+    steady, noisy = (spread - spread.mean() for spread in (rng.normal(0, 0.05, 40), rng.normal(0, 3.0, 40)))
+    for spread, expected in ((steady, [2]), (noisy, [])):
+        leader = score(-1.0 + spread, [], -1.0, -1.0)
+        trailing = score(-1.0 - gap + np.zeros(40), [4], -1.0 - gap, -1.0 - gap)
+        assert settled([score(np.full(40, -2.0), [], 0, 0), leader, trailing]) == expected
+        se = np.sqrt(40 * np.var(leader.elpd_i - trailing.elpd_i))
+        assert (12.0 > SETTLED_SES * se) == bool(expected)
+
+
+# ---- a warm refit answers as a cold one does -----------------------------------------------
+@pytest.mark.slow  # 12 fits of the cooling case: a few minutes on 2 cores
+def test_warm_refit_holds_out_as_a_cold_refit_does():
+    """The held-out log density of one point (the one the exact LOO refit
+    exists for) from warm-started refits lies within the spread of cold
+    refits over seeds: 4 x (1000 + 1000) as the CLI's default."""
+    data = cooling_data(seed=7)
+    sampling = {"simulator": COOLING / "simulator.stan", "mean_intercept": True, "chains": 4,
+                "warmup": 1000, "draws": 1000}
+    full = stancal.calibrate(data, seed=1, **sampling)
+    test = np.array([11])  # the last reading of the first curve: the far end of t
+    train, new = refit_rows(data, test)
+    cold, warm = [], []
+    for seed in range(2, 7):
+        cold.append(held_out(data, test, stancal.calibrate(train, seed=seed, new_points=new, **sampling))[0][0])
+        options = warm_refit_options(full, np.setdiff1d(np.arange(24), test), sampling, seed)
+        warm.append(held_out(data, test, stancal.calibrate(train, seed=seed, new_points=new,
+                                                           **{**sampling, **options}))[0][0])
+    spread = max(np.std(cold, ddof=1), 0.01)  # Monte Carlo spread of a cold refit's answer
+    assert abs(np.mean(warm) - np.mean(cold)) < 3 * spread / np.sqrt(len(cold)) * np.sqrt(2) + 0.02, (cold, warm)
+    assert np.std(warm, ddof=1) < 3 * spread, (cold, warm)
