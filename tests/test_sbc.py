@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import COOLING, ROOT, cooling_data
+from conftest import COOLING, ROOT, cooling_data, no_stancal_warnings
 
 from stancal.diagnosing.sbc_ranks import fractional_ranks, rank_of, uniformity
 from stancal.reporting.sbc_report import write_sbc_report
@@ -84,8 +84,9 @@ def test_the_log_likelihood_at_given_parameters_matches_numpy():
 
     data = cooling_data(seed=7)
     # health not asserted: 20 draws, read only as parameter values at which two log-likelihoods are compared
-    fit = stancal.calibrate(data, simulator=COOLING / "simulator.stan", method="koh", discrepancy="none",
-                            chains=1, warmup=150, draws=20, seed=2)
+    with no_stancal_warnings(allow="R-hat|effective sample size"):  # 20 draws: they say so
+        fit = stancal.calibrate(data, simulator=COOLING / "simulator.stan", method="koh", discrepancy="none",
+                                chains=1, warmup=150, draws=20, seed=2)
     draw = 7
     parameters = {k: np.asarray(v)[0, draw] for k, v in fit.idata["stan_parameters"].data_vars.items()}
     at_truth = log_likelihood_at(fit, parameters)
@@ -142,8 +143,9 @@ def test_the_truths_log_likelihood_reads_the_priors_discrepancy_parametrization(
     data = stancal.CalibrationData(pd.DataFrame({"d": d.ravel(), "s": s.ravel(), "counts": counts}), ["d", "s"],
                                    "counts", {"mu": (0.05, 1.0)}, likelihood="poisson")
     # health not asserted: 20 draws, read only as parameter values at which two log-likelihoods are compared
-    fit = stancal.calibrate(data, simulator=ROOT / "case_studies" / "detector_counts" / "simulator.stan",
-                            discrepancy_parametrization="non_centred", chains=1, warmup=100, draws=20, seed=2)
+    with no_stancal_warnings(allow="R-hat|effective sample size"):  # 20 draws: they say so
+        fit = stancal.calibrate(data, simulator=ROOT / "case_studies" / "detector_counts" / "simulator.stan",
+                                discrepancy_parametrization="non_centred", chains=1, warmup=100, draws=20, seed=2)
     draw = 5
     parameters = {k: np.asarray(v)[0, draw] for k, v in fit.idata["stan_parameters"].data_vars.items()}
     expected = log_likelihood_draws(fit)[draw]

@@ -239,10 +239,13 @@ def sensor_small():
 
 @pytest.fixture(scope="session")
 def koh_hsgp_fit(sensor_small):
-    # a basis given by hand (one fit, not the check's two), wide over T0, along which the discrepancy is linear
-    return fit(sensor_small, simulator=SENSOR / "simulator.stan", method="koh", approximation="hsgp",
-               basis_functions=(11, 20), boundary_factor=(2.368, 4.736), chains=4, warmup=400, draws=400,
-               adapt_delta=0.95)  # at 4 x (300 + 300) theta's R-hat was 1.012
+    # a basis given by hand (one fit, not the check's two), wide over T0, along which the discrepancy is
+    # linear: the basis check says the short length scale it finds over T0 is near the basis's resolution,
+    # and the test below compares the bands with the exact GP's
+    with no_stancal_warnings(allow="Hilbert-space discrepancy's basis"):
+        return fit(sensor_small, simulator=SENSOR / "simulator.stan", method="koh", approximation="hsgp",
+                   basis_functions=(11, 20), boundary_factor=(2.368, 4.736), chains=4, warmup=400, draws=400,
+                   adapt_delta=0.95)  # at 4 x (300 + 300) theta's R-hat was 1.012
 
 
 @pytest.mark.slow

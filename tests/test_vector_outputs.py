@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 import pytest
-from conftest import assert_healthy
+from conftest import assert_healthy, no_stancal_warnings
 
 from stancal.problem.output_basis import OutputBasis
 from stancal.problem.validation import DataError
@@ -142,7 +142,9 @@ def test_indices_outside_the_runs_range_name_the_experiment():
 
 
 def test_fewer_runs_than_components_is_an_error():
-    with pytest.raises(DataError, match="4 runs for 3 output components"):
+    # 4 runs span less of T0 than the experiments: the range warning comes before the error
+    with pytest.raises(DataError, match="4 runs for 3 output components"), \
+            no_stancal_warnings(allow="outside the simulator runs' range"):
         vector_data(runs=long_runs(4, 2), variance_share=0.99999999)
     with pytest.raises(DataError, match="more runs than components"):
         vector_data(runs=long_runs(60, 2), components=60)
@@ -235,7 +237,10 @@ def test_modular_vector_posterior_matches_quadrature(vector_problem):
     from stancal.stan.vector_standata import modular_vector_data
 
     data = vector_problem
-    result = calibrate_vector(data, discrepancy="none", chains=4, warmup=1000, draws=1000, seed=3)
+    # one chain of the four sits in a second theta mode of weight 0.000 (said by the mode check, a
+    # finding at this seed); the claims below are about the posterior's mass
+    with no_stancal_warnings(allow="separate theta modes"):
+        result = calibrate_vector(data, discrepancy="none", chains=4, warmup=1000, draws=1000, seed=3)
     assert_healthy(result)
     emulator = result.emulator  # stage 1, fixed in the fit
     stan_data = modular_vector_data(data, VectorOptions("none", "known"), emulator, prediction_rows(data))
@@ -358,8 +363,9 @@ def test_joint_vector_emulator_agrees_with_the_quadrature_when_the_runs_pin_it_d
     from stancal.stan.vector_standata import modular_vector_data
 
     data = vector_problem
-    result = calibrate_vector(data, method="koh_emulator", discrepancy="none", chains=4, warmup=500, draws=500,
-                              seed=3)
+    with no_stancal_warnings(allow="separate theta modes"):  # as in the modular test above: weight 0.000
+        result = calibrate_vector(data, method="koh_emulator", discrepancy="none", chains=4, warmup=500,
+                                  draws=500, seed=3)
     assert result.method == "koh_emulator_vector"
     assert_healthy(result)
     assert result.idata["posterior"]["weight_gp_length_scale"].dims[2:] == ("component", "emulator_input")

@@ -286,14 +286,7 @@ def diagnose_gap(
     """
     SamplerOptions.from_keywords({**calibrate_options, "seed": seed})  # before anything is planned or compiled
     vector = isinstance(data, VectorCalibrationData)
-    if vector:
-        calibrate_options.pop("approximation", None)
-    # one plan for every fit: K-fold's smaller training sets keep the baseline's program and
-    # approximation, and every fit has a constant in the discrepancy mean, so that no
-    # candidate term wins by standing in for the discrepancy's overall level
-    plan = make_plan(data, simulator, method, calibrate_options.pop("program", None),
-                     **model_keywords(calibrate_options, vector))
-    plan = replace(plan, options=replace(plan.options, mean_formula=None, mean_intercept=True))
+    plan = _gap_plan(data, simulator, method, calibrate_options, vector)
     stan_backend = get_backend(calibrate_options.get("backend"))
     check_candidates(data, candidates, stan_backend, plan)
     clock = Stopwatch()
@@ -330,11 +323,7 @@ def diagnose_gap(
                                  None if vector else data_for(c).source.reset_index(drop=True),
                                  folder(*home(c)))
                             for c in labels])
-        for c, fit in zip(labels, fits, strict=False):
-            if isinstance(fit, FitFailure):
-                _record_failure(c, fit, failed)
-        labels, fits = zip(*((c, fit) for c, fit in zip(labels, fits, strict=True) if not isinstance(fit, FitFailure)),
-                           strict=True)
+        labels, fits = _without_failures(labels, fits, failed)
         clock.lap("fits")
         scores, skipped = _settled([psis_score(r) for r in fits], labels, kfold is not None or every_candidate)
         kfold = _scheme([c for i, c in enumerate(labels) if i not in skipped],
@@ -343,16 +332,12 @@ def diagnose_gap(
                  else unreliable_tests(s) for i, (c, s) in enumerate(zip(labels, scores, strict=True))]
         # every refit of every fit in one batch
         jobs = [(i, j, test) for i, label_tests in enumerate(tests) for j, test in enumerate(label_tests)]
-
-        def warm(i: int, j: int, test: np.ndarray) -> dict[str, Any] | None:
-            if not warm_refits or vector:
-                return None
-            train = np.setdiff1d(np.arange(len(data_for(labels[i]).physical)), test)
-            return warm_refit_options(fits[i], train, calibrate_options, fit_seed(seed, f"warm {i} {j}"))
-
+        warm = warm_refits and not vector  # a vector result's refits start cold
         refits = run(runner, [task(f"{label_name(labels[i])} without {_rows(test)}", labels[i],
                                    *refit_rows(data_for(labels[i]), test),
-                                   folder("refits", *home(labels[i]), f"{j:03d}"), warm(i, j, test))
+                                   folder("refits", *home(labels[i]), f"{j:03d}"),
+                                   _warm(fits[i], test, calibrate_options, fit_seed(seed, f"warm {i} {j}"))
+                                   if warm else None)
                               for i, j, test in jobs])
     labels, fits, scores = _rescored(labels, fits, scores, tests, jobs, refits, data_for, kfold, failed)
     clock.lap("refits")
@@ -362,6 +347,34 @@ def diagnose_gap(
         (CandidateFit(c, r, s) for c, r, s in zip(labels[1:], fits[1:], scores[1:], strict=False)),
         key=lambda f: -(f.score.elpd_i - scores[0].elpd_i).sum())
     return GapAnalysis(fits[0], scores[0], location, ranked, clock.laps, failed, confounding)
+
+
+def _gap_plan(data, simulator, method: str | None, calibrate_options: dict[str, Any], vector: bool) -> Plan:
+    """One plan for every fit: K-fold's smaller training sets keep the
+    baseline's program and approximation, and every fit has a constant in
+    the discrepancy mean, so that no candidate term wins by standing in for
+    the discrepancy's overall level. Takes the plan's keys out of
+    ``calibrate_options``."""
+    if vector:
+        calibrate_options.pop("approximation", None)
+    plan = make_plan(data, simulator, method, calibrate_options.pop("program", None),
+                     **model_keywords(calibrate_options, vector))
+    return replace(plan, options=replace(plan.options, mean_formula=None, mean_intercept=True))
+
+
+def _without_failures(labels: list, fits: list, failed: list[FitFailure]) -> tuple[tuple, tuple]:
+    """The labels and fits of the fits that did not fail; the failures named in ``failed``."""
+    for c, fit in zip(labels, fits, strict=True):
+        if isinstance(fit, FitFailure):
+            _record_failure(c, fit, failed)
+    return tuple(zip(*((c, fit) for c, fit in zip(labels, fits, strict=True) if not isinstance(fit, FitFailure)),
+                     strict=True))
+
+
+def _warm(fit: CalibrationResult, test: np.ndarray, calibrate_options: dict[str, Any], seed: int) -> dict[str, Any]:
+    """A refit without the rows ``test``, started from ``fit`` (stancal.fitting.warm_start)."""
+    train = np.setdiff1d(np.arange(len(fit.data.physical)), test)
+    return warm_refit_options(fit, train, calibrate_options, seed)
 
 
 def _restored(task: FitTask, folder: Path, kept: None) -> CalibrationResult:

@@ -48,6 +48,9 @@ def local_cluster(workers: int, scheduler_kwargs: dict[str, Any], worker_kwargs:
     the scheduler reruns a lost worker's fits elsewhere), on 127.0.0.1 with
     a dashboard on a free port, as SubprocessCluster builds them."""
     host = "127.0.0.1"
+    # distributed logs each process's full command line at INFO, past SpecCluster's silence_logs:
+    # noise in a user's terminal (the dashboard and worker count are said by stancal)
+    logging.getLogger("distributed.deploy.subprocess").setLevel(logging.WARNING)
     scheduler = {"cls": PatientScheduler, "options": {"scheduler_kwargs": {
         "host": host, "port": 0, "dashboard": True, "dashboard_address": ":0", **scheduler_kwargs}}}
     worker = {"cls": SubprocessWorker, "options": {"worker_class": "distributed.Worker", "worker_kwargs": {
