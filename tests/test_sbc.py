@@ -154,3 +154,25 @@ def test_the_truths_log_likelihood_reads_the_priors_discrepancy_parametrization(
     assert log_likelihood_at(fit, centred, discrepancy_parametrization="centred") == pytest.approx(expected,
                                                                                                    rel=1e-8)
     assert log_likelihood_at(fit, centred) != pytest.approx(expected, rel=1e-3)
+
+
+def test_the_prior_run_samples_a_latent_discrepancy_non_centred(monkeypatch):
+    """With no data the centred latent GP is a funnel: the prior run of SBC
+    is sampled non-centred whatever the fits use (the fits keep the user's
+    choice, or the plan's)."""
+    import stancal.diagnosing.sbc as sbc
+
+    asked = []
+
+    class Stop(Exception):
+        pass
+
+    def calibrate(data, **options):
+        asked.append(options)
+        raise Stop
+
+    monkeypatch.setattr(sbc, "calibrate", calibrate)
+    with pytest.raises(Stop):
+        sbc.simulation_based_calibration(cooling_data(seed=7), simulator=COOLING / "simulator.stan", simulations=4,
+                                         scheduler="in-process", discrepancy_parametrization="centred")
+    assert asked[0]["prior"] and asked[0]["discrepancy_parametrization"] == "non_centred"
