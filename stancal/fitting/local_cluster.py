@@ -33,9 +33,9 @@ class PatientScheduler(SubprocessScheduler):
         super().__init__(scheduler_kwargs, timeout)
 
     async def _start(self) -> None:
-        try:
+        try:  # a scheduler that exited says so itself (distributed's RuntimeError, with its exit code)
             await asyncio.wait_for(super()._start(), self.timeout + GRACE_S)
-        except (TimeoutError, RuntimeError):
+        except TimeoutError:
             if self.process is not None and self.process.returncode is None:
                 self.process.kill()
                 await self.process.wait()
