@@ -12,7 +12,15 @@ from conftest import COOLING, cooling_data
 
 import stancal
 from stancal.diagnosing.scoring import SETTLED_SES, Score, held_out, refit_rows, settled
-from stancal.fitting.warm_start import refit_draws, refit_warmup, warm_refit_options, warm_start
+from stancal.fitting.warm_start import (
+    candidate_start,
+    candidate_warmup,
+    refit_draws,
+    refit_warmup,
+    warm_candidate_options,
+    warm_refit_options,
+    warm_start,
+)
 from stancal.stan.backends import WarmStart
 from stancal.stan.backends.base import warm_windows
 from stancal.stan.backends.cmdstanpy_backend import CmdStanPyBackend
@@ -66,6 +74,40 @@ def test_warm_start_carries_the_metric_when_the_space_keeps_its_size():
                                                                                           "noise_sd"]])
     start = warm_start(fit, np.arange(4), chains=2, seed=1)
     np.testing.assert_array_equal(start.inv_metric, [[1.0, 2.0], [3.0, 4.0]])
+
+
+def test_a_candidate_starts_at_the_baselines_draws_with_theta_by_name():
+    """A variant's fit (a parameter more, c, before k here) gets k from the
+    baseline's draw on its own bounds, c at random in the middle of its box,
+    the other parameters as they were; the shorter warm-up, the same draws."""
+    baseline = full_fit(metric=True)
+    kept = baseline.idata["stan_parameters"].to_dataset()[["theta_unit", "noise_sd"]]  # no parameter per row
+    baseline.idata["stan_parameters"] = xr.DataTree(kept)
+    theta = kept["theta_unit"].values * 0.2  # k on (0, 0.2)
+    baseline.idata["posterior"] = xr.DataTree(xr.Dataset({"theta": (("chain", "draw", "q"), theta)}))
+    baseline.data.theta_names = ["k"]
+    start = candidate_start(baseline, {"c": (0.0, 2.0), "k": (0.0, 0.4)}, chains=4, seed=2)
+    for chain, init in enumerate(start.inits):
+        draw = int(round(init["noise_sd"] - 1)) - 4 * (chain % 2)
+        c, k = init["theta_unit"]
+        # the same k, on the new box (kept off its edge, where theta_unit's transform is infinite)
+        assert k == pytest.approx(max((4 * (chain % 2) + draw) / 10 * 0.2 / 0.4, 1e-3))
+        assert 0.25 <= c <= 0.75
+    assert start.inv_metric.shape == (4, 2)
+    options = warm_candidate_options(baseline, {"k": (0.0, 0.2)}, {"chains": 2, "warmup": 1000, "draws": 700}, 1)
+    assert options["warmup"] == candidate_warmup(1000) == 500 and "draws" not in options
+    assert (candidate_warmup(300), candidate_warmup(200)) == (250, 200)
+
+
+def test_a_warm_start_keeps_what_the_program_has_in_that_shape():
+    start = WarmStart([{"theta_unit": [0.5], "beta": [1.0], "noise_sd": 1.0}], 0.3, np.ones((1, 3)))
+    same = start.fitted({"theta_unit": (1,), "beta": (1,), "noise_sd": (), "rho_free": (0,)})
+    assert same.inits == start.inits and same.inv_metric is not None
+    # a candidate's longer coefficient vector: left to Stan, and the metric no longer fits
+    longer = start.fitted({"theta_unit": (1,), "beta": (3,), "noise_sd": ()})
+    assert longer.inits == [{"theta_unit": [0.5], "noise_sd": 1.0}] and longer.inv_metric is None
+    # a parameter the earlier program lacked: the metric goes too
+    assert start.fitted({"theta_unit": (1,), "beta": (1,), "noise_sd": (), "delta_sd": (1,)}).inv_metric is None
 
 
 def test_warm_windows_fit_the_warmup():

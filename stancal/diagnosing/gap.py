@@ -68,9 +68,9 @@ from stancal.fitting.seeds import fit_seed
 from stancal.fitting.stage_one import run_stage_one
 from stancal.fitting.stopwatch import COMPILED_EARLIER, Stopwatch
 from stancal.fitting.vector_calibrate import calibrate_vector
-from stancal.fitting.warm_start import warm_refit_options
+from stancal.fitting.warm_start import warm_candidate_options, warm_refit_options
 from stancal.problem.candidates import Candidate, CandidateError
-from stancal.problem.data import CalibrationData, DataError
+from stancal.problem.data import CalibrationData, DataError, bounds_of
 from stancal.problem.mean_terms import FormulaError, build_mean_terms
 from stancal.problem.sampling import SamplerOptions
 from stancal.problem.vector_data import VectorCalibrationData
@@ -260,6 +260,7 @@ def diagnose_gap(
     kfold: int | None = None,
     scheduler: str | FitRunner | None = None,
     warm_refits: bool = True,
+    warm_candidates: bool = True,
     every_candidate: bool = False,
     **calibrate_options: Any,
 ) -> GapAnalysis:
@@ -279,7 +280,9 @@ def diagnose_gap(
     adapt_delta, ...) go to every fit.
     ``warm_refits``: each refit (a scalar output's) starts from its full
     fit's draws and adaptation, with a short warm-up
-    (stancal.fitting.warm_start). Unless ``every_candidate`` or ``kfold``,
+    (stancal.fitting.warm_start). ``warm_candidates``: so does each
+    candidate's fit (a scalar output's), from the baseline's, which then
+    runs first; with half the baseline's draws. Unless ``every_candidate`` or ``kfold``,
     a candidate that cannot lead whatever its unreliable points' held-out
     densities turn out to be keeps its PSIS scores, unrefitted
     (scoring.settled; its scheme says so).
@@ -319,10 +322,18 @@ def diagnose_gap(
                                  backend=stan_backend, seed=seed) if stage_one_emulator(plan) else None
         plan, confounding = resolve_confounding(plan, data, stan_backend, emulator)
         task = functools.partial(_fit_task, vector=vector, plan=plan, seed=seed, sampling=calibrate_options)
-        fits = run(runner, [task(label_name(c), c, data_for(c),
-                                 None if vector else data_for(c).source.reset_index(drop=True),
-                                 folder(*home(c)))
-                            for c in labels])
+
+        def fit_task(c: Candidate | None, start: CalibrationResult | None) -> FitTask:
+            return task(label_name(c), c, data_for(c), None if vector else data_for(c).source.reset_index(drop=True),
+                        folder(*home(c)), None if start is None else warm_candidate_options(
+                            start, bounds_of(data_for(c).parameters), calibrate_options,
+                            fit_seed(seed, f"warm {label_name(c)}")))
+
+        # the baseline first: each candidate (the baseline plus one term) starts where it ended
+        baseline = run(runner, [fit_task(None, None)])
+        _without_failures([None], baseline, failed)
+        start = baseline[0] if warm_candidates and not vector else None  # a vector result's fits start cold
+        fits = [*baseline, *run(runner, [fit_task(c, start) for c in candidates])]
         labels, fits = _without_failures(labels, fits, failed)
         clock.lap("fits")
         scores, skipped = _settled([psis_score(r) for r in fits], labels, kfold is not None or every_candidate)

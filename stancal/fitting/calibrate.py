@@ -64,6 +64,8 @@ def _sample(stan_backend, flat: FlatProgram, data: CalibrationData, plan: Plan, 
     ``warm_start``: from an earlier fit's draws and adaptation."""
     stan_json = to_stan_json(build_stan_data(data, plan.program.data, options, fit_points,
                                              emulator_hyperparameters=emulator.get("hyperparameters")))
+    if warm_start is not None:  # from a fit of a related program: what this one has in that shape
+        warm_start = warm_start.fitted(stan_backend.parameter_shapes(flat, stan_json))
     inits = warm_start.inits if warm_start is not None else spread_theta_inits(
         sampler["chains"], len(data.parameters), np.random.default_rng(sampler["seed"]))
     simulator, points = plan.simulator if plan.program.simulator else None, data.physical[data.inputs]

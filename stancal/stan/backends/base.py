@@ -75,18 +75,31 @@ def fresh_prediction_normals(data: dict[str, Any], rng: np.random.Generator) -> 
 
 @dataclass(frozen=True)
 class WarmStart:
-    """Where a refit starts: from an earlier fit of nearly the same data (the
-    gap diagnosis's refits without a few rows). ``inits``: one point per
-    chain (the program's parameters), drawn from the earlier posterior;
+    """Where a fit starts when an earlier fit of nearly the same model and
+    data has ended: the gap diagnosis's refits without a few rows, and its
+    candidates (the baseline plus one term). ``inits``: one point per chain
+    (the program's parameters), drawn from the earlier posterior;
     ``step_size``: its adapted step size; ``inv_metric``: its adapted
     diagonal inverse metric on the unconstrained scale, one row per chain
     (None when the backend that made it does not report it). The sampler's
     warm-up, short then, keeps adapting from there (warm_windows): the
-    posterior moves little when a few rows are held out."""
+    posterior moves little when a few rows are held out or a term added."""
 
     inits: list[dict[str, Any]]
     step_size: float
     inv_metric: np.ndarray | None = None
+
+    def fitted(self, shapes: dict[str, tuple[int, ...]]) -> WarmStart:
+        """This start for a program whose parameters have ``shapes``: an
+        entry the program does not have, or has in another shape (a
+        candidate's longer coefficient vector), is left to Stan's inits. The
+        metric is kept only when every parameter of nonzero size starts from
+        the earlier fit, with its shape (its length is then the same)."""
+        inits = [{k: v for k, v in point.items() if k in shapes and np.shape(v) == tuple(shapes[k])}
+                 for point in self.inits]
+        sized = {k for k, shape in shapes.items() if int(np.prod(shape)) > 0}
+        whole = all(sized <= set(point) for point in inits)
+        return WarmStart(inits, self.step_size, self.inv_metric if whole else None)
 
 
 def warm_windows(warmup: int) -> dict[str, int]:
