@@ -4,15 +4,16 @@ the baseline fit's wall time, all candidates included; every ELPD difference
 within one se of K-fold's).
 
     .venv/bin/python benchmarks/gap_cost.py [--case cooling] [--chains 4] [--warmup 1000] [--draws 1000]
-        [--refits warm|cold] [--all-candidates] [--kfold 10] [--seed 1]
+        [--refits warm|cold] [--candidates warm|cold] [--all-candidates] [--kfold 10] [--seed 1]
 
 In one process: the baseline fit alone (calibrate() with the gap's plan: a
 constant in the discrepancy mean, on the local Dask cluster's machine), then
 the gap diagnosis (diagnose_gap on a local cluster, as the CLI runs it),
 then, with ``--kfold K``, the same diagnosis by K-fold cross-validation as
 the reference (refits from scratch). The machine is shared and noisy: read the ratio, not the
-seconds. ``--refits cold`` and ``--all-candidates`` switch the levers off
-(refits from scratch; every candidate's unreliable points refitted).
+seconds. ``--refits cold``, ``--candidates cold`` and ``--all-candidates``
+switch the levers off (refits from scratch; candidates' fits from Stan's
+inits, beside the baseline's; every candidate's unreliable points refitted).
 ``--refits-only F`` measures the warm start alone: the baseline's refits on F
 of 5 folds, cold and warm alternated, with their held-out ELPDs.
 """
@@ -44,6 +45,8 @@ def arguments() -> argparse.Namespace:
     parser.add_argument("--draws", type=int, default=1000)
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--refits", choices=["warm", "cold"], default="warm")
+    parser.add_argument("--candidates", choices=["warm", "cold"], default="warm",
+                        help="candidates' fits started from the baseline's (warm) or from Stan's inits")
     parser.add_argument("--all-candidates", action="store_true")
     parser.add_argument("--kfold", type=int, default=None, help="also the K-fold reference with this many folds")
     parser.add_argument("--json", type=Path, default=None, help="write the figures here too")
@@ -108,7 +111,8 @@ def main() -> None:
                           **model, **sampling)
         baseline_s = time.perf_counter() - started
         started = time.perf_counter()
-        levers = {"warm_refits": args.refits == "warm", "every_candidate": args.all_candidates}
+        levers = {"warm_refits": args.refits == "warm", "warm_candidates": args.candidates == "warm",
+                  "every_candidate": args.all_candidates}
         gap = diagnose_gap(problem.data, problem.candidates, simulator=problem.simulator, seed=args.seed,
                            **levers, **model, **sampling)
         gap_s = time.perf_counter() - started
@@ -120,7 +124,8 @@ def main() -> None:
         print(json.dumps(figures, indent=1), flush=True)
         if args.kfold:
             reference = diagnose_gap(problem.data, problem.candidates, simulator=problem.simulator,
-                                     seed=args.seed, kfold=args.kfold, warm_refits=False, **model, **sampling)
+                                     seed=args.seed, kfold=args.kfold, warm_refits=False, warm_candidates=False,
+                                     **model, **sampling)
             kfold = differences(reference)
             figures["kfold"] = {"folds": args.kfold, "candidates": kfold}
             figures["distance_in_se"] = {name: round(abs(c["elpd_diff"] - kfold[name]["elpd_diff"])
