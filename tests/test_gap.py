@@ -22,7 +22,7 @@ from conftest import (
 
 import stancal
 from stancal.diagnosing.gap import Candidate, CandidateError, check_candidates, diagnose_gap, variant_data
-from stancal.fitting.warm_start import refit_draws, refit_warmup
+from stancal.fitting.warm_start import candidate_warmup, refit_draws, refit_warmup
 from stancal.problem.codes import Likelihood
 from stancal.problem.config import ConfigError, load_config
 from stancal.reporting.gap_report import write_gap_report
@@ -417,20 +417,33 @@ def test_kfold_comparison_and_a_failed_candidate(exact_cooling_data, monkeypatch
     assert summary["candidates"][0]["elpd_diff"] < 2 * summary["candidates"][0]["elpd_diff_se"]
     # the exact simulator with noise 0.3 predicts held-out points to about the noise
     assert 0.2 < summary["baseline"]["holdout_rmse"] < 0.6
-    assert_refits_warm(fits, sampled, folds=3)
+    assert_refits_warm(fits, sampled, folds=3, rows=24)
 
 
-def assert_refits_warm(fits, sampled, folds):
-    """Every refit (a fit to fewer rows than the full one) started from a draw
-    of its own full fit, with that fit's step size, in a short warm-up."""
-    full = {options["plan"].options.mean_formula: result for options, result in fits if "warm_start" not in options}
-    refits = [(options, result) for options, result in fits if "warm_start" in options]
-    assert len(refits) == folds * len(full) and len(sampled) == len(fits)
-    for (options, _), kwargs in zip(refits, sampled[len(full):], strict=True):
-        source = full[options["plan"].options.mean_formula]
-        thetas = np.asarray(source.idata["stan_parameters"]["theta_unit"]).reshape(-1)
-        assert all(np.isin(init["theta_unit"], thetas).all() for init in kwargs["init"])
-        steps = np.asarray(source.idata["sample_stats"]["step_size"])
-        assert kwargs["stepsize"] == pytest.approx(np.median(steps))
-        assert (kwargs["num_warmup"], kwargs["num_samples"]) == (refit_warmup(300), refit_draws(700))
-        assert kwargs["init_buffer"] + kwargs["window"] + kwargs["term_buffer"] == kwargs["num_warmup"]
+def assert_refits_warm(fits, sampled, folds, rows):
+    """Every candidate's fit started from a draw of the baseline's (the first
+    fit), and every refit (a fit to fewer rows than the full one) from a draw
+    of its own full fit, each with that fit's step size, in a short warm-up."""
+    assert len(sampled) == len(fits)
+    full = [(options, result, kwargs) for (options, result), kwargs in zip(fits, sampled, strict=True)
+            if len(result.data.physical) == rows]
+    for _, _, kwargs in full[1:]:
+        assert_started_from(full[0][1], kwargs, candidate_warmup(300), 700)
+    by_term = {options["plan"].options.mean_formula: result for options, result, _ in full}
+    refits = [(options, kwargs) for (options, result), kwargs in zip(fits, sampled, strict=True)
+              if len(result.data.physical) < rows]
+    assert len(refits) == folds * len(full)
+    for options, kwargs in refits:
+        assert_started_from(by_term[options["plan"].options.mean_formula], kwargs, refit_warmup(300),
+                            refit_draws(700))
+
+
+def assert_started_from(source, kwargs, warmup, draws):
+    """httpstan was given a draw of ``source`` per chain (theta by value), its median step size, and
+    ``warmup`` iterations in Stan's three adaptation stages, then ``draws``."""
+    thetas = np.asarray(source.idata["stan_parameters"]["theta_unit"]).reshape(-1)
+    assert all(np.isclose(np.asarray(init["theta_unit"])[:, None], thetas, rtol=0, atol=1e-9).any(axis=1).all()
+               for init in kwargs["init"])
+    assert kwargs["stepsize"] == pytest.approx(np.median(np.asarray(source.idata["sample_stats"]["step_size"])))
+    assert (kwargs["num_warmup"], kwargs["num_samples"]) == (warmup, draws)
+    assert kwargs["init_buffer"] + kwargs["window"] + kwargs["term_buffer"] == kwargs["num_warmup"]

@@ -329,11 +329,12 @@ def diagnose_gap(
                             start, bounds_of(data_for(c).parameters), calibrate_options,
                             fit_seed(seed, f"warm {label_name(c)}")))
 
-        # the baseline first: each candidate (the baseline plus one term) starts where it ended
-        baseline = run(runner, [fit_task(None, None)])
-        _without_failures([None], baseline, failed)
-        start = baseline[0] if warm_candidates and not vector else None  # a vector result's fits start cold
-        fits = [*baseline, *run(runner, [fit_task(c, start) for c in candidates])]
+        if warm_candidates and not vector:  # the baseline first: each candidate starts where it ended
+            baseline = run(runner, [fit_task(None, None)])
+            _without_failures([None], baseline, failed)
+            fits = [*baseline, *run(runner, [fit_task(c, baseline[0]) for c in candidates])]
+        else:  # side by side (a vector result's fits start cold)
+            fits = run(runner, [fit_task(c, None) for c in labels])
         labels, fits = _without_failures(labels, fits, failed)
         clock.lap("fits")
         scores, skipped = _settled([psis_score(r) for r in fits], labels, kfold is not None or every_candidate)
