@@ -329,12 +329,8 @@ def diagnose_gap(
                             start, bounds_of(data_for(c).parameters), calibrate_options,
                             fit_seed(seed, f"warm {label_name(c)}")))
 
-        if warm_candidates and not vector:  # the baseline first: each candidate starts where it ended
-            baseline = run(runner, [fit_task(None, None)])
-            _without_failures([None], baseline, failed)
-            fits = [*baseline, *run(runner, [fit_task(c, baseline[0]) for c in candidates])]
-        else:  # side by side (a vector result's fits start cold)
-            fits = run(runner, [fit_task(c, None) for c in labels])
+        fits = _full_fits(functools.partial(run, runner), fit_task, candidates, warm_candidates and not vector,
+                          failed)
         labels, fits = _without_failures(labels, fits, failed)
         clock.lap("fits")
         scores, skipped = _settled([psis_score(r) for r in fits], labels, kfold is not None or every_candidate)
@@ -372,6 +368,17 @@ def _gap_plan(data, simulator, method: str | None, calibrate_options: dict[str, 
     plan = make_plan(data, simulator, method, calibrate_options.pop("program", None),
                      **model_keywords(calibrate_options, vector))
     return replace(plan, options=replace(plan.options, mean_formula=None, mean_intercept=True))
+
+
+def _full_fits(run, fit_task, candidates: list[Candidate], warm: bool, failed: list[FitFailure]) -> list:
+    """The baseline's and the candidates' fits to all the data: the baseline
+    first and each candidate started where it ended when ``warm``, else all
+    side by side (a vector result's fits start cold)."""
+    if not warm:
+        return run([fit_task(c, None) for c in [None, *candidates]])
+    baseline = run([fit_task(None, None)])
+    _without_failures([None], baseline, failed)  # without the baseline, nothing to start from or compare
+    return [*baseline, *run([fit_task(c, baseline[0]) for c in candidates])]
 
 
 def _without_failures(labels: list, fits: list, failed: list[FitFailure]) -> tuple[tuple, tuple]:
