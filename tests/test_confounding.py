@@ -133,7 +133,7 @@ def test_every_gap_fit_drops_the_constant_alike(source_plan, tmp_path):
     data, _, _ = source_plan
     runner = _RecordingRunner()
     with pytest.raises(_Stop):
-        # started cold, the candidate is planned beside the baseline (warm, it waits for the baseline's draws)
+        # cold (the default), the candidate is planned beside the baseline (warm, it waits for the baseline's draws)
         diagnose_gap(data, [Candidate("pressure", formula="pressure")], simulator=SOURCE,
                      scheduler=runner, chains=2, warmup=100, draws=100, seed=1, warm_candidates=False)
     plans = [task.kwargs["plan"] for task in runner.tasks]

@@ -406,7 +406,8 @@ def test_kfold_comparison_and_a_failed_candidate(exact_cooling_data, monkeypatch
     with no_stancal_warnings(allow="diverged|R-hat|effective sample size"):
         analysis = diagnose_gap(data, [Candidate("half", formula="C(half)"), Candidate("slope", formula="t")],
                                 simulator=COOLING / "simulator.stan", kfold=3, scheduler="in-process",
-                                chains=4, warmup=300, draws=700, seed=5)  # at 4 x (300 + 300) R-hat 1.010
+                                chains=4, warmup=300, draws=700, seed=5,  # at 4 x (300 + 300) R-hat 1.010
+                                warm_candidates=True)
     assert_analysis_healthy(analysis, divergences=2)  # the full fits: at most one divergence seen
     summary = analysis.to_json()
     assert [c["name"] for c in summary["candidates"]] == ["half"] and len(attempts) == 2

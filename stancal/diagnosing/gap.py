@@ -260,7 +260,7 @@ def diagnose_gap(
     kfold: int | None = None,
     scheduler: str | FitRunner | None = None,
     warm_refits: bool = True,
-    warm_candidates: bool = True,
+    warm_candidates: bool = False,
     every_candidate: bool = False,
     **calibrate_options: Any,
 ) -> GapAnalysis:
@@ -282,7 +282,8 @@ def diagnose_gap(
     fit's draws and adaptation, with a short warm-up
     (stancal.fitting.warm_start). ``warm_candidates``: so does each
     candidate's fit (a scalar output's), from the baseline's, which then
-    runs first; with half the baseline's draws. Unless ``every_candidate`` or ``kfold``,
+    runs first, with half its warm-up; off by default, as on the cooling
+    case it saved no wall time on two cores (docs/benchmarks.md). Unless ``every_candidate`` or ``kfold``,
     a candidate that cannot lead whatever its unreliable points' held-out
     densities turn out to be keeps its PSIS scores, unrefitted
     (scoring.settled; its scheme says so).
