@@ -119,3 +119,141 @@ def test_a_vector_config_with_a_cup_and_its_candidate_loads(tmp_path):
     assert terms.names == ["C(cup)[T.steel]"]
     steel = (problem.data.source["cup"] == "steel").to_numpy()
     assert np.all(terms.h[steel] != 0) and np.all(terms.h[~steel] == 0)
+
+
+# ---- inputs = []: experiments that differ only by their own theta (SEPIA's Al-5083 flyer plates) ----
+TRUTH = {"k": 0.045, "Ta": 21.3}  # long_experiments' cool-downs
+NO_INPUT_SIMULATOR = """
+vector simulator(matrix X, vector theta) {
+  // Newton's law along X's one column, the time; theta = (k, Ta, T0): T0 is each experiment's own
+  return theta[2] + (theta[3] - theta[2]) * exp(-theta[1] * X[:, 1]);
+}
+"""
+
+
+def _no_backend(monkeypatch) -> None:
+    """Any compile, check or sampling call fails the test."""
+    from stancal.stan.backends.cmdstanpy_backend import CmdStanPyBackend
+    from stancal.stan.backends.pystan_backend import PyStanBackend
+
+    def refused(*args, **kwargs):
+        raise AssertionError("a Stan program was compiled or run")
+
+    for backend in (PyStanBackend, CmdStanPyBackend):
+        for name in ("check", "compile", "sample", "parameter_names", "parameter_shapes", "posterior_mode"):
+            monkeypatch.setattr(backend, name, refused)
+
+
+def _scalar_config_without_inputs(folder) -> None:
+    from conftest import ROOT
+
+    cooling = ROOT / "case_studies" / "cooling"
+    pd.read_csv(cooling / "physical.csv")[["humidity", "temperature"]].to_csv(folder / "physical.csv", index=False)
+    (folder / "config.toml").write_text(f"""
+[physical]
+csv = "physical.csv"
+inputs = []
+output = "temperature"
+covariates = ["humidity"]
+
+[simulator]
+stan = "{cooling / 'simulator.stan'}"
+runs = "{cooling / 'runs.csv'}"
+
+[simulator.theta]
+k = [0.01, 0.2]
+
+[candidates]
+humidity = "humidity"
+""")
+
+
+def _scalar_commands() -> list[list[str]]:
+    from stancal.stan.registry import method_names
+
+    return [*(["calibrate", "--method", m] for m in method_names("scalar")), ["gap"], ["compare"], ["sbc"]]
+
+
+@pytest.mark.parametrize("command", _scalar_commands(), ids=" ".join)
+def test_a_scalar_output_refuses_no_inputs_in_one_line_before_any_compile(command, tmp_path, monkeypatch, capsys):
+    """Every scalar program's emulator and discrepancy vary over D >= 1
+    inputs: each method and command refuses ``inputs = []`` by its key, in one
+    line, before any Stan program is compiled or run."""
+    from stancal.cli import main
+
+    _no_backend(monkeypatch)
+    _scalar_config_without_inputs(tmp_path)
+    code = main([command[0], str(tmp_path / "config.toml"), "--out", str(tmp_path / "out"), *command[1:]])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1, err
+    assert "inputs = []: a scalar output needs at least one simulator input column" in err[0]
+    assert "vector output ([physical] experiment and output_index), which takes inputs = []" in err[0]
+
+
+def no_input_data(runs: bool) -> VectorCalibrationData:
+    """The cool-downs with T0 as each experiment's own theta, no inputs."""
+    return VectorCalibrationData(long_experiments(1), "exp", [], "T", "t", THETA,
+                                 theta_per_experiment={"T0": (55.0, 95.0)}, noise_sd="sd",
+                                 **({"runs": long_runs(60, 2), "run": "run"} if runs else {}))
+
+
+def _covers(result, data: VectorCalibrationData) -> None:
+    """theta's 90 % intervals hold the truth: shared, and each experiment's T0."""
+    summary = result.theta_summary()
+    for name, value in TRUTH.items():
+        assert summary[name]["q05"] <= value <= summary[name]["q95"], (name, summary[name])
+    table = result.to_summary_json()["theta_per_experiment"]
+    for name, T0 in long_experiments(1).groupby("exp")["T0"].first().items():
+        assert table[f"T0[{name}]"]["q05"] <= T0 <= table[f"T0[{name}]"]["q95"], (name, T0, table[f"T0[{name}]"])
+
+
+@pytest.mark.parametrize("method", ["modular", "koh_emulator"])
+def test_the_runs_programs_take_no_inputs_and_cover_the_truth(method):
+    """inputs = []: the emulator is a GP over (theta, T0) only, the
+    discrepancy a GP along the time shared by the cool-downs. Known noise
+    0.3; 2 x (300 + 300) draws."""
+    from conftest import assert_healthy
+
+    from stancal.fitting.vector_calibrate import calibrate_vector
+
+    data = no_input_data(runs=True)
+    result = calibrate_vector(data, method=method, noise="known", chains=2, warmup=300, draws=300, seed=2)
+    assert result.method == {"modular": "modular_vector", "koh_emulator": "koh_emulator_vector"}[method]
+    assert_healthy(result)
+    assert list(result.idata["posterior"]["delta_length_scale"].coords["delta_input"].values) == ["t"]
+    _covers(result, data)
+
+
+def test_koh_with_a_stan_simulator_takes_no_inputs(tmp_path):
+    """koh_vector.stan with X = (t) alone and theta = (k, Ta, T0 of the
+    experiment); no discrepancy, known noise: the posterior covers the truth."""
+    from conftest import assert_healthy
+
+    from stancal.fitting.vector_calibrate import calibrate_vector
+
+    simulator = tmp_path / "simulator.stan"
+    simulator.write_text(NO_INPUT_SIMULATOR)
+    data = no_input_data(runs=False)
+    result = calibrate_vector(data, simulator=simulator, discrepancy="none", noise="known", chains=2, warmup=300,
+                              draws=300, seed=2)
+    assert result.method == "koh_vector"
+    assert_healthy(result)
+    _covers(result, data)
+
+
+def test_the_al5083_flyer_plates_load_with_no_inputs_and_are_drawn_at_their_features():
+    """SEPIA's example as the case study states it: three shots, four measured
+    features each (numbered 1-12), 1,000 runs over 11 theta, the impact
+    velocities among them; a feature set is drawn at its own points (not
+    between features, where a value means nothing)."""
+    from conftest import ROOT
+
+    from stancal.fitting.vector_calibrate import prediction_rows
+
+    problem = load_config(ROOT / "case_studies" / "al5083" / "config.toml")
+    data = problem.data
+    assert data.inputs == [] and list(data.experiments.index) == ["104S", "105S", "106S"]
+    assert len(data.parameters) == 11 and {"vel1", "vel2", "vel3"} <= set(data.theta_names)
+    assert data.run_outputs.shape == (1000, 12) and data.basis.count == 11
+    rows = prediction_rows(data)
+    assert rows.groupby("shot")["feature"].apply(list).map(lambda f: f == list(range(1, 13))).all()

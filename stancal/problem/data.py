@@ -131,6 +131,13 @@ class Scaling:
         return self.y_center + self.y_scale * np.asarray(y_standardised, float)
 
 
+# why a scalar output refuses inputs = [] (a vector output takes it: stancal.problem.vector_data)
+NO_INPUTS = ("inputs = []: a scalar output needs at least one simulator input column, since without one every "
+             "value measures the same quantity and its discrepancy, a constant, cannot be told from theta; name "
+             "the setting the values vary over, or give them as a vector output ([physical] experiment and "
+             "output_index), which takes inputs = []")
+
+
 class CalibrationData:
     """Physical observations, optional simulator runs and the calibration
     parameters of one problem.
@@ -319,8 +326,8 @@ class CalibrationData:
         return self.runs is not None
 
     def _check_names(self) -> None:
-        if not self.inputs:
-            raise DataError("inputs: give at least one simulator input column")
+        if not self.inputs:  # every scalar program's emulator and discrepancy vary over D >= 1 inputs
+            raise DataError(NO_INPUTS)
         named = [*self.inputs, *self.covariates, self.output]
         repeated = sorted({n for n in named if named.count(n) > 1})
         if repeated:
