@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import time
 from pathlib import Path
 
@@ -98,6 +99,8 @@ def plot_shots(result, path: Path) -> None:
 
 def main() -> None:
     args = arguments()
+    logging.basicConfig(format="%(name)s: %(message)s")
+    logging.getLogger("stancal").setLevel(logging.INFO)  # stage 1 and sampling progress, as the CLI shows them
     args.out.mkdir(parents=True, exist_ok=True)
     problem = load_config(HERE / "config.toml")
     started = time.perf_counter()
