@@ -22,7 +22,7 @@ functions {
 }
 data {
   int<lower=1> E;                       // number of experiments
-  int<lower=1> D;                       // number of simulator inputs
+  int<lower=0> D;                       // number of simulator inputs (0: experiments differ by theta_e alone)
   int<lower=1> K_index;                 // number of output index columns
   int<lower=0> D_cov;                   // number of covariates (discrepancy only)
   int<lower=1> Q;                       // number of shared calibration parameters

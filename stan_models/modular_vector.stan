@@ -29,7 +29,7 @@ functions {
 }
 data {
   int<lower=1> E;                       // number of experiments
-  int<lower=1> D;                       // number of simulator inputs
+  int<lower=0> D;                       // number of simulator inputs (0: experiments differ by theta_e alone)
   int<lower=1> Q;                       // number of shared calibration parameters
   int<lower=0> Q_exp;                   // number of per-experiment parameters
   int<lower=1> N;                       // number of measured values

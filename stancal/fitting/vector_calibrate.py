@@ -36,10 +36,12 @@ PREDICTION_INDICES = 25  # per experiment, evenly over the index's range (one in
 def prediction_rows(data: VectorCalibrationData, per_experiment: int = PREDICTION_INDICES) -> pd.DataFrame:
     """Rows where f, delta and zeta are drawn: per experiment, an even grid
     over the range of one index (the runs' grid, else the measured values'),
-    or the runs' own grid (else the measured points) for a field; with the
-    experiment's other columns, for mean terms."""
+    or the runs' own grid (else the measured points) for a field or for a
+    few features (at most ``per_experiment``: a feature set's values lie at
+    its points, not between them); with the experiment's other columns, for
+    mean terms."""
     grid = data.basis.grid if data.basis is not None else np.unique(data.physical[data.output_index].to_numpy(), axis=0)
-    if grid.shape[1] == 1:
+    if grid.shape[1] == 1 and len(grid) > per_experiment:
         indices = np.linspace(grid[:, 0].min(), grid[:, 0].max(), per_experiment)[:, None]
     else:
         indices = grid[np.unique(np.linspace(0, len(grid) - 1, min(len(grid), 4 * per_experiment)).astype(int))]

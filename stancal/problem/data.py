@@ -10,6 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
+from stancal.problem.categories import covariate_columns, covariate_levels, one_hot
 from stancal.problem.observations import LINKS, read_observations
 from stancal.problem.validation import DataError, described, numeric_values, require_whole, source_file
 from stancal.problem.validation import row_labels as _rows
@@ -52,23 +53,6 @@ def numeric_columns(frame: pd.DataFrame, columns: Sequence[str], what: str) -> p
             )
         out[column] = values
     return pd.DataFrame(out, index=frame.index)
-
-
-def _category_levels(frame: pd.DataFrame, column: str, what: str) -> list[str] | None:
-    """Levels of a text column, or None for a numeric one."""
-    raw = frame[column]
-    if pd.api.types.is_numeric_dtype(raw):
-        return None
-    numeric = pd.to_numeric(raw, errors="coerce").notna().to_numpy()
-    missing = raw.isna().to_numpy()
-    if numeric[~missing].all():
-        return None
-    if numeric.any():
-        raise DataError(f"{what}: column '{column}' mixes numbers and text; numbers in "
-                        f"{_rows(numeric, frame.index)}")
-    if missing.any():
-        raise DataError(f"{what}: categorical column '{column}' is empty in {_rows(missing, frame.index)}")
-    return sorted(raw.astype(str).unique())
 
 
 def parameters_from_bounds(theta: Mapping[str, tuple[float, float]], what: str = "theta",
@@ -121,10 +105,6 @@ def _of_file(frame: pd.DataFrame) -> str:
     return f" of {source}" if source else ""
 
 
-def one_hot_name(column: str, level: str) -> str:
-    return f"{column}[{level}]"
-
-
 @dataclass(frozen=True)
 class Scaling:
     """Affine maps to the unit cube (inputs, covariates, theta) and to a
@@ -149,6 +129,13 @@ class Scaling:
     def original(self, y_standardised: np.ndarray) -> np.ndarray:
         """The inverse of standardise."""
         return self.y_center + self.y_scale * np.asarray(y_standardised, float)
+
+
+# why a scalar output refuses inputs = [] (a vector output takes it: stancal.problem.vector_data)
+NO_INPUTS = ("inputs = []: a scalar output needs at least one simulator input column, since without one every "
+             "value measures the same quantity and its discrepancy, a constant, cannot be told from theta; name "
+             "the setting the values vary over, or give them as a vector output ([physical] experiment and "
+             "output_index), which takes inputs = []")
 
 
 class CalibrationData:
@@ -232,10 +219,7 @@ class CalibrationData:
     def discrepancy_variables(self) -> dict[str, list[str]]:
         """Each simulator input and covariate -> its discrepancy GP columns
         (one per level for a categorical covariate)."""
-        out = {c: [c] for c in self.inputs}
-        for c in self.covariates:
-            out[c] = [one_hot_name(c, v) for v in self.levels[c]] if c in self.levels else [c]
-        return out
+        return {c: [c] for c in self.inputs} | covariate_columns(self.covariates, self.levels)
 
     @property
     def discrepancy_inputs(self) -> list[str]:
@@ -244,27 +228,11 @@ class CalibrationData:
 
     def _levels(self, physical: pd.DataFrame, given: Mapping[str, Sequence[str]], what: str) -> dict[str, list[str]]:
         require_columns(physical, self.covariates, what)
-        out = {}
-        for column in self.covariates:
-            found = _category_levels(physical, column, what)
-            if found is not None:
-                out[column] = list(given.get(column, found))
-        return out
+        return covariate_levels(physical, self.covariates, given, what)
 
     def one_hot(self, frame: pd.DataFrame, what: str = "physical data") -> pd.DataFrame:
         """One 0/1 column per level of each categorical covariate."""
-        columns = {}
-        for column, levels in self.levels.items():
-            if column not in frame.columns:
-                raise DataError(f"{what}: missing categorical column '{column}'")
-            values = frame[column].astype(str).to_numpy()
-            unknown = ~np.isin(values, levels)
-            if unknown.any():
-                raise DataError(f"{what}: column '{column}' has levels not in {levels} in "
-                                f"{_rows(unknown, frame.index)}")
-            for level in levels:
-                columns[one_hot_name(column, level)] = (values == level).astype(float)
-        return pd.DataFrame(columns, index=frame.index)
+        return one_hot(frame, self.levels, what)
 
     def _rebuilt(self, source: pd.DataFrame, inputs: Sequence[str] | None = None,
                  theta: Mapping[str, tuple[float, float]] | None = None,
@@ -358,8 +326,8 @@ class CalibrationData:
         return self.runs is not None
 
     def _check_names(self) -> None:
-        if not self.inputs:
-            raise DataError("inputs: give at least one simulator input column")
+        if not self.inputs:  # every scalar program's emulator and discrepancy vary over D >= 1 inputs
+            raise DataError(NO_INPUTS)
         named = [*self.inputs, *self.covariates, self.output]
         repeated = sorted({n for n in named if named.count(n) > 1})
         if repeated:

@@ -10,6 +10,7 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 import pandas as pd
 
+from stancal.problem.categories import covariate_columns, covariate_levels, one_hot
 from stancal.problem.data import (
     Parameter,
     Scaling,
@@ -26,12 +27,12 @@ from stancal.problem.validation import row_labels as _rows
 
 
 def _constant_within(table: pd.DataFrame, group: str, columns: Sequence[str], what: str, unit: str) -> pd.DataFrame:
-    """One row per group with the columns' values, which must not vary
-    within a group (an error names the group and the column)."""
+    """One row per group with the columns' values (numbers or text), which
+    must not vary within a group (an error names the group and the column)."""
     grouped = table.groupby(group, sort=False)
     for column in columns:
-        spread = grouped[column].agg(lambda v: np.ptp(v.to_numpy()))
-        varying = spread[spread > 0]
+        distinct = grouped[column].nunique()
+        varying = distinct[distinct > 1]
         if len(varying):
             name = varying.index[0]
             values = table.loc[table[group] == name, column].unique()[:5].tolist()
@@ -63,8 +64,11 @@ class VectorCalibrationData:
     run : the column naming each row's run.
     noise_sd : optional column of each measured value's known sd.
     covariates : physical columns the discrepancy may depend on (constant
-        within an experiment).
+        within an experiment); text columns are categorical and enter the
+        discrepancy one-hot, as for a scalar output (stancal.problem.categories).
     variance_share, components : the runs' reduced basis (stancal.problem.output_basis).
+    levels : categories of categorical covariates, when they must not be
+        taken from ``physical`` (a subset that lacks a level).
     """
 
     def __init__(
@@ -82,6 +86,7 @@ class VectorCalibrationData:
         covariates: Sequence[str] = (),
         variance_share: float = DEFAULT_VARIANCE_SHARE,
         components: int | None = None,
+        levels: Mapping[str, Sequence[str]] | None = None,
     ) -> None:
         self.experiment, self.run, self.output, self.noise_sd = experiment, run, output, noise_sd
         self.inputs, self.covariates = list(inputs), list(covariates)
@@ -90,12 +95,12 @@ class VectorCalibrationData:
         self.per_experiment = parameters_from_bounds(theta_per_experiment or {}, "theta_per_experiment",
                                                      required=False)
         self._check_names()
+        require_columns(physical, self.covariates, described("physical data", physical))
+        self.levels = covariate_levels(physical, self.covariates, levels or {}, described("physical data", physical))
         self.physical = self._check_physical(physical)
         self.source = physical.loc[self.physical.index].copy()  # every column, for formulas
         self.source[experiment] = self.physical[experiment]
-        self.experiments = _constant_within(self.physical, experiment, [*self.inputs, *self.covariates],
-                                            described("physical data", physical), "experiment")
-        self.levels: dict[str, list[str]] = {}  # covariates are numeric (checked above)
+        self.experiments = self._experiments(described("physical data", physical))
         self.runs = None
         self.basis = None
         self._basis_options = {"variance_share": variance_share, "components": components}
@@ -124,13 +129,27 @@ class VectorCalibrationData:
 
     @property
     def discrepancy_variables(self) -> dict[str, list[str]]:
-        """The discrepancy GP's variables, each one column: simulator inputs,
-        output index, covariates (the Stan programs' x_delta order)."""
-        return {c: [c] for c in [*self.inputs, *self.output_index, *self.covariates]}
+        """The discrepancy GP's variables -> their columns: simulator inputs,
+        output index, covariates (one column per level for a categorical
+        one), in the Stan programs' x_delta order."""
+        return {c: [c] for c in [*self.inputs, *self.output_index]} | covariate_columns(self.covariates, self.levels)
 
     @property
     def discrepancy_inputs(self) -> list[str]:
-        return [*self.inputs, *self.output_index, *self.covariates]
+        return [column for columns in self.discrepancy_variables.values() for column in columns]
+
+    @property
+    def covariate_columns(self) -> list[str]:
+        """The covariates' discrepancy columns (the Stan programs' z, D_cov of them)."""
+        return [column for columns in covariate_columns(self.covariates, self.levels).values() for column in columns]
+
+    def with_one_hot(self, rows: pd.DataFrame, what: str = "prediction rows") -> pd.DataFrame:
+        """Rows (physical, or where predictions are drawn) with the one-hot
+        columns of the categorical covariates added."""
+        if not self.levels:
+            return rows
+        coded = one_hot(rows, self.levels, what)
+        return pd.concat([rows.drop(columns=list(coded.columns), errors="ignore"), coded], axis=1)
 
     @property
     def discrepancy_scale(self) -> str:
@@ -156,7 +175,7 @@ class VectorCalibrationData:
         return VectorCalibrationData(
             self.source.iloc[list(rows)], self.experiment, self.inputs, self.output, self.output_index,
             bounds_of(self.parameters), bounds_of(self.per_experiment), self.runs, self.run, self.noise_sd,
-            self.covariates, **self._basis_options)
+            self.covariates, **self._basis_options, levels=self.levels)
 
     def variant(self, inputs: Sequence[str],
                 extra_theta: Mapping[str, tuple[float, float]]) -> VectorCalibrationData:
@@ -166,7 +185,8 @@ class VectorCalibrationData:
         return VectorCalibrationData(
             self.source, self.experiment, inputs, self.output, self.output_index,
             bounds_of(self.parameters) | dict(extra_theta), bounds_of(self.per_experiment),
-            noise_sd=self.noise_sd, covariates=[v for v in [*self.inputs, *self.covariates] if v not in inputs])
+            noise_sd=self.noise_sd, covariates=[v for v in [*self.inputs, *self.covariates] if v not in inputs],
+            levels=self.levels)
 
     def _scaling(self) -> Scaling:
         """Inputs and covariates to [0, 1] over the experiments' and runs'
@@ -175,7 +195,7 @@ class VectorCalibrationData:
         over the measured values (the Stan simulator's program); the runs'
         program standardises by the basis (its mean curve and scale)."""
         low, width = {}, {}
-        ranges = {c: self.experiments[c].to_numpy() for c in [*self.inputs, *self.covariates]}
+        ranges = {c: self.experiments[c].to_numpy() for c in [*self.inputs, *self.covariate_columns]}
         ranges.update({c: self.physical[c].to_numpy() for c in self.output_index})
         if self.basis is not None:
             for c in self.inputs:
@@ -204,9 +224,9 @@ class VectorCalibrationData:
     def _check_physical(self, physical: pd.DataFrame) -> pd.DataFrame:
         what = described("physical data", physical)
         require_columns(physical, [self.experiment], what)
-        values = [*self.inputs, *self.covariates, *self.output_index, self.output,
-                  *([self.noise_sd] if self.noise_sd else [])]
-        table = numeric_columns(physical, values, what)
+        numeric = [c for c in self.covariates if c not in self.levels]
+        values = [*self.inputs, *numeric, *self.output_index, self.output, *([self.noise_sd] if self.noise_sd else [])]
+        table = pd.concat([numeric_columns(physical, values, what), one_hot(physical, self.levels, what)], axis=1)
         empty = physical[self.experiment].isna().to_numpy()
         if empty.any():
             raise DataError(f"{what}: column '{self.experiment}' is empty in {_rows(empty, physical.index)}")
@@ -219,6 +239,15 @@ class VectorCalibrationData:
         if len(table) < 3:
             raise DataError(f"{what}: {len(table)} rows; calibration needs at least 3")
         return table
+
+    def _experiments(self, what: str) -> pd.DataFrame:
+        """One row per experiment with its inputs and covariate columns, which
+        must not vary within it (a categorical covariate checked by its text,
+        so that the error names its column and levels)."""
+        checked = self.physical[[self.experiment, *self.inputs, *(c for c in self.covariates if c not in self.levels)]]
+        checked = checked.assign(**{c: self.source[c].astype(str) for c in self.levels})
+        _constant_within(checked, self.experiment, [*self.inputs, *self.covariates], what, "experiment")
+        return self.physical.groupby(self.experiment, sort=False)[[*self.inputs, *self.covariate_columns]].first()
 
     def _check_runs(self, runs: pd.DataFrame) -> tuple[pd.DataFrame, pd.DataFrame, np.ndarray, np.ndarray]:
         """The runs' table, one row of settings per run (inputs, every theta), their

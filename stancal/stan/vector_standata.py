@@ -105,12 +105,12 @@ def koh_vector_data(data: VectorCalibrationData, options: VectorOptions, terms: 
     return dict(
         _shared_stan_data(data, options, new_rows, scaling.y_scale),
         **_mean_term_data(terms, len(physical), new_rows),
-        D_cov=len(data.covariates), X=physical[simulator_columns].to_numpy(float),
+        D_cov=len(data.covariate_columns), X=physical[simulator_columns].to_numpy(float),
         x_delta=scaling.to_unit(physical, data.discrepancy_inputs),
         y=scaling.standardise(physical[data.output].to_numpy()), y_center=scaling.y_center,
         y_scale=scaling.y_scale, kernel_id=options.kernel_id,
         X_new=new_rows[simulator_columns].to_numpy(float),
-        x_delta_new=scaling.to_unit(new_rows, data.discrepancy_inputs))
+        x_delta_new=scaling.to_unit(data.with_one_hot(new_rows), data.discrepancy_inputs))
 
 
 def modular_vector_data(data: VectorCalibrationData, options: VectorOptions, emulator: VectorEmulator,
@@ -123,8 +123,8 @@ def modular_vector_data(data: VectorCalibrationData, options: VectorOptions, emu
     shared = _shared_stan_data(data, options, new_rows, basis.scale)
     return dict(
         shared, **_mean_term_data(terms, len(physical), new_rows),
-        x=data.scaling.to_unit(data.experiments, data.inputs), D_cov=len(data.covariates),
-        z=data.scaling.to_unit(data.experiments, data.covariates),
+        x=data.scaling.to_unit(data.experiments, data.inputs), D_cov=len(data.covariate_columns),
+        z=data.scaling.to_unit(data.experiments, data.covariate_columns),
         index=data.scaling.to_unit(physical, data.output_index),
         y=(physical[data.output].to_numpy() - mean) / basis.scale, output_mean=mean, output_scale=basis.scale,
         C=basis.count, components=components, truncation_variance=basis.truncation_variance,
