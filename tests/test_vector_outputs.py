@@ -8,7 +8,7 @@ import pandas as pd
 import pytest
 from conftest import assert_healthy, no_stancal_warnings
 
-from stancal.problem.output_basis import OutputBasis
+from stancal.problem.output_basis import DEFAULT_VARIANCE_SHARE, OutputBasis
 from stancal.problem.validation import DataError
 from stancal.problem.vector_data import VectorCalibrationData
 
@@ -63,7 +63,7 @@ def test_cooling_curves_keep_what_the_share_asks_and_the_rest_is_the_truncation_
     data = vector_data()
     basis = data.basis
     assert data.run_outputs.shape == (60, 31)
-    assert basis.explained.sum() >= 0.995 and basis.explained[:-1].sum() < 0.995
+    assert basis.explained.sum() >= DEFAULT_VARIANCE_SHARE and basis.explained[:-1].sum() < DEFAULT_VARIANCE_SHARE
     scores = basis.weights(data.run_outputs)
     left = (data.run_outputs - basis.mean) / basis.scale - scores @ basis.components.T
     assert np.mean(left**2) == pytest.approx(basis.truncation_variance, rel=1e-8)
