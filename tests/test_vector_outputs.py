@@ -385,9 +385,7 @@ def test_joint_vector_emulator_agrees_with_the_quadrature_when_the_runs_pin_it_d
     from stancal.problem.options import VectorOptions
     from stancal.stan.vector_standata import modular_vector_data
 
-    # 3 components, as before the default kept 4 (issue 31): with 4 at 4 x (500 + 500) the joint fit's
-    # R-hat was 1.020 on a weight GP's length scale; what is tested is the joint program, not the basis
-    data = vector_data(runs=long_runs(40, 2), components=3)
+    data = vector_problem
     with no_stancal_warnings(allow="separate theta modes"):  # as in the modular test above: weight 0.000
         result = calibrate_vector(data, method="koh_emulator", discrepancy="none", chains=4, warmup=500,
                                   draws=500, seed=3)
