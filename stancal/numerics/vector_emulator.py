@@ -88,5 +88,5 @@ class VectorEmulator:
         weight_mean, weight_variance = self.weights(points)
         scale = self.basis.scale
         mean = mean_vector + scale * weight_mean @ components.T
-        variance = scale**2 * (weight_variance @ (components**2).T + self.basis.truncation_variance)
+        variance = scale**2 * (weight_variance @ (components**2).T + self.basis.independent_variance)
         return mean, variance
