@@ -374,7 +374,8 @@ def test_the_posterior_keeps_one_noise_sd_or_one_per_experiment():
         assert tree["posterior"]["noise_sd"].dims == dims
 
 
-def test_joint_vector_emulator_agrees_with_the_quadrature_when_the_runs_pin_it_down(vector_problem):
+@pytest.mark.slow
+def test_joint_vector_emulator_agrees_with_the_quadrature_when_the_runs_pin_it_down():
     """koh_emulator for a vector output samples the weight GPs'
     hyperparameters with theta. With 40 runs of a smooth simulator the
     emulator is nearly exact, so theta's posterior must agree with the
@@ -385,10 +386,16 @@ def test_joint_vector_emulator_agrees_with_the_quadrature_when_the_runs_pin_it_d
     from stancal.problem.options import VectorOptions
     from stancal.stan.vector_standata import modular_vector_data
 
-    data = vector_problem
+    # The basis the runs pin down: 99.5 % of their variance. With the default 99.99 % the fourth component's
+    # weights vary by little more than their interpolation error, and the joint fit's hyperparameters for it
+    # mix slowly: R-hat 1.017-1.020 on a length scale at 4 x (500 + 500), and 1.092 on that component's
+    # nugget at 4 x (1000 + 500). Said in docs/vector.md. At 99.5 % and 4 x (500 + 500) the first component's
+    # length scale over k still had R-hat 1.021 (clang++'s build; below 1.01 with g++'s at the old basis):
+    # hence the longer run, and the slow mark (about 4 minutes)
+    data = vector_data(runs=long_runs(40, 2), variance_share=0.995)  # vector_problem, with that basis
     with no_stancal_warnings(allow="separate theta modes"):  # as in the modular test above: weight 0.000
-        result = calibrate_vector(data, method="koh_emulator", discrepancy="none", chains=4, warmup=500,
-                                  draws=500, seed=3)
+        result = calibrate_vector(data, method="koh_emulator", discrepancy="none", chains=4, warmup=1000,
+                                  draws=1000, seed=3)
     assert result.method == "koh_emulator_vector"
     assert_healthy(result)
     assert result.idata["posterior"]["weight_gp_length_scale"].dims[2:] == ("component", "emulator_input")
