@@ -11,9 +11,10 @@ constant in the discrepancy mean, on the local Dask cluster's machine), then
 the gap diagnosis (diagnose_gap on a local cluster, as the CLI runs it),
 then, with ``--kfold K``, the same diagnosis by K-fold cross-validation as
 the reference (refits from scratch). The machine is shared and noisy: read the ratio, not the
-seconds. ``--refits cold``, ``--candidates cold`` and ``--all-candidates``
-switch the levers off (refits from scratch; candidates' fits from Stan's
-inits, beside the baseline's; every candidate's unreliable points refitted).
+seconds. ``--refits cold`` and ``--all-candidates`` switch the levers off
+(refits from scratch; every candidate's unreliable points refitted);
+``--candidates warm`` switches on one that is off by default (candidates'
+fits started from the baseline's, which then runs first).
 ``--refits-only F`` measures the warm start alone: the baseline's refits on F
 of 5 folds, cold and warm alternated, with their held-out ELPDs.
 """
@@ -45,7 +46,7 @@ def arguments() -> argparse.Namespace:
     parser.add_argument("--draws", type=int, default=1000)
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--refits", choices=["warm", "cold"], default="warm")
-    parser.add_argument("--candidates", choices=["warm", "cold"], default="warm",
+    parser.add_argument("--candidates", choices=["warm", "cold"], default="cold",
                         help="candidates' fits started from the baseline's (warm) or from Stan's inits")
     parser.add_argument("--all-candidates", action="store_true")
     parser.add_argument("--kfold", type=int, default=None, help="also the K-fold reference with this many folds")

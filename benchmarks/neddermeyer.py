@@ -9,7 +9,8 @@ itself, by quadrature, no discrepancy).
 
 The ablations change the Stan data of one fit and nothing else:
 - no_discrepancy: the discrepancy GP left out (use_discrepancy = 0);
-- no_truncation: the basis truncation variance left out of the likelihood;
+- no_truncation: the basis's independent variance (truncation, plus interpolation, which is 0 here:
+  the grid has two index columns) left out of the likelihood;
 - exact_basis: the mean curve and components at the measured indices
   computed from the runs' physics there, not interpolated from the grid;
 - known_noise: the noise sd known (0.01 cm), not estimated;
@@ -20,7 +21,7 @@ The ablations change the Stan data of one fit and nothing else:
   instead of fixed at stage 1's mode;
 - physics: koh with the physics itself in Stan (simulator.stan), no
   emulator: the same discrepancy model's near-exact posterior.
-Writes benchmarks/neddermeyer.json and prints a table.
+Writes benchmarks/neddermeyer_{config,share995}_basis.json (``--basis``) and prints a table.
 """
 
 from __future__ import annotations

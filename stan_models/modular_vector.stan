@@ -44,7 +44,8 @@ data {
   real<lower=0> output_scale;           // s: original = mu + s * standardised
   int<lower=1> C;                       // number of basis components
   matrix[N, C] components;              // k_c at each value's index
-  real<lower=0> truncation_variance;    // what the components leave of the runs, standardised
+  real<lower=0> truncation_variance;    // what the components leave of the runs, plus the error of
+                                        // interpolating them off their grid, standardised
   int<lower=0, upper=2> noise_mode;     // 0 = known per value, 1 = one sd, 2 = one per experiment
   vector<lower=0>[N] known_noise_sd;    // standardised; used when noise_mode = 0
   int<lower=0, upper=1> use_discrepancy;     // 1 = GP over (inputs, output index, covariates), 0 = none

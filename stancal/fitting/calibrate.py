@@ -64,7 +64,7 @@ def _sample(stan_backend, flat: FlatProgram, data: CalibrationData, plan: Plan, 
     ``warm_start``: from an earlier fit's draws and adaptation."""
     stan_json = to_stan_json(build_stan_data(data, plan.program.data, options, fit_points,
                                              emulator_hyperparameters=emulator.get("hyperparameters")))
-    if warm_start is not None:  # from a fit of a related program: what this one has in that shape
+    if warm_start is not None and warm_start.related:  # from another program: what this one has in that shape
         warm_start = warm_start.fitted(stan_backend.parameter_shapes(flat, stan_json))
     inits = warm_start.inits if warm_start is not None else spread_theta_inits(
         sampler["chains"], len(data.parameters), np.random.default_rng(sampler["seed"]))
@@ -202,7 +202,9 @@ def calibrate(
     ``plan``: a plan made earlier (stancal.fitting.plan), which then replaces
     ``simulator``, ``method``, ``program`` and the model's options.
     ``warm_start``: start the chains from an earlier fit of nearly the same
-    data (stancal.fitting.warm_start; the gap diagnosis's refits), with a
+    model and data (stancal.fitting.warm_start; the gap diagnosis's refits,
+    and its candidates, whose parameters the baseline lacks or shapes
+    otherwise are left to Stan's inits: WarmStart.fitted), with a
     ``warmup`` as short as that allows.
     """
     # the sampler's options first: a bad one is said before anything is planned or compiled

@@ -36,7 +36,7 @@ The terms checked are the model's own:
   a theta_j that scales f on the identity link is then confounded with rho
   (without the constant, the shift by y_center leaves them apart).
   rho is the user's choice, so stancal does not drop it: it says so, naming
-  theta_j and its share (a ConfoundingWarning and the report's warnings).
+  theta_j and its share (a ConfoundingWarning, and the report's 'Before sampling').
 
 The sensitivity is a central finite difference through the program the fit
 runs anyway (its generated quantities' f_new at the physical points, on the
@@ -178,7 +178,7 @@ def find_confounding(plan: Plan, data: CalibrationData, stan_backend,
     through the program's simulator, or stage 1's ``emulator``."""
     terms = checked_terms(plan)
     simulator = program_simulator(plan, data, stan_backend) if plan.program.simulator \
-        else emulator_simulator(plan, data, emulator or {})
+        else emulator_simulator(plan, data, emulator)
     theta_unit = theta_design(THETA_POINTS, len(data.theta_names))
     link_f, sensitivity = link_sensitivity(simulator, theta_unit)
     ones = np.ones(link_f.shape[:2] + (1,))

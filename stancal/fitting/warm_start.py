@@ -36,7 +36,7 @@ REFIT_DRAWS_LEAST = 500
 
 
 # a candidate's warm-up: longer than a refit's, as its own parameters start at random and its posterior moves
-# more (a variant's parameter can shift theta); 300 of 1000 leaves a 225-draw metric window
+# more (a variant's parameter can shift theta); 500 of 1000 leaves a 388-draw metric window
 CANDIDATE_WARMUP_FRACTION = 0.5
 CANDIDATE_WARMUP_LEAST = 250
 
@@ -58,14 +58,20 @@ def warm_start(result: CalibrationResult, train: np.ndarray, chains: int, seed: 
     and the inverse metric when the backend reported it. A parameter with one
     value per data row (a latent GP's standard normals) keeps the training
     rows' values; one with a row axis among others is left to Stan's inits."""
+    return _start(result, train, chains, np.random.default_rng(seed))
+
+
+def _start(result: CalibrationResult, train: np.ndarray, chains: int, rng: np.random.Generator,
+           extra=lambda chain, draw: {}, related: bool = False) -> WarmStart:
+    """Each chain at a random draw of its own chain of ``result`` (its point
+    updated by ``extra(chain, draw)``), the median step size and the metric."""
     parameters = result.idata["stan_parameters"]
     rows = len(result.data.physical)
-    rng = np.random.default_rng(seed)
     full_chains, draws = (parameters.sizes["chain"], parameters.sizes["draw"])
     picks = [(c % full_chains, int(rng.integers(draws))) for c in range(chains)]
-    inits = [_point(parameters, chain, draw, rows, train) for chain, draw in picks]
+    inits = [_point(parameters, chain, draw, rows, train) | extra(chain, draw) for chain, draw in picks]
     step_size = float(np.median(np.asarray(result.idata["sample_stats"]["step_size"])))
-    return WarmStart(inits, step_size, _inv_metric(result, picks, rows, parameters))
+    return WarmStart(inits, step_size, _inv_metric(result, picks, rows, parameters), related)
 
 
 def _point(parameters, chain: int, draw: int, rows: int, train: np.ndarray) -> dict[str, Any]:
@@ -117,19 +123,14 @@ def candidate_start(baseline: CalibrationResult, bounds: dict[str, tuple[float, 
     range), the baseline's other parameters as they were (those the
     candidate has in another shape are dropped when it is sampled:
     WarmStart.fitted), and the baseline's median step size and metric."""
-    parameters = baseline.idata["stan_parameters"]
     theta = np.asarray(baseline.idata["posterior"]["theta"])  # chain, draw, parameter
     rng = np.random.default_rng(seed)
-    full_chains, draws = (parameters.sizes["chain"], parameters.sizes["draw"])
-    picks = [(c % full_chains, int(rng.integers(draws))) for c in range(chains)]
-    rows = len(baseline.data.physical)
-    inits = []
-    for chain, draw in picks:
-        point = _point(parameters, chain, draw, rows, np.arange(rows))
+
+    def by_name(chain: int, draw: int) -> dict[str, list[float]]:
         values = dict(zip(baseline.data.theta_names, theta[chain, draw].reshape(-1), strict=False))
-        inits.append(point | theta_unit_init(values, bounds, rng))
-    step_size = float(np.median(np.asarray(baseline.idata["sample_stats"]["step_size"])))
-    return WarmStart(inits, step_size, _inv_metric(baseline, picks, rows, parameters))
+        return theta_unit_init(values, bounds, rng)
+
+    return _start(baseline, np.arange(len(baseline.data.physical)), chains, rng, by_name, related=True)
 
 
 def warm_candidate_options(baseline: CalibrationResult, bounds: dict[str, tuple[float, float]],

@@ -46,17 +46,19 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.stats import halfnorm
 
+from stancal.numerics.hsgp import LENGTH_SCALE_PRIOR
 from stancal.numerics.kernels import ard_cross_cov
 from stancal.problem.codes import Censoring, Likelihood
 from stancal.problem.observations import Observations
 
 DISCREPANCY_PRIOR_SD = 0.5  # priors.stan discrepancy_sd: half-normal(0, 0.5), model scale
-INPUT_LENGTH_SCALE = 0.374  # the median of discrepancy_length_scale's inverse gamma(3, 1)
-COVARIATE_LENGTH_SCALE = 0.741  # 1 / the median of covariate_relevance's half-normal(0, 2)
-JITTER = 1e-6  # of the prior variance: gp_kernels.stan's add_jitter
+INPUT_LENGTH_SCALE = float(LENGTH_SCALE_PRIOR.median())  # discrepancy_length_scale's inverse gamma(3, 1): 0.374
 # the median of a half-normal(0, 1): noise_sd (standardised units) and inv_sqrt_phi (priors.stan)
-_HALF_NORMAL_MEDIAN = 0.6745
+_HALF_NORMAL_MEDIAN = float(halfnorm.median())
+COVARIATE_LENGTH_SCALE = 1 / (2 * _HALF_NORMAL_MEDIAN)  # 1 / the median of covariate_relevance's half-normal(0, 2)
+JITTER = 1e-6  # of the prior variance: gp_kernels.stan's add_jitter
 NOISE_PRIOR_MEDIAN = _HALF_NORMAL_MEDIAN
 PHI_PRIOR_MEDIAN = 1 / _HALF_NORMAL_MEDIAN**2  # phi = 1 / inv_sqrt_phi^2
 DOMINANCE = 10.0  # information * the prior's conditional variance at which the data dominate a point

@@ -127,7 +127,6 @@ def modular_vector_data(data: VectorCalibrationData, options: VectorOptions, emu
         z=data.scaling.to_unit(data.experiments, data.covariate_columns),
         index=data.scaling.to_unit(physical, data.output_index),
         y=(physical[data.output].to_numpy() - mean) / basis.scale, output_mean=mean, output_scale=basis.scale,
-        # the program adds truncation_variance to every value: the truncation and interpolation errors both
         C=basis.count, components=components, truncation_variance=basis.independent_variance,
         M=len(emulator.xt_runs), xt_runs=emulator.xt_runs,
         run_weights=basis.weights(data.run_outputs),

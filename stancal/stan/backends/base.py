@@ -88,6 +88,7 @@ class WarmStart:
     inits: list[dict[str, Any]]
     step_size: float
     inv_metric: np.ndarray | None = None
+    related: bool = False  # from another program (a candidate's start): fitted() to this one's shapes first
 
     def fitted(self, shapes: dict[str, tuple[int, ...]]) -> WarmStart:
         """This start for a program whose parameters have ``shapes``: an
@@ -99,7 +100,7 @@ class WarmStart:
                  for point in self.inits]
         sized = {k for k, shape in shapes.items() if int(np.prod(shape)) > 0}
         whole = all(sized <= set(point) for point in inits)
-        return WarmStart(inits, self.step_size, self.inv_metric if whole else None)
+        return WarmStart(inits, self.step_size, self.inv_metric if whole else None, self.related)
 
 
 def warm_windows(warmup: int) -> dict[str, int]:
@@ -125,7 +126,7 @@ class SampleOutput:
     load_seconds: float  # loading the compiled program with the data (compiling came before, in compile)
     sample_seconds: float
     messages: list[str] = field(default_factory=list)
-    inv_metric: np.ndarray | None = None  # (chain, unconstrained dimension); None when the backend keeps it
+    inv_metric: np.ndarray | None = None  # (chain, unconstrained dimension); None when the backend does not report it
 
 
 class StanBackend(Protocol):
