@@ -7,7 +7,14 @@ import numpy as np
 import pytest
 from conftest import COOLING, ROOT, cooling_data, no_stancal_warnings
 
-from stancal.diagnosing.sbc_ranks import fractional_ranks, rank_of, uniformity
+from stancal.diagnosing.sbc_ranks import (
+    REFERENCE_SAMPLES,
+    fractional_ranks,
+    gamma_statistic,
+    rank_of,
+    reference_statistics,
+    uniformity,
+)
 from stancal.reporting.sbc_report import write_sbc_report
 
 
@@ -30,6 +37,15 @@ def test_uniform_ranks_pass_and_overconfident_ones_are_rejected():
     assert uniformity(fractional_ranks(np.array(overconfident), draws, rng)).p_value < 0.01
     biased = [rank_of(t, d) for t, d in zip(truth, rng.normal(size=(sims, draws)) + truth[:, None] + 0.5, strict=False)]
     assert uniformity(fractional_ranks(np.array(biased), draws, rng)).p_value < 0.01
+
+
+def test_the_reference_law_is_the_statistic_of_successive_uniform_samples():
+    """The reference statistics, computed for all samples at once, are the
+    statistic of each uniform sample drawn in turn from the seed's stream."""
+    rng = np.random.default_rng(4)
+    grid = np.arange(1, 30) / 30
+    one_by_one = [gamma_statistic(rng.uniform(size=30), grid) for _ in range(REFERENCE_SAMPLES)]
+    np.testing.assert_allclose(reference_statistics(30, 4), one_by_one, rtol=1e-12)
 
 
 def test_the_simultaneous_band_holds_uniform_ecdfs_at_its_level():
