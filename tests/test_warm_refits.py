@@ -176,6 +176,30 @@ def test_settled_needs_many_ses():
         assert (12.0 > SETTLED_SES * se) == bool(expected)
 
 
+def test_a_fallback_to_kfold_refits_the_settled_candidates_too():
+    """Settled candidates keep PSIS-LOO scores only while the others are
+    PSIS-LOO as well: when too many unreliable points send the comparison to
+    K-fold, every fit is scored by K-fold, so that no ranking mixes the two
+    scales (a K-fold ELPD is lower than the LOO one of the same fit)."""
+    from stancal.diagnosing.gap import FALLBACK_FOLDS, GapWarning, comparison_scheme
+
+    rng = np.random.default_rng(1)
+    noise = rng.normal(0, 0.1, 40)
+    labels = [None, *(stancal.Candidate(name, formula=f"~ {name}") for name in ("near", "far"))]
+    far = score(-3.0 + noise, [7, 8], -9.0, -1.0)  # settled beside the leader, as in the test above
+    leader = score(-1.0 + noise, [5], -4.0, -0.5)
+    assert settled([score(-2.0 + noise, [3], -9.0, -1.0), leader, far]) == [2]
+    many = score(-2.0 + noise, list(range(FALLBACK_FOLDS + 1)), -9.0, -1.0)  # the baseline: K-fold
+    with pytest.warns(GapWarning, match=f"every fit is compared by {FALLBACK_FOLDS}-fold"):
+        scores, skipped, kfold = comparison_scheme(labels, [many, leader, far], None, every=False)
+    assert kfold == FALLBACK_FOLDS and skipped == set() and all(s.scheme == "psis-loo" for s in scores)
+    # without the fallback the settled candidate's refits are skipped, and its score says so
+    with pytest.warns(GapWarning, match="scored by an exact refit"):
+        scores, skipped, kfold = comparison_scheme(labels, [score(-2.0 + noise, [3], -9.0, -1.0), leader, far],
+                                                   None, every=False)
+    assert kfold is None and skipped == {2} and scores[2].scheme.endswith("(settled: refits skipped)")
+
+
 # ---- a warm refit answers as a cold one does -----------------------------------------------
 @pytest.mark.slow  # 12 fits of the cooling case: a few minutes on 2 cores
 def test_warm_refit_holds_out_as_a_cold_refit_does():

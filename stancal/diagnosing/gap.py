@@ -334,9 +334,7 @@ def diagnose_gap(
                           failed)
         labels, fits = _without_failures(labels, fits, failed)
         clock.lap("fits")
-        scores, skipped = _settled([psis_score(r) for r in fits], labels, kfold is not None or every_candidate)
-        kfold = _scheme([c for i, c in enumerate(labels) if i not in skipped],
-                        [s for i, s in enumerate(scores) if i not in skipped], kfold)
+        scores, skipped, kfold = comparison_scheme(labels, [psis_score(r) for r in fits], kfold, every_candidate)
         tests = [[] if i in skipped else kfold_tests(len(data_for(c).physical), kfold, seed) if kfold is not None
                  else unreliable_tests(s) for i, (c, s) in enumerate(zip(labels, scores, strict=True))]
         # every refit of every fit in one batch
@@ -402,15 +400,24 @@ def _restored(task: FitTask, folder: Path, kept: None) -> CalibrationResult:
     return CalibrationResult.load(folder / DRAWS_FILE)
 
 
-def _settled(scores: list[Score], labels: list, every: bool) -> tuple[list[Score], set[int]]:
-    """The scores, those of the settled candidates (scoring.settled) marked
-    so, and their indices; none when ``every`` fit is to be refitted."""
-    skipped = set() if every else set(settled(scores))
+def comparison_scheme(labels: list, scores: list[Score], kfold: int | None,
+                      every: bool) -> tuple[list[Score], set[int], int | None]:
+    """How the fits are compared: their scores, the settled candidates
+    (scoring.settled) whose refits are skipped, marked so, and K-fold's fold
+    count (None: PSIS-LOO with exact refits where Pareto k is high). A
+    settled candidate is judged on PSIS-LOO's bounds, so when the comparison
+    falls back to K-fold every fit is refitted: its PSIS score beside the
+    others' K-fold ones would rank two scales as one."""
+    skipped = set() if every or kfold is not None else set(settled(scores))
+    chosen = _scheme([c for i, c in enumerate(labels) if i not in skipped],
+                     [s for i, s in enumerate(scores) if i not in skipped], kfold)
+    if chosen is not None:
+        skipped = set()
     for i in sorted(skipped):
         logger.info("%s cannot lead whatever its %d unreliable points score: its refits are skipped",
                     label_name(labels[i]), scores[i].unreliable.size)
         scores[i] = replace(scores[i], scheme="psis-loo (settled: refits skipped)")
-    return scores, skipped
+    return scores, skipped, chosen
 
 
 def _scheme(labels: list, scores: list[Score], kfold: int | None) -> int | None:
@@ -421,11 +428,11 @@ def _scheme(labels: list, scores: list[Score], kfold: int | None) -> int | None:
     if kfold is None and max(unreliable.values(), default=0) > FALLBACK_FOLDS:
         warnings.warn(f"Pareto k above {PARETO_K_LIMIT} at more than {FALLBACK_FOLDS} observations "
                       f"({_counts(unreliable)}): PSIS-LOO is unreliable, so every fit is compared by "
-                      f"{FALLBACK_FOLDS}-fold cross-validation instead", GapWarning, stacklevel=3)
+                      f"{FALLBACK_FOLDS}-fold cross-validation instead", GapWarning, stacklevel=4)
         return FALLBACK_FOLDS
     if kfold is None and unreliable:
         warnings.warn(f"Pareto k above {PARETO_K_LIMIT} at {_counts(unreliable)}: each of those "
-                      "observations is scored by an exact refit without it", GapWarning, stacklevel=3)
+                      "observations is scored by an exact refit without it", GapWarning, stacklevel=4)
     return kfold
 
 
