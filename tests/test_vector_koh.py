@@ -92,6 +92,12 @@ def test_the_cli_calibrates_the_cooling_curves_by_koh_and_by_modular(tmp_path):
         assert summary["method"] == program and set(summary["theta"]) == {"k", "Ta"}
         assert len(summary["theta_per_experiment"]) == 6
         assert (summary["basis"] is None) == (program == "koh_vector")
+        if summary["basis"] is not None:  # the basis's two independent errors, each said, original units
+            basis = problem.data.basis  # the config's runs, as the command reduced them
+            for error in ("truncation", "interpolation"):
+                sd = basis.scale * np.sqrt(getattr(basis, f"{error}_variance"))
+                assert summary["basis"][f"{error}_sd"] == pytest.approx(sd), error
+                assert f"{error} error sd {sd:.3g}" in (out / "report.md").read_text()
         for name in ("posterior.nc", "summary.csv", "curves.png", "theta.png", "report.md", "report.html"):
             assert (out / name).is_file(), (program, name)
     assert main(["compare", str(config), "--out", str(tmp_path / "compare")]) == 2  # refused by name

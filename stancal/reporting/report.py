@@ -131,7 +131,9 @@ def write_vector_calibration(result, folder: str | Path, warning_messages: list[
     basis = summary["basis"]
     lines = [
         f"# Calibration report ({summary['method']}, {summary['backend']})", "",
-        *([f"Output basis: {basis['description']}; truncation error sd {basis['truncation_sd']:.3g}.", ""]
+        *([(f"Output basis: {basis['description']}; truncation error sd {basis['truncation_sd']:.3g}, "
+            f"interpolation error sd {basis['interpolation_sd']:.3g} (output units; each value carries both, "
+            "independently, beside the noise)."), ""]
           if basis else ["The Stan simulator is evaluated at every measured value (no output basis).", ""]),
         *_parameters_and_sampler(summary, table),
         "", "## Figures", "", "![curves per experiment](curves.png)", "![theta](theta.png)", ""]

@@ -65,7 +65,9 @@ class VectorCalibrationResult:
             "parameters": json.loads(self.summary().reset_index().to_json(orient="records")),
             "basis": None if self.emulator is None else {
                 "components": basis.count, "explained": basis.explained.tolist(),
+                # the two errors the likelihood adds to every value, independent, original units
                 "truncation_sd": float(basis.scale * np.sqrt(basis.truncation_variance)),
+                "interpolation_sd": float(basis.scale * np.sqrt(basis.interpolation_variance)),
                 "description": basis.describe()},
             "diagnostics": d.summary(),
             "timing": self.timing,
