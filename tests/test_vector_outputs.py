@@ -95,8 +95,8 @@ def test_the_interpolation_error_between_grid_values_is_estimated_from_the_runs(
     interpolation_variance), against the mean squared error of the linear
     interpolant at 2,000 uniform times off the 2 s grid: within 15 % (the
     curvature varies within an interval; a constant curvature gives it
-    exactly); none for a field; and the likelihood's independent error is
-    the truncation's plus it."""
+    exactly); none for a field of four values; and the likelihood's
+    independent error is the truncation's plus it."""
     data = vector_data()
     basis = data.basis
     t = np.random.default_rng(4).uniform(0, 60, 2000)
@@ -110,6 +110,32 @@ def test_the_interpolation_error_between_grid_values_is_estimated_from_the_runs(
     field = OutputBasis.from_runs(np.array([[0, 0], [0, 1], [1, 0], [1, 1.0]]),
                                   np.random.default_rng(0).standard_normal((6, 4)), components=2)
     assert field.interpolation_variance == 0
+
+
+def test_a_fields_interpolation_error_on_a_tensor_grid_is_estimated_along_its_lines():
+    """On a tensor grid of two index columns, the estimate (the 1-D one
+    along each column's lines, summed) against the triangulation's mean
+    squared error at 3,000 uniform points off the grid: measured 0.83 to
+    0.91 of it on three grids of a smooth field, as the mixed derivative it
+    leaves out adds a little; a scattered field gets none."""
+    from scipy.interpolate import LinearNDInterpolator
+
+    rng = np.random.default_rng(1)
+    t, a = np.meshgrid(np.linspace(0, 3, 12), np.linspace(0, 2, 10), indexing="ij")
+    grid = np.column_stack([t.ravel(), a.ravel()])
+    p = rng.uniform([0.3, 0.5], [1.5, 2.0], (20, 2))
+
+    def field(t, a):  # runs x points
+        return np.exp(-p[:, :1] * t) * (1 + 0.5 * np.cos(a * p[:, 1:2])) + 0.2 * np.sin(2 * t + a)
+
+    runs = field(grid[None, :, 0], grid[None, :, 1])
+    basis = OutputBasis.from_runs(grid, runs, components=3)
+    points = np.column_stack([rng.uniform(0, 3, 3000), rng.uniform(0, 2, 3000)])
+    interpolated = np.array([LinearNDInterpolator(grid, run)(points) for run in runs])
+    empirical = np.mean(((interpolated - field(points[None, :, 0], points[None, :, 1])) / basis.scale) ** 2)
+    assert 0.75 * empirical <= basis.interpolation_variance <= empirical
+    scattered = OutputBasis.from_runs(grid[:-1], runs[:, :-1], components=3)
+    assert scattered.interpolation_variance == 0
 
 
 def test_a_field_basis_interpolates_over_its_triangulation():
