@@ -81,10 +81,10 @@ def joint_start(stan_backend, program, stan_data: dict[str, Any], seed: int) -> 
     keeps the emulator the runs show and samples its hyperparameters' spread
     about it (docs/vector.md); to look for separate theta modes, run modular,
     whose chains start spread."""
-    modular = to_stan_json({**stan_data, "joint": 0})
+    modular = to_stan_json({**stan_data, "joint": 0})  # modular_vector.stan's switch: stage 1's weight GPs
     mode, _ = stan_backend.posterior_mode(program, modular, starts=JOINT_START_OPTIMA, seed=seed)
-    return {"theta_unit": np.asarray(mode["theta_unit"][0, 0]).tolist(),
-            "theta_exp_unit": np.asarray(mode["theta_exp_unit"][0, 0]).tolist()}
+    # a backend may leave out a variable of size 0 (no per-experiment theta): Stan's inits then
+    return {name: np.asarray(mode[name][0, 0]).tolist() for name in ("theta_unit", "theta_exp_unit") if name in mode}
 
 
 def calibrate_vector(
