@@ -147,6 +147,21 @@ def fit_hyperparameters(xt: np.ndarray, y: np.ndarray, seed: int,
     return _unpack(best.x), len(chosen)
 
 
+def predictive_mean_variance(points: np.ndarray, xt_runs: np.ndarray, factor: tuple[np.ndarray, bool],
+                             alpha: np.ndarray, h: Hyperparameters, block: int = 4000) -> tuple[np.ndarray, np.ndarray]:
+    """The exact GP's predictive mean and variance at ``points`` given all
+    runs (Rasmussen & Williams 2006, eq. 2.25-2.26), no nugget at the points
+    (the simulator is deterministic there), for a ``factor`` of
+    run_covariance and alpha = K^-1 (y - m); a block of points at a time."""
+    mean, variance = np.empty(len(points)), np.empty(len(points))
+    for start in range(0, len(points), block):
+        cross = h.sd**2 * se_correlation(points[start : start + block], xt_runs, h.length_scale)
+        mean[start : start + block] = h.mean + cross @ alpha
+        solved = linalg.cho_solve(factor, cross.T)
+        variance[start : start + block] = h.sd**2 - np.einsum("ij,ji->i", cross, solved)
+    return mean, np.maximum(variance, 0.0)
+
+
 def run_factor(xt: np.ndarray, h: Hyperparameters) -> tuple[np.ndarray, bool]:
     """The Cholesky factor of the runs' covariance, the N x N factorisation
     (in place: at N = 5,000 a copy is 200 MB); made for the mean's weights
