@@ -167,6 +167,20 @@ def history_match(data, *, waves: list[Wave] | None = None, settings: DesignSett
     return HistoryMatch(data, box, targets, [*earlier, wave], cuts, nroy)
 
 
-def waves_from_json(design: dict) -> list[Wave]:
-    """The waves a design folder's waves.json holds."""
-    return [Wave(**w) for w in design["waves"]]
+def load_waves(folder, data) -> list[Wave]:
+    """The waves a design folder's waves.json holds ([] without one); they
+    must be of the same problem (theta's bounds and the inputs' range)."""
+    import json
+    from pathlib import Path
+
+    path = Path(folder) / "waves.json"
+    if not path.is_file():
+        return []
+    stored = json.loads(path.read_text())
+    box, now = stored["box"], UnitBox.of(data)
+    same = (box["inputs"] == now.inputs and box["theta"] == now.theta
+            and np.allclose(box["low"], now.low) and np.allclose(box["width"], now.width))
+    if not same:
+        raise DataError(f"{path} holds the waves of another problem (its theta, their bounds or the physical "
+                        f"inputs' range differ from the config's); use a new --out folder")
+    return [Wave(**w) for w in stored["waves"]]
