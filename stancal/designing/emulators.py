@@ -18,6 +18,7 @@ from stancal.numerics.scalable_emulator import (
     fit_hyperparameters,
     predictive_mean_variance,
     run_factor,
+    whitener,
 )
 from stancal.problem.output_basis import OutputBasis
 
@@ -33,13 +34,14 @@ class GaussianProcess:
     def __post_init__(self) -> None:
         self.factor = run_factor(self.xt_runs, self.hyperparameters)
         self.alpha = linalg.cho_solve(self.factor, self.values - self.hyperparameters.mean)
+        self.inverse_factor = whitener(self.factor)
 
     @classmethod
     def fit(cls, xt_runs: np.ndarray, values: np.ndarray, seed: int) -> GaussianProcess:
         return cls(fit_hyperparameters(xt_runs, values, seed)[0], xt_runs, values)
 
     def predict(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        return predictive_mean_variance(points, self.xt_runs, self.factor, self.alpha, self.hyperparameters)
+        return predictive_mean_variance(points, self.xt_runs, self.alpha, self.hyperparameters, self.inverse_factor)
 
     def to_dict(self) -> dict:
         return {"hyperparameters": self.hyperparameters.as_stan()}

@@ -28,7 +28,7 @@ def nth_maximum_for(count: int, cutoff: float) -> int:
     """The smallest n in 1, 2, 3 whose n-th maximum of ``count`` independent
     standard normal |errors| exceeds ``cutoff`` with probability at most
     AUTO_RISK (a binomial tail, p = P(|Z| > cutoff)); 3 when none does.
-    At cutoff 3: the maximum up to 18 values, the second up to 132."""
+    At cutoff 3: the maximum up to 18 values, the second up to 131."""
     p = 2 * stats.norm.sf(cutoff)
     for n in (1, 2, 3):
         if stats.binom.sf(n - 1, count, p) <= AUTO_RISK:

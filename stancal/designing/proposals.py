@@ -22,7 +22,7 @@ import numpy as np
 from scipy.stats import qmc
 
 from stancal.designing.emulators import GaussianProcess
-from stancal.numerics.scalable_emulator import se_correlation
+from stancal.numerics.scalable_emulator import JITTER, se_correlation
 
 CANDIDATES = 4000  # for maximin
 POSTERIOR_CANDIDATES = 1500  # for the posterior criterion (a dense candidate-candidate covariance)
@@ -78,20 +78,22 @@ def variance_reduction_batch(parts: list[tuple[GaussianProcess, float]], pool: n
     """Indices of ``count`` rows of ``pool`` chosen one at a time, each the
     one whose run most reduces the summed predictive variance at
     ``references`` (each GP weighted by its output variance per unit), and
-    each pick's reduction (output units squared, summed over the references)."""
+    each pick's reduction (output units squared, summed over the references).
+    A new run carries the GP's nugget (and jitter), as the runs do."""
     states = [(weight, posterior_covariance(gp, pool, references), posterior_covariance(gp, pool, pool))
               for gp, weight in parts]
+    nuggets = [gp.hyperparameters.nugget**2 + JITTER * gp.hyperparameters.sd**2 for gp, _ in parts]
     chosen, gains = [], []
     for _ in range(count):
         score = np.zeros(len(pool))
-        for weight, to_references, among in states:
-            score += weight * np.sum(to_references**2, axis=1) / np.maximum(np.diag(among), 1e-12)
+        for (weight, to_references, among), nugget in zip(states, nuggets, strict=True):
+            score += weight * np.sum(to_references**2, axis=1) / (np.maximum(np.diag(among), 0.0) + nugget)
         score[chosen] = -np.inf
         best = int(np.argmax(score))
         chosen.append(best)
         gains.append(float(score[best]))
         for k, (weight, to_references, among) in enumerate(states):
-            pivot = max(among[best, best], 1e-12)
+            pivot = max(among[best, best], 0.0) + nuggets[k]
             column = among[:, best].copy()
             states[k] = (weight, to_references - np.outer(column, to_references[best]) / pivot,
                          among - np.outer(column, column) / pivot)
