@@ -32,6 +32,7 @@ MAX_LEVELS = 40  # KEEP^40 ~ 1e-28 of the box
 MOVES = 3  # slice moves of each copy between levels
 FINAL_MOVES = 6  # before the sample is returned
 WINDOW = 2.0  # the slice window's width, in units of the points' spread
+STALL = 0.01  # a level that falls by less than this share of its distance to the cutoff ends the descent
 SHRINKS = 40  # at most: the window halves roughly every time, so 40 leaves 1e-12 of it
 
 
@@ -102,8 +103,8 @@ def sample_nroy(implausibility: Callable[[np.ndarray], np.ndarray], dimensions: 
     evaluations, shares, levels = points, [], []
     while np.mean(value <= cutoff) < KEEP and len(levels) < MAX_LEVELS:
         level = float(np.quantile(value, KEEP))
-        if levels and level >= levels[-1] * (1 - 1e-9):  # the level stopped falling: no theta gets closer
-            break
+        if levels and levels[-1] - level < STALL * (level - cutoff):  # the levels close in on a minimum above
+            break  # the cutoff, geometrically: no theta gets near it
         passing = value <= level
         shares.append(float(passing.mean()))
         levels.append(level)

@@ -49,7 +49,8 @@ def pairs_grid(design: Design, seed: int = 0) -> dict:
             minimum[i, j] = grid
             counts = np.zeros((BINS, BINS))
             np.add.at(counts, (nroy_cells[:, j], nroy_cells[:, i]), 1.0)
-            depth[i, j] = match.nroy_fraction * counts / len(nroy_cells) * BINS**2
+            # an estimate, so it can pass 1 where NROY fills a bin: a share is at most 1
+            depth[i, j] = np.minimum(match.nroy_fraction * counts / len(nroy_cells) * BINS**2, 1.0)
     return {"minimum": minimum, "depth": depth}
 
 
@@ -72,9 +73,9 @@ def plot_nroy_pairs(design: Design, path: Path | None = None, units: dict[str, s
     implausibility_map = LinearSegmentedColormap.from_list(
         "implausibility", [(0, "#1a9641"), (cutoff / top, "#ffffbf"), (1, "#d7191c")])
     depth_values = np.concatenate([g[g > 0] for g in grids["depth"].values()] or [np.array([1.0])])
-    depth_norm = LogNorm(vmin=max(depth_values.min(), 1e-6), vmax=max(depth_values.max(), 1e-5))
-    size = max(2.2 * Q, 5.0)
-    fig, axes = plt.subplots(Q, Q, figsize=(size + 1.5, size), squeeze=False, layout="constrained")
+    depth_norm = LogNorm(vmin=min(max(depth_values.min(), 1e-6), 0.1), vmax=1.0)
+    size = max(2.3 * Q, 5.0)
+    fig, axes = plt.subplots(Q, Q, figsize=(size + 2.5, size), squeeze=False, layout="constrained")
     extent = lambda i, j: (low[i], low[i] + width[i], low[j], low[j] + width[j])  # noqa: E731
     image_min = image_depth = None
     for i in range(Q):
@@ -91,17 +92,15 @@ def plot_nroy_pairs(design: Design, path: Path | None = None, units: dict[str, s
                 grid = np.where(grids["depth"][i, j] > 0, grids["depth"][i, j], np.nan)
                 image_depth = ax.imshow(grid, origin="lower", aspect="auto", extent=extent(i, j), cmap="viridis",
                                         norm=depth_norm)
-            if j == Q - 1:
-                ax.set_xlabel(axis_label(names[i], units))
-            if i == 0 and j > 0:
-                ax.set_ylabel(axis_label(names[j], units))
+            ax.set_xlabel(axis_label(names[i], units), fontsize=8)
+            ax.set_ylabel("NROY draws" if i == j else axis_label(names[j], units), fontsize=8)
             ax.tick_params(labelsize=7)
     if image_min is not None:
         bar = fig.colorbar(image_min, ax=axes, location="right", shrink=0.6, pad=0.01)
-        bar.set_label(f"minimum implausibility (lower triangle; cutoff {cutoff:g} marked)")
+        bar.set_label(f"minimum implausibility, lower triangle\n(line: the cutoff {cutoff:g})", fontsize=8)
         bar.ax.axhline(cutoff, color="black", linewidth=1.5)
         depth_bar = fig.colorbar(image_depth, ax=axes, location="right", shrink=0.6, pad=0.01)
-        depth_bar.set_label("optical depth: share of the other theta not ruled out (upper triangle)")
+        depth_bar.set_label("optical depth, upper triangle: share of\nthe other theta not ruled out", fontsize=8)
     fig.suptitle(f"NROY after wave {len(match.waves)}: {match.nroy_fraction:.3g} of theta's box\n"
                  f"(diagonal: each theta's histogram over NROY)", fontsize=10)
     return finish(fig, path)
