@@ -242,3 +242,84 @@ def test_targets_take_the_given_noise_and_discrepancy():
     targets = targets_of(data, DesignSettings(noise_sd=0.05, discrepancy_sd=0.2))
     assert np.allclose(targets.noise_variance, 0.05**2) and targets.discrepancy_variance == pytest.approx(0.04)
     assert UnitBox.of(data).columns == ["x", "a", "b"]
+
+
+# ---- the command line ----------------------------------------------------------------
+def write_toy_case(folder, runs: int = 30, design_table: str = "[design]\nnroy_points = 1000\n"):
+    """The toy problem as a config, its physical data and runs, in ``folder``."""
+    data = toy_data(runs)
+    data.physical[["x", "y"]].to_csv(folder / "physical.csv", index=False)
+    data.runs.to_csv(folder / "runs.csv", index=False)
+    config = folder / "config.toml"
+    config.write_text('[physical]\ncsv = "physical.csv"\ninputs = ["x"]\noutput = "y"\n\n'
+                      '[simulator]\nruns = "runs.csv"\n\n[simulator.theta]\na = [0.0, 1.0]\nb = [-1.0, 1.0]\n\n'
+                      '[units]\nx = "m"\ny = "K"\n\n' + design_table)
+    return config
+
+
+def cli(capsys, *args) -> tuple[int, str, str]:
+    from stancal.cli import main
+
+    code = main([str(a) for a in args])
+    captured = capsys.readouterr()
+    return code, captured.out, captured.err
+
+
+def test_the_cli_writes_every_file_and_the_next_call_is_the_next_wave(tmp_path, capsys):
+    config = write_toy_case(tmp_path)
+    out = tmp_path / "design"
+    code, text, err = cli(capsys, "design", config, "--runs", 6, "--out", out, "--experiments", 2, "--seed", 4)
+    assert code == 0, err
+    assert "design: wave 1, NROY" in text
+    names = {"next_runs.csv", "nroy.csv", "design.json", "waves.json", "next_experiments.csv", "report.md",
+             "report.html", "nroy_pairs.png", "nroy_by_wave.png", "proposed_runs.png"}
+    assert names <= {p.name for p in out.iterdir()}
+    runs = pd.read_csv(out / "next_runs.csv")
+    assert list(runs.columns) == ["x", "a", "b"] and len(runs) == 6
+    nroy = pd.read_csv(out / "nroy.csv")
+    assert list(nroy.columns) == ["a", "b"] and len(nroy) >= 1000
+    summary = json.loads((out / "design.json").read_text())
+    assert {"nroy_fraction", "cutoff", "runs", "criterion", "waves"} <= set(summary)
+    assert summary["runs"] == 30 and summary["criterion"] == "nroy" and summary["cutoff"] == 3.0
+    assert list(pd.read_csv(out / "next_experiments.csv").columns) == ["x"]
+    # the wave loop: run the simulator at next_runs.csv, append, design again into the same folder
+    table = pd.concat([pd.read_csv(tmp_path / "runs.csv"), runs.assign(y=simulator(runs))])
+    table.to_csv(tmp_path / "runs.csv", index=False)
+    code, text, err = cli(capsys, "design", config, "--runs", 6, "--out", out, "--seed", 4)
+    assert code == 0, err
+    second = json.loads((out / "design.json").read_text())
+    assert [w["number"] for w in second["waves"]] == [1, 2] and second["runs"] == 36
+    assert second["waves"][0]["nroy_fraction"] == pytest.approx(summary["nroy_fraction"])
+    assert not (out / "next_experiments.csv").exists()  # wave 1's settings are not left to read as wave 2's
+    assert second["proposed_experiments"] == 0
+
+
+@pytest.mark.parametrize("arguments, design_table, message", [
+    (["--runs", 0], "", "--runs must be at least 1; got 0"),
+    (["--runs", 5, "--experiments", -1], "", "--experiments must be at least 0; got -1"),
+    (["--runs", 5, "--cutoff", 0], "", "--cutoff must be positive; got 0.0"),
+    (["--runs", 5], "[design]\ncutof = 2\n", "unknown key 'cutof' in [design]; did you mean 'cutoff'?"),
+    (["--runs", 5], "[design]\nnroy_points = 10\n", "[design] nroy_points must be at least 1000; got 10"),
+    (["--runs", 5], "[design]\ndiscrepancy_sd = \"big\"\n", "[design] discrepancy_sd must be a number; got 'big'"),
+])
+def test_bad_input_is_one_line_before_any_work(tmp_path, capsys, arguments, design_table, message):
+    config = write_toy_case(tmp_path, design_table=design_table)
+    out = tmp_path / "design"
+    code, _, err = cli(capsys, "design", config, "--out", out, *arguments)
+    assert code == 2
+    assert err.strip().splitlines()[-1].startswith("stancal: error: ") and message in err
+    assert not out.exists()
+
+
+def test_a_config_without_runs_and_a_folder_of_another_problem_are_refused(tmp_path, capsys):
+    config = write_toy_case(tmp_path)
+    out = tmp_path / "design"
+    assert cli(capsys, "design", config, "--runs", 3, "--out", out)[0] == 0
+    config.write_text(config.read_text().replace("b = [-1.0, 1.0]", "b = [-2.0, 1.0]"))
+    code, _, err = cli(capsys, "design", config, "--runs", 3, "--out", out)
+    assert code == 2 and "waves.json holds the waves of another problem" in err
+    config.write_text(config.read_text().replace('runs = "runs.csv"\n', 'stan = "simulator.stan"\n'))
+    (tmp_path / "simulator.stan").write_text("functions { vector simulator(matrix X, vector theta) "
+                                             "{ return X[:, 1]; } }\n")
+    code, _, err = cli(capsys, "design", config, "--runs", 3, "--out", tmp_path / "other")
+    assert code == 2 and "stancal design needs simulator runs ([simulator] runs)" in err

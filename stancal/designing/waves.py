@@ -26,6 +26,7 @@ from stancal.problem.vector_data import VectorCalibrationData
 
 logger = logging.getLogger("stancal")
 
+BULKY = ("emulator", "noise_variance")  # a wave's fields left out of design.json (waves.json keeps them)
 RUNS_PER_DIMENSION = 3  # a refocused emulator needs this many runs per dimension of (x, theta) at least
 
 
@@ -57,7 +58,7 @@ class Wave:
 
     def summary(self) -> dict:
         """The wave without its emulator, for design.json."""
-        return {k: v for k, v in self.__dict__.items() if k not in ("emulator", "noise_variance")}
+        return {k: v for k, v in self.__dict__.items() if k not in BULKY}
 
 
 @dataclass

@@ -239,6 +239,8 @@ def write_design(design: Design, folder: str | Path, units: dict[str, str] | Non
         folder.mkdir(exist_ok=True)
         for path in staging.iterdir():
             os.replace(path, folder / path.name)
+        if design.next_experiments is None:  # an earlier wave's settings would read as this wave's
+            (folder / "next_experiments.csv").unlink(missing_ok=True)
     finally:
         shutil.rmtree(staging, ignore_errors=True)
     return summary
