@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import math
 from dataclasses import fields
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -20,6 +21,7 @@ from stancal.designing.nroy import NroyEmpty, sample_nroy
 from stancal.designing.targets import DesignSettings, Targets, UnitBox, targets_of
 from stancal.numerics.scalable_emulator import Hyperparameters
 
+ROOT_CASES = Path(__file__).resolve().parent.parent / "case_studies"
 TRUTH = {"a": 0.6, "b": -0.4}
 BOUNDS = {"a": (0.0, 1.0), "b": (-1.0, 1.0)}
 
@@ -323,3 +325,32 @@ def test_a_config_without_runs_and_a_folder_of_another_problem_are_refused(tmp_p
                                              "{ return X[:, 1]; } }\n")
     code, _, err = cli(capsys, "design", config, "--runs", 3, "--out", tmp_path / "other")
     assert code == 2 and "stancal design needs simulator runs ([simulator] runs)" in err
+
+
+# ---- a vector output -----------------------------------------------------------------
+def newton_cooling(frame: pd.DataFrame, grid: np.ndarray) -> np.ndarray:
+    """cooling_wind's simulator.stan in numpy: (runs, K) on the runs' grid of times."""
+    T0, k, Ta = (frame[c].to_numpy()[:, None] for c in ("T0", "k", "Ta"))
+    return Ta + (T0 - Ta) * np.exp(-k * grid[None, :, 0])
+
+
+def test_a_vector_output_runs_waves_with_the_basis_emulator():
+    """cooling_wind (eight cups, curves over time; a draught the simulator
+    leaves out, so a wider discrepancy than the default: at 0.3 of the
+    observations' sd the true theta sits at the cutoff, 3.0): two waves
+    through run_waves, the true k and Ta kept."""
+    from stancal.problem.config import load_config
+
+    data = load_config(ROOT_CASES / "cooling_wind" / "config.toml").data
+    grid = data.basis.grid
+    loop = stancal.run_waves(data, simulator=lambda runs: newton_cooling(runs, grid), waves=2, runs_per_wave=6,
+                             settings=DesignSettings(discrepancy_fraction=0.4, nroy_points=1000), seed=2)
+    assert len(loop.data.run_settings) == 60 + 12
+    last = loop.designs[-1]
+    assert list(last.next_runs.columns) == ["T0", "k", "Ta"]
+    assert [w.number for w in last.match.waves] == [1, 2]
+    assert last.match.implausibility(pd.DataFrame([{"k": 0.045, "Ta": 21.3}]))[0] <= 3.0
+    assert (last.match.implausibility(last.next_runs) <= 3.0).all()
+    summary = last.to_json()
+    assert summary["noise_sd_source"] == "the physical data's known noise sd column"
+    assert summary["nth_maximum"] == nth_maximum_for(len(data.physical), 3.0)
