@@ -17,8 +17,10 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
-import stancal  # noqa: E402
 from simulator import fin_temperature  # noqa: E402
+
+import stancal  # noqa: E402
+from stancal.problem.config import load_config  # noqa: E402
 from stancal.reporting.design_report import write_design  # noqa: E402
 
 WAVES, RUNS_PER_WAVE, STOP_SHRINK = 8, 20, 0.9
@@ -28,7 +30,7 @@ def main(out: Path = HERE / "design", images: Path | None = HERE.parent.parent /
     loop = stancal.run_waves(HERE / "config.toml", simulator=fin_temperature, waves=WAVES,
                              runs_per_wave=RUNS_PER_WAVE, seed=1, stop_shrink=STOP_SHRINK)
     last = loop.designs[-1]
-    units = stancal.problem.config.load_config(HERE / "config.toml").units
+    units = load_config(HERE / "config.toml").units
     summary = write_design(last, out, units)
     loop.data.runs.to_csv(out / "all_runs.csv", index=False)  # the initial 40 and every wave's
     if images is not None:
