@@ -354,3 +354,19 @@ def test_a_vector_output_runs_waves_with_the_basis_emulator():
     summary = last.to_json()
     assert summary["noise_sd_source"] == "the physical data's known noise sd column"
     assert summary["nth_maximum"] == nth_maximum_for(len(data.physical), 3.0)
+
+
+# ---- the posterior criterion with a real fit (one small modular fit, cached program) ----
+def test_the_posterior_criterion_fits_modular_and_proposes_runs_where_theta_is(tmp_path, capsys):
+    from conftest import assert_healthy
+
+    data = toy_data()
+    match = stancal.history_match(data, settings=DesignSettings(noise_sd=0.02, nroy_points=1000), seed=2)
+    design = stancal.propose_runs(match, 5, criterion="posterior", seed=3, chains=2, warmup=300, draws=300)
+    assert design.notes["posterior_method"] == "modular"
+    assert_healthy(design.posterior_fit)
+    draws = design.posterior_fit.theta_draws()
+    low, high = draws.quantile(0.005), draws.quantile(0.995)
+    inside = ((design.next_runs[["a", "b"]] >= low) & (design.next_runs[["a", "b"]] <= high)).all(axis=1)
+    assert inside.all()  # the candidates' theta are the posterior's draws
+    assert design.to_json()["posterior_diagnostics"]["divergences"] == 0

@@ -35,6 +35,7 @@ class Design:
     criterion: str
     next_experiments: pd.DataFrame | None = None
     notes: dict = field(default_factory=dict)  # the criterion's numbers, the posterior's program
+    posterior_fit: object | None = None  # the fit of theta's posterior (criterion posterior, when made here)
 
     def to_json(self) -> dict:
         return {**self.match.to_json(), "criterion": self.criterion, "proposed_runs": len(self.next_runs),
@@ -42,9 +43,10 @@ class Design:
                 **self.notes}
 
 
-def posterior_theta(match: HistoryMatch, seed: int, simulator=None, **sampler) -> tuple[np.ndarray, str]:
+def posterior_theta(match: HistoryMatch, seed: int, simulator=None, **sampler):
     """theta's posterior draws (unit cube) from a fit of the registry's
-    program for the design command (modular: the stage-1 emulator fixed)."""
+    program for the design command (modular: the stage-1 emulator fixed),
+    and the fit."""
     data = match.data
     vector = isinstance(data, VectorCalibrationData)
     method = commands_taking(DESIGN, "vector" if vector else "scalar")[0]
@@ -59,7 +61,7 @@ def posterior_theta(match: HistoryMatch, seed: int, simulator=None, **sampler) -
         result = calibrate(data, simulator=simulator, method=method, **options)
     draws = np.asarray(result.idata["posterior"]["theta"]).reshape(-1, len(match.box.theta))
     D = len(match.box.inputs)
-    return (draws - match.box.low[D:]) / match.box.width[D:], method
+    return (draws - match.box.low[D:]) / match.box.width[D:], result
 
 
 def propose_runs(match: HistoryMatch, runs: int, *, criterion: str = "nroy", seed: int = 1,
@@ -76,18 +78,21 @@ def propose_runs(match: HistoryMatch, runs: int, *, criterion: str = "nroy", see
     box, inputs = match.box, len(match.box.inputs)
     existing, _ = run_table(match.data, box)
     notes: dict = {}
+    fit = None
     if criterion == "nroy":
         unit = nroy_runs(match.nroy.theta_unit, existing, inputs, runs, seed)
         notes["maximin_distance"] = float(_nearest(unit, existing).min())
     else:
         if posterior is None:
-            draws, notes["posterior_method"] = posterior_theta(match, seed, **sampler)
+            draws, fit = posterior_theta(match, seed, **sampler)
+            notes["posterior_method"] = fit.method
+            notes["posterior_diagnostics"] = fit.diagnostics.summary() if fit.diagnostics else None
         else:
             draws = (posterior[box.theta].to_numpy(float) - box.low[inputs:]) / box.width[inputs:]
         unit, gains = posterior_runs(match.cuts[-1].emulator.parts(), draws, match.targets.x_unit, runs, seed)
         notes["variance_reduction"] = gains
     frame = pd.DataFrame(box.to_original(unit), columns=box.columns)
-    return Design(match, frame, criterion, notes=notes)
+    return Design(match, frame, criterion, notes=notes, posterior_fit=fit)
 
 
 def _nearest(points: np.ndarray, existing: np.ndarray) -> np.ndarray:

@@ -201,6 +201,9 @@ def report_markdown(summary: dict, figures: list[Path]) -> str:
              f"- {summary['runs']} runs so far; {summary['proposed_runs']} proposed in next_runs.csv by the "
              f"`{summary['criterion']}` criterion"
              + (f" (posterior from `{summary['posterior_method']}`)" if "posterior_method" in summary else ""),
+             *([(f"- theta's posterior for the criterion: {d['divergences']} divergences, max R-hat "
+                f"{d['max_rhat']:.3f}, min bulk ESS {d['min_ess_bulk']:.0f}")]
+               if (d := summary.get("posterior_diagnostics")) else []),
              *([f"- {summary['proposed_experiments']} physical settings in next_experiments.csv"]
                if summary["proposed_experiments"] else []),
              "", "## Waves", "", "| wave | runs | emulator runs | refocused | NROY fraction |", "|---|---|---|---|---|",
