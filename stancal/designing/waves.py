@@ -49,6 +49,9 @@ class Wave:
 
     def cut(self, targets: Targets) -> Cut:
         """The wave's cut, with its own variances on the current observations."""
+        if len(self.noise_variance) != targets.count:
+            raise DataError(f"wave {self.number} was matched to {len(self.noise_variance)} observations and the "
+                            f"physical data now hold {targets.count}; use a new --out folder")
         own = Targets(targets.x_unit, targets.z, np.asarray(self.noise_variance), self.discrepancy_variance,
                       targets.noise_source, targets.discrepancy_source, targets.groups)
         return Cut(emulator_from_dict(self.emulator), own, self.nth, self.cutoff)
@@ -156,7 +159,8 @@ def history_match(data, *, waves: list[Wave] | None = None, settings: DesignSett
                            "emulator is fitted on all %d runs", len(inside), RUNS_PER_DIMENSION * xt.shape[1],
                            len(earlier) + 1, total)
     emulator = fit_emulator(data, xt[used], outputs[used], seed)
-    targets = targets.noise_bounded_by(least_squares_variance(emulator, targets, len(box.theta), seed))
+    if targets.noise_estimated:
+        targets = targets.noise_bounded_by(least_squares_variance(emulator, targets, len(box.theta), seed))
     nth = settings.nth_maximum or nth_maximum_for(targets.count, settings.cutoff)
     wave = Wave(len(earlier) + 1, total, len(used), refocused, emulator.to_dict(), targets.discrepancy_variance,
                 targets.noise_variance.tolist(), nth, settings.cutoff)
