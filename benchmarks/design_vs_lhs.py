@@ -10,13 +10,14 @@ widths, as a share of the prior's, and whether the truth lies inside.
 
     python benchmarks/design_vs_lhs.py [--seeds 4] [--chains 2 --warmup 500 --draws 500]
 
-Writes benchmarks/design_vs_lhs.json and prints a table.
+Writes benchmarks/design_vs_lhs.json and .png (copied to docs/img) and prints a table.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import shutil
 import sys
 import time
 from pathlib import Path
@@ -81,6 +82,35 @@ def one_seed(seed: int, sampler: dict) -> dict:
     return row
 
 
+def plot(rows: list[dict], path: Path) -> None:
+    """theta's 90 % interval width over its prior's, each seed a point, per arm; coverage in the labels."""
+    from stancal.reporting.plots import finish, pyplot
+
+    plt = pyplot()
+    fig, axes = plt.subplots(1, 2, figsize=(9, 3.8), layout="constrained", width_ratios=[3, 1])
+    for shift, (arm, colour) in zip((-0.12, 0.12), (("designed", "tab:red"), ("lhs", "tab:blue")), strict=True):
+        for q, name in enumerate(THETA):
+            widths = [r[arm][name]["width_share"] for r in rows]
+            covered = sum(r[arm][name]["covers"] for r in rows)
+            axes[0].scatter(np.full(len(widths), q + shift), widths, color=colour, s=18,
+                            label=("designed runs (waves)" if arm == "designed" else "Latin hypercube, same count")
+                            if q == 0 else None)
+            axes[0].annotate(f"{covered}/{len(rows)}", (q + shift, max(widths)), textcoords="offset points",
+                             xytext=(0, 4), ha="center", fontsize=7, color=colour)
+        errors = [r[arm]["rms_error"] for r in rows]
+        axes[1].scatter(np.full(len(errors), 0.5 + 2 * shift), errors, color=colour, s=18)
+    axes[0].set_xticks(range(len(THETA)), list(THETA))
+    axes[0].set_ylabel("90 % interval width / prior width")
+    axes[0].set_title("theta's 90 % intervals (label: seeds covering the truth)", fontsize=9)
+    axes[0].legend(fontsize=7)
+    axes[1].set_xticks([0.26, 0.74], ["designed", "LHS"])
+    axes[1].set_xlim(0, 1)
+    axes[1].set_yscale("log")
+    axes[1].set_ylabel("emulator RMS error at the true theta [°C]")
+    axes[1].set_title("emulator near the truth", fontsize=9)
+    finish(fig, path)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=4)
@@ -92,6 +122,8 @@ def main() -> None:
     rows = [one_seed(seed, sampler) for seed in range(1, args.seeds + 1)]
     (Path(__file__).parent / "design_vs_lhs.json").write_text(json.dumps({"sampler": sampler, "rows": rows},
                                                                          indent=1))
+    plot(rows, Path(__file__).parent / "design_vs_lhs.png")
+    shutil.copy(Path(__file__).parent / "design_vs_lhs.png", ROOT / "docs" / "img" / "design_vs_lhs.png")
     print("| arm | runs | emulator RMS error at the truth | " + " | ".join(f"{n} width / prior, covered"
                                                                             for n in ACTIVE) + " |")
     for arm in ("designed", "lhs"):
