@@ -372,3 +372,21 @@ def test_the_posterior_criterion_fits_modular_and_proposes_runs_where_theta_is(t
     # the candidates' theta are the posterior's draws
     assert all(np.isclose(draws, row, rtol=1e-9).all(axis=1).any() for row in proposed)
     assert design.to_json()["posterior_diagnostics"]["divergences"] == 0
+
+
+def test_the_case_studys_real_fin_is_the_simulator_plus_radiation(monkeypatch):
+    """case_studies/design_loop: the finite-difference "real" fin without
+    radiation is the closed-form simulator (to 1e-3 deg C on 400 nodes), and
+    with it the fin is cooler, most at the hot base's side."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("fin_physics", ROOT_CASES / "design_loop" / "simulator.py")
+    fin = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(fin)
+    x = np.linspace(0, 0.3, 7)
+    simulated = fin.fin_temperature(pd.DataFrame({"x": x, "T_b": 120.0, **fin.TRUTH}))
+    radiating = fin.measured(x, 120.0)
+    monkeypatch.setattr(fin, "EMISSIVITY", 0.0)
+    np.testing.assert_allclose(fin.measured(x, 120.0), simulated, atol=1e-3)
+    gap = simulated - radiating
+    assert (gap[1:] > 0).all() and gap[0] == pytest.approx(0, abs=1e-9) and 0.3 < gap.max() < 1.5
