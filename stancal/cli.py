@@ -53,14 +53,15 @@ _METHOD_HELP = ("the calibration program; default: the config's [model] method, 
 _SBC_DRAWS = "posterior draws kept per chain of each fit; default: 2 x --draws-per-fit spread over the chains"
 
 
-def sampler_arguments(command: argparse.ArgumentParser, **defaults) -> None:
+def sampler_arguments(command: argparse.ArgumentParser, helps: dict[str, str] | None = None, **defaults) -> None:
     """The sampler's flags, made from stancal.problem.sampling.SamplerOptions
-    (its help text and defaults, or a command's own ``defaults``): every
-    command that samples takes the same ones."""
+    (its help text and defaults, or a command's own ``helps`` and
+    ``defaults``): every command that samples takes the same ones."""
     for option in fields(SamplerOptions):
         help_text = option.metadata["help"]
         if option.name == "draws" and defaults.get("draws", option.default) is None:
             help_text = _SBC_DRAWS
+        help_text = (helps or {}).get(option.name, help_text)
         command.add_argument("--" + option.name.replace("_", "-"), type=option.metadata["type"],
                              default=defaults.get(option.name, option.default), help=help_text)
 
@@ -141,7 +142,9 @@ def design_arguments(command: argparse.ArgumentParser) -> None:
                          help="also propose this many physical input settings (next_experiments.csv)")
     command.add_argument("--cutoff", type=float, default=None,
                          help=f"implausibility cutoff; default: the config's [design] cutoff, else {CUTOFF:g}")
-    sampler_arguments(command, **POSTERIOR_SAMPLER, seed=1)
+    # a design is reproducible by default: its seed is 1, not a fresh one
+    sampler_arguments(command, {"seed": "random seed of the NROY sample, the candidates and the posterior's fit"},
+                      **POSTERIOR_SAMPLER, seed=1)
     command.add_argument("--backend", choices=BACKENDS, default=None, help=_BACKEND_HELP)
 
 
