@@ -1,7 +1,7 @@
 """The design loop on the pin fin: waves of history matching, each running
 the simulator at the 20 runs it proposes, until NROY stops shrinking (a
 wave that keeps more than 90 % of the last one's). Writes the last wave's
-design folder (design/) and the docs' figures (docs/img/design_loop_*.png),
+design folder (out/) and the docs' figures (docs/img/design_loop_*.png),
 and prints the NROY fraction by wave.
 
     python case_studies/design_loop/run_waves.py
@@ -26,7 +26,7 @@ from stancal.reporting.design_report import write_design  # noqa: E402
 WAVES, RUNS_PER_WAVE, STOP_SHRINK = 8, 20, 0.9
 
 
-def main(out: Path = HERE / "design", images: Path | None = HERE.parent.parent / "docs" / "img") -> dict:
+def main(out: Path = HERE / "out", images: Path | None = HERE.parent.parent / "docs" / "img") -> dict:
     loop = stancal.run_waves(HERE / "config.toml", simulator=fin_temperature, waves=WAVES,
                              runs_per_wave=RUNS_PER_WAVE, seed=1, stop_shrink=STOP_SHRINK)
     last = loop.designs[-1]

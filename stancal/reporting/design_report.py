@@ -23,6 +23,7 @@ from stancal.reporting.series import axis_label
 BINS = 20  # per axis of the pairs plot
 UNIFORM_POINTS = 20000  # the uniform sample the minimum implausibility is taken over (with the NROY sample)
 MAX_PAIRS_COLUMNS = 8
+BACKGROUND_POINTS = 600  # NROY draws behind the runs in proposed_runs.png (enough to show its shape)
 
 
 def pairs_grid(design: Design, seed: int = 0) -> dict:
@@ -160,11 +161,12 @@ def plot_proposed_runs(design: Design, path: Path | None = None, units: dict[str
     columns = box.columns[:MAX_PAIRS_COLUMNS]
     existing = box.to_original(run_table(design.match.data, box)[0])
     proposed = design.next_runs[box.columns].to_numpy(float)
-    nroy = design.match.nroy.theta_unit
+    nroy = design.match.nroy.theta_unit[:BACKGROUND_POINTS]  # a uniform sample: its first rows are one too
     spread = np.column_stack([np.random.default_rng(0).uniform(size=(len(nroy), len(box.inputs))), nroy])
     background = box.to_original(spread)
     C = len(columns)
-    fig, axes = plt.subplots(C - 1, C - 1, figsize=(2.4 * (C - 1) + 1.2, 2.4 * (C - 1) + 0.8), squeeze=False,
+    panel = 2.4 if C <= 4 else 1.7  # inches: many columns make small panels
+    fig, axes = plt.subplots(C - 1, C - 1, figsize=(panel * (C - 1) + 1.2, panel * (C - 1) + 0.8), squeeze=False,
                              layout="constrained")
     for row in range(1, C):
         for col in range(C - 1):
