@@ -2,6 +2,9 @@
 
 import logging
 
+from stancal.designing.loop import Design, WaveLoop, propose_experiments, propose_runs, run_waves
+from stancal.designing.targets import DesignSettings
+from stancal.designing.waves import HistoryMatch, history_match
 from stancal.diagnosing.compare import Comparison, compare_methods
 from stancal.diagnosing.gap import Candidate, CandidateError, GapWarning, diagnose_gap
 from stancal.fitting.calibrate import calibrate
@@ -24,7 +27,8 @@ load_result = CalibrationResult.load
 
 __all__ = [
     "CalibrationData", "CalibrationResult", "Candidate", "CandidateError", "Comparison", "ConfoundingWarning",
-    "DataError",
+    "DataError", "Design", "DesignSettings", "HistoryMatch", "WaveLoop", "history_match", "propose_experiments",
+    "propose_runs", "run_waves",
     "FormulaError", "GapWarning", "InputRangeWarning", "Kernel", "MODELS", "PROGRAMS", "Program",
     "MultimodalWarning", "SamplerWarning", "StanProgramError", "calibrate", "diagnose_gap",
     "compare_methods", "load_result", "register", "write_calibration", "write_comparison", "write_gap_report",

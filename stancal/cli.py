@@ -1,6 +1,7 @@
 """Command line: ``stancal calibrate CONFIG.toml --out DIR``,
 ``stancal gap CONFIG.toml --out DIR``, ``stancal compare CONFIG.toml --out DIR``,
-``stancal sbc CONFIG.toml --sims S --out DIR`` and ``stancal compile CONFIG.toml ...``."""
+``stancal sbc CONFIG.toml --sims S --out DIR``, ``stancal design CONFIG.toml --runs N --out DIR``
+and ``stancal compile CONFIG.toml ...``."""
 
 from __future__ import annotations
 
@@ -26,7 +27,7 @@ from stancal.problem.sampling import SamplerOptions
 from stancal.problem.vector_data import VectorCalibrationData
 from stancal.reporting.report import write_calibration
 from stancal.stan.backends import BACKENDS, StanRuntimeError, get_backend
-from stancal.stan.registry import L2, PROGRAMS, commands_taking, entry_methods, method_names
+from stancal.stan.registry import DESIGN, L2, PROGRAMS, commands_taking, entry_methods, method_names
 from stancal.stan.source import FlatProgram, StanProgramError
 
 logger = logging.getLogger("stancal")
@@ -52,14 +53,15 @@ _METHOD_HELP = ("the calibration program; default: the config's [model] method, 
 _SBC_DRAWS = "posterior draws kept per chain of each fit; default: 2 x --draws-per-fit spread over the chains"
 
 
-def sampler_arguments(command: argparse.ArgumentParser, **defaults) -> None:
+def sampler_arguments(command: argparse.ArgumentParser, helps: dict[str, str] | None = None, **defaults) -> None:
     """The sampler's flags, made from stancal.problem.sampling.SamplerOptions
-    (its help text and defaults, or a command's own ``defaults``): every
-    command that samples takes the same ones."""
+    (its help text and defaults, or a command's own ``helps`` and
+    ``defaults``): every command that samples takes the same ones."""
     for option in fields(SamplerOptions):
         help_text = option.metadata["help"]
         if option.name == "draws" and defaults.get("draws", option.default) is None:
             help_text = _SBC_DRAWS
+        help_text = (helps or {}).get(option.name, help_text)
         command.add_argument("--" + option.name.replace("_", "-"), type=option.metadata["type"],
                              default=defaults.get(option.name, option.default), help=help_text)
 
@@ -113,6 +115,7 @@ def _parser() -> argparse.ArgumentParser:
         command.add_argument("--scheduler", default=None, metavar="ADDRESS",
                              help="run the fits on this Dask cluster (e.g. tcp://10.0.0.5:8786); default: a "
                                   f"local cluster, one worker per core; '{IN_PROCESS}': one after another here")
+    design_arguments(add(DESIGN, help="history matching in waves: NROY, and the next simulator runs and experiments"))
     build = add("compile", help="compile every Stan program the configs need, in parallel")
     build.add_argument("configs", type=Path, nargs="+", help="TOML configs")
     build.add_argument("--all-methods", action="store_true",
@@ -122,6 +125,27 @@ def _parser() -> argparse.ArgumentParser:
                      help="compare by K-fold cross-validation with this many folds instead of PSIS-LOO; "
                           "default: PSIS-LOO, with 5-fold when Pareto k is high at many observations")
     return parser
+
+
+def design_arguments(command: argparse.ArgumentParser) -> None:
+    from stancal.designing.loop import CRITERIA, POSTERIOR_SAMPLER
+    from stancal.designing.targets import CUTOFF
+
+    command.add_argument("config", type=Path, help="TOML config with [simulator] runs (paths relative to it)")
+    command.add_argument("--runs", type=int, required=True, help="simulator runs to propose (N)")
+    command.add_argument("--out", type=Path, required=True,
+                         help="design folder; run again with the same folder, after adding the runs, for the next wave")
+    command.add_argument("--criterion", choices=CRITERIA, default="nroy",
+                         help="nroy: space-filling in NROY x the inputs' range; posterior: where the emulator's "
+                              "variance weighted by theta's posterior (a modular fit) falls most")
+    command.add_argument("--experiments", type=int, default=0,
+                         help="also propose this many physical input settings (next_experiments.csv)")
+    command.add_argument("--cutoff", type=float, default=None,
+                         help=f"implausibility cutoff; default: the config's [design] cutoff, else {CUTOFF:g}")
+    # a design is reproducible by default: its seed is 1, not a fresh one
+    sampler_arguments(command, {"seed": "random seed of the NROY sample, the candidates and the posterior's fit"},
+                      **POSTERIOR_SAMPLER, seed=1)
+    command.add_argument("--backend", choices=BACKENDS, default=None, help=_BACKEND_HELP)
 
 
 def _stancal_warnings(caught) -> list[str]:
@@ -248,6 +272,34 @@ def run_sbc(args: argparse.Namespace) -> dict:
     return result.to_json()
 
 
+def run_design(args: argparse.Namespace) -> dict:
+    from stancal.designing.loop import design
+    from stancal.designing.targets import DesignSettings
+    from stancal.designing.waves import load_waves
+    from stancal.reporting.design_report import write_design
+
+    for flag, value, lowest in (("--runs", args.runs, 1), ("--experiments", args.experiments, 0)):
+        if value < lowest:
+            raise ValueError(f"{flag} must be at least {lowest}; got {value}")
+    if args.cutoff is not None and not args.cutoff > 0:
+        raise ValueError(f"--cutoff must be positive; got {args.cutoff}")
+    problem = load_config(args.config)
+    _require_command(problem, DESIGN)
+    settings = DesignSettings(**{**problem.design, **({} if args.cutoff is None else {"cutoff": args.cutoff})})
+    waves = load_waves(args.out, problem.data)
+    sampler = {k: v for k, v in sampler_options(args).items() if k != "seed"}
+    model = {k: v for k, v in problem.model.items() if k not in ("method", "program")}
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        result = design(problem.data, args.runs, criterion=args.criterion, experiments=args.experiments,
+                        settings=settings, waves=waves, seed=args.seed, simulator=problem.simulator,
+                        backend=args.backend, **sampler, **model)
+    summary = write_design(result, args.out, problem.units)
+    for message in _stancal_warnings(caught):
+        print(f"warning: {message}", file=sys.stderr)
+    return summary
+
+
 def config_programs(problem, all_methods: bool) -> list[FlatProgram]:
     """The programs that calibrate and gap run on a config: its method (or
     every method the problem admits) and its candidates' simulator variants."""
@@ -303,7 +355,7 @@ def _main(argv: list[str] | None) -> int:
         if hasattr(args, "chains"):  # the sampler's options, checked before the config is read
             sampler_options(args)
         summary = {"gap": run_gap, "compare": run_compare, "calibrate": run_calibrate,
-                   "compile": run_compile, "sbc": run_sbc}[args.command](args)
+                   "compile": run_compile, "sbc": run_sbc, DESIGN: run_design}[args.command](args)
     except (ConfigError, DataError, StanProgramError, StanRuntimeError, ValueError, RuntimeError) as err:
         print(f"stancal: error: {_one_line(err)}", file=sys.stderr)
         return 2
@@ -320,6 +372,10 @@ def _main(argv: list[str] | None) -> int:
         print(f"gap: best candidate {best['name']} (ELPD {best['elpd_diff']:+.1f} ± "
               f"{best['elpd_diff_se']:.1f}, shrinkage {best['shrinkage']['mean']:.2f}); "
               f"report in {args.out / 'report.md'}")
+        return 0
+    if args.command == DESIGN:
+        print(f"design: wave {len(summary['waves'])}, NROY {summary['nroy_fraction']:.3g} of theta's box; "
+              f"{summary['proposed_runs']} runs in {args.out / 'next_runs.csv'}; report in {args.out / 'report.md'}")
         return 0
     if args.command == "sbc":
         for _name, row in summary["parameters"].items():

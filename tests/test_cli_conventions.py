@@ -19,8 +19,8 @@ import pytest
 from conftest import COOLING, no_stancal_warnings
 
 ROOT = Path(__file__).resolve().parent.parent
-COMMANDS = ("calibrate", "gap", "compare", "sbc", "compile")
-SAMPLING_COMMANDS = ("calibrate", "gap", "compare", "sbc")
+COMMANDS = ("calibrate", "gap", "compare", "sbc", "compile", "design")
+SAMPLING_COMMANDS = ("calibrate", "gap", "compare", "sbc", "design")
 
 
 def cli(capsys, *args) -> tuple[int, str, str]:

@@ -8,7 +8,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 PACKAGE = ROOT / "stancal"
-FLOW = ["problem", "numerics", "stan", "results", "fitting", "diagnosing", "reporting"]
+FLOW = ["problem", "numerics", "stan", "results", "fitting", "diagnosing", "designing", "reporting"]
 
 
 def _modules() -> dict[str, Path]:

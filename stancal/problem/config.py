@@ -27,6 +27,7 @@ class Problem:
     model: dict[str, Any] = field(default_factory=dict)
     candidates: list[Candidate] = field(default_factory=list)  # for `stancal gap`
     units: dict[str, str] = field(default_factory=dict)  # [units]: column or parameter -> unit, for figures
+    design: dict[str, Any] = field(default_factory=dict)  # [design]: for `stancal design`
 
 
 _OBSERVATION_KEYS = {"likelihood", "trials", "lower", "upper"}  # go to CalibrationData
@@ -116,7 +117,8 @@ def _problem(raw: dict[str, Any], base: Path) -> Problem:
         **observation,
     )
     candidates = _candidates(raw.get("candidates", {}), base)
-    return Problem(data=data, simulator=stan, model=model, candidates=candidates, units=dict(raw.get("units", {})))
+    return Problem(data=data, simulator=stan, model=model, candidates=candidates, units=dict(raw.get("units", {})),
+                   design=dict(raw.get("design", {})))
 
 
 def _vector_problem(physical: dict, simulator: dict, theta: dict, runs: pd.DataFrame | None, stan: Path | None,
@@ -135,4 +137,4 @@ def _vector_problem(physical: dict, simulator: dict, theta: dict, runs: pd.DataF
         runs=runs, run=_require(simulator, "run", "simulator") if runs is not None else None,
         noise_sd=physical.get("noise_sd"), covariates=physical.get("covariates", []), **basis)
     return Problem(data=data, simulator=stan, model=model, candidates=_candidates(raw.get("candidates", {}), base),
-                   units=dict(raw.get("units", {})))
+                   units=dict(raw.get("units", {})), design=dict(raw.get("design", {})))

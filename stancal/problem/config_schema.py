@@ -170,6 +170,21 @@ TABLES: tuple[Table, ...] = (
     )),
     Table("candidates.NAME.theta", "The variant's extra parameters, `name = [lower, upper]` (after the "
           "baseline's theta, which keep their bounds)", entries="[lower, upper]"),
+    Table("design", "History matching and the next runs for `stancal design` (docs/design.md)", keys=(
+        Key("discrepancy_sd", "number", "discrepancy_fraction x the observations' sd", "the model discrepancy's sd "
+            "in implausibility, output units"),
+        Key("discrepancy_fraction", "number", "0.1", "the discrepancy sd as a share of the observations' sd over "
+            "the physical points, when discrepancy_sd is not given"),
+        Key("noise_sd", "number", "the known noise_sd column, else estimated", "the measurement noise sd in "
+            "implausibility, output units (estimated: the smaller of Rice's difference estimate and the "
+            "emulator's least-squares residual sd)"),
+        Key("nth_maximum", "integer", "by the number of observations", "combine the observations' "
+            "implausibilities by their 1st, 2nd or 3rd largest (Vernon et al. 2010); by default the smallest "
+            "whose chance of ruling out the true theta is at most 5 %"),
+        Key("cutoff", "number", "3.0", "the implausibility cutoff (Pukelsheim's three-sigma rule); "
+            "--cutoff overrides it"),
+        Key("nroy_points", "integer", "2000", "the size of the NROY sample (nroy.csv; at least 1000)"),
+    )),
     Table("units", 'Units for the figures\' axes, `name = "unit"`: the unit of an input, covariate, output, '
           'output index or theta (e.g. `T = "°C"`)', entries="string"),
 )
@@ -232,6 +247,7 @@ def check(raw: dict[str, Any]) -> str | None:
     return (_check_entries(simulator["theta"], table("simulator.theta"))
             or _check_entries(simulator.get("theta_per_experiment", {}), table("simulator.theta_per_experiment"))
             or _check_table(raw.get("model", {}), table("model"), output)
+            or _check_table(raw.get("design", {}), table("design"), output)
             or _check_candidates(raw.get("candidates", {}))
             or _check_units(raw))
 

@@ -177,6 +177,14 @@ class VectorCalibrationData:
             bounds_of(self.parameters), bounds_of(self.per_experiment), self.runs, self.run, self.noise_sd,
             self.covariates, **self._basis_options, levels=self.levels)
 
+    def with_runs(self, runs: pd.DataFrame) -> VectorCalibrationData:
+        """The same problem with other simulator runs (a long table, as ``runs``),
+        its basis made again from them."""
+        return VectorCalibrationData(
+            self.source, self.experiment, self.inputs, self.output, self.output_index, bounds_of(self.parameters),
+            bounds_of(self.per_experiment), runs, self.run, self.noise_sd, self.covariates,
+            **self._basis_options, levels=self.levels)
+
     def variant(self, inputs: Sequence[str],
                 extra_theta: Mapping[str, tuple[float, float]]) -> VectorCalibrationData:
         """The problem as a simulator variant sees it: its own inputs, the

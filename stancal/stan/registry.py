@@ -23,6 +23,7 @@ from stancal.stan.source import shipped_models_dir
 
 # commands a program can be used by (besides calibrate, which takes all)
 GAP, COMPARE, SBC, L2 = "gap", "compare", "sbc", "l2"
+DESIGN = "design"  # `stancal design --criterion posterior`: the program of its theta posterior
 
 # stage 1 kinds: how a program's emulator is fitted before sampling
 STAGE_ONE_GP = "gp_emulator"  # emulator.stan's hyperparameters by optimisation
@@ -77,7 +78,7 @@ PROGRAMS: dict[str, Program] = {program.name: program for program in (
             helper=True),
     Program("modular", "modular.stan", "modular KOH: stage 2 with the stage-1 emulator fixed", runs=True,
             stage_one=STAGE_ONE_GP, latent_version="koh_latent_emulator", scalable_version="modular_hsgp",
-            data=(*_GAUSSIAN, sd.emulator_inputs, sd.fixed_emulator), commands=_SCALAR | {L2}),
+            data=(*_GAUSSIAN, sd.emulator_inputs, sd.fixed_emulator), commands=_SCALAR | {L2, DESIGN}),
     Program("koh_latent", "koh_latent.stan",
             "KOH with latent GPs: counts, binomial, censored outputs, functional theta", simulator=True,
             latent=True, estimate_rho=False, data=(*_LATENT, sd.simulator_points), commands=_SCALAR),
@@ -99,7 +100,7 @@ PROGRAMS: dict[str, Program] = {program.name: program for program in (
     Program("modular_vector", "modular_vector.stan",
             "modular KOH for a vector output: one emulator GP per basis component, ragged experiments",
             output="vector", methods=("modular",), runs=True, stage_one=STAGE_ONE_BASIS, kernels=("se",),
-            estimate_rho=False, data=(vd.basis_emulator, vd.modular_weights), commands=frozenset({GAP})),
+            estimate_rho=False, data=(vd.basis_emulator, vd.modular_weights), commands=frozenset({GAP, DESIGN})),
     Program("koh_emulator_vector", "modular_vector.stan",
             "koh_emulator for a vector output: the basis weights' GP hyperparameters sampled with theta",
             output="vector", methods=("koh_emulator",), runs=True, stage_one=STAGE_ONE_BASIS, kernels=("se",),

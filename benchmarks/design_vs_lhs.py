@@ -1,0 +1,137 @@
+"""Designed runs against as many Latin-hypercube runs, on the pin fin of
+case_studies/design_loop (docs/design.md): for each seed, new measurement
+noise and a new initial Latin hypercube of 40 runs; the design loop
+(stancal.run_waves, 20 runs a wave until NROY stops shrinking, at most
+WAVES waves) against a Latin hypercube of the same count over the whole box.
+For each: the emulator's error at the true theta (its mean at the measured
+inputs against the simulator there, RMS, and its predictive sd), then a
+``modular`` calibration on the runs (2 chains) and theta's 90 % interval
+widths, as a share of the prior's, and whether the truth lies inside.
+
+    python benchmarks/design_vs_lhs.py [--seeds 4] [--chains 2 --warmup 500 --draws 500]
+
+Writes benchmarks/design_vs_lhs.json and .png (copied to docs/img) and prints a table.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+ROOT = Path(__file__).resolve().parents[1]
+CASE = ROOT / "case_studies" / "design_loop"
+sys.path[:0] = [str(ROOT), str(CASE)]
+
+from make_data import INITIAL_RUNS, NOISE_SD, initial_runs, physical  # noqa: E402
+from simulator import THETA, TRUTH, fin_temperature  # noqa: E402
+
+import stancal  # noqa: E402
+from stancal.designing.emulators import ScalarEmulator  # noqa: E402
+from stancal.designing.targets import DesignSettings, UnitBox  # noqa: E402
+
+WAVES, RUNS_PER_WAVE, STOP_SHRINK = 6, 20, 0.9
+SETTINGS = DesignSettings(noise_sd=NOISE_SD, discrepancy_sd=1.0)  # as the case study's config
+ACTIVE = ("h", "k", "T_a", "eta")
+
+
+def data_with(table: pd.DataFrame, runs: pd.DataFrame) -> stancal.CalibrationData:
+    return stancal.CalibrationData(table, ["x", "T_b"], "T", THETA, runs=runs)
+
+
+def emulator_error(data: stancal.CalibrationData, seed: int) -> dict:
+    """The emulator of all the runs at the measured inputs and the true theta."""
+    box = UnitBox.of(data)
+    emulator = ScalarEmulator.fit(box.to_unit(data.runs), data.runs["T"].to_numpy(), seed)
+    truth = data.physical[["x", "T_b"]].assign(**TRUTH)
+    mean, variance = emulator.at(box.inputs_to_unit(truth), box.to_unit(truth)[:1, 2:])
+    error = mean[0] - fin_temperature(truth)
+    return {"rms_error": float(np.sqrt(np.mean(error**2))), "mean_sd": float(np.sqrt(variance[0]).mean())}
+
+
+def calibrated(data: stancal.CalibrationData, sampler: dict, seed: int) -> dict:
+    started = time.perf_counter()
+    result = stancal.calibrate(data, method="modular", seed=seed, **sampler)
+    draws = result.theta_draws()
+    out = {"fit_s": time.perf_counter() - started,
+           "diagnostics": result.diagnostics.summary() if result.diagnostics else None}
+    for name, (low, high) in THETA.items():
+        q05, q95 = np.quantile(draws[name], [0.05, 0.95])
+        out[name] = {"width_share": float((q95 - q05) / (high - low)), "covers": bool(q05 <= TRUTH[name] <= q95)}
+    return out
+
+
+def one_seed(seed: int, sampler: dict) -> dict:
+    table = physical(seed=1000 + seed)
+    start = data_with(table, initial_runs(INITIAL_RUNS, seed=seed))
+    loop = stancal.run_waves(start, simulator=fin_temperature, waves=WAVES, runs_per_wave=RUNS_PER_WAVE,
+                             settings=SETTINGS, seed=seed, stop_shrink=STOP_SHRINK)
+    designed = loop.data
+    count = len(designed.runs)
+    lhs = data_with(table, initial_runs(count, seed=500 + seed))
+    row = {"seed": seed, "runs": count, "nroy_fraction_by_wave": loop.fractions}
+    for name, data in (("designed", designed), ("lhs", lhs)):
+        row[name] = {**emulator_error(data, seed), **calibrated(data, sampler, seed)}
+        print(f"seed {seed} {name}: {json.dumps(row[name])}", flush=True)
+    return row
+
+
+def plot(rows: list[dict], path: Path) -> None:
+    """theta's 90 % interval width over its prior's, each seed a point, per arm; coverage in the labels."""
+    from stancal.reporting.plots import finish, pyplot
+
+    plt = pyplot()
+    fig, axes = plt.subplots(1, 2, figsize=(9, 3.8), layout="constrained", width_ratios=[3, 1])
+    for shift, (arm, colour) in zip((-0.12, 0.12), (("designed", "tab:red"), ("lhs", "tab:blue")), strict=True):
+        for q, name in enumerate(THETA):
+            widths = [r[arm][name]["width_share"] for r in rows]
+            covered = sum(r[arm][name]["covers"] for r in rows)
+            axes[0].scatter(np.full(len(widths), q + shift), widths, color=colour, s=18,
+                            label=("designed runs (waves)" if arm == "designed" else "Latin hypercube, same count")
+                            if q == 0 else None)
+            axes[0].annotate(f"{covered}/{len(rows)}", (q + shift, max(widths)), textcoords="offset points",
+                             xytext=(0, 4), ha="center", fontsize=7, color=colour)
+        errors = [r[arm]["rms_error"] for r in rows]
+        axes[1].scatter(np.full(len(errors), 0.5 + 2 * shift), errors, color=colour, s=18)
+    axes[0].set_xticks(range(len(THETA)), list(THETA))
+    axes[0].set_ylabel("90 % interval width / prior width")
+    axes[0].set_title("theta's 90 % intervals (label: seeds covering the truth)", fontsize=9)
+    axes[0].legend(fontsize=7)
+    axes[1].set_xticks([0.26, 0.74], ["designed", "LHS"])
+    axes[1].set_xlim(0, 1)
+    axes[1].set_yscale("log")
+    axes[1].set_ylabel("emulator RMS error at the true theta [°C]")
+    axes[1].set_title("emulator near the truth", fontsize=9)
+    finish(fig, path)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seeds", type=int, default=4)
+    parser.add_argument("--chains", type=int, default=2)
+    parser.add_argument("--warmup", type=int, default=500)
+    parser.add_argument("--draws", type=int, default=500)
+    args = parser.parse_args()
+    sampler = {"chains": args.chains, "warmup": args.warmup, "draws": args.draws}
+    rows = [one_seed(seed, sampler) for seed in range(1, args.seeds + 1)]
+    (Path(__file__).parent / "design_vs_lhs.json").write_text(json.dumps({"sampler": sampler, "rows": rows},
+                                                                         indent=1))
+    plot(rows, Path(__file__).parent / "design_vs_lhs.png")
+    shutil.copy(Path(__file__).parent / "design_vs_lhs.png", ROOT / "docs" / "img" / "design_vs_lhs.png")
+    print("| arm | runs | emulator RMS error at the truth | " + " | ".join(f"{n} width / prior, covered"
+                                                                            for n in ACTIVE) + " |")
+    for arm in ("designed", "lhs"):
+        cells = [f"{np.mean([r[arm][n]['width_share'] for r in rows]):.3f}, "
+                 f"{sum(r[arm][n]['covers'] for r in rows)}/{len(rows)}" for n in ACTIVE]
+        print(f"| {arm} | {np.mean([r['runs'] for r in rows]):.0f} | "
+              f"{np.mean([r[arm]['rms_error'] for r in rows]):.3g} °C | " + " | ".join(cells) + " |")
+
+
+if __name__ == "__main__":
+    main()

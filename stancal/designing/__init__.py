@@ -1,0 +1,2 @@
+"""The design loop: history matching in waves and the next simulator runs
+and experiments (review sections 5 and 7)."""

@@ -1,0 +1,146 @@
+"""Each wave's emulator of the simulator, with its predictive mean and
+variance at new (x, theta) and no Stan: for a scalar output the GP of
+emulator.stan at its posterior mode (stancal.numerics.scalable_emulator),
+for a vector output one such GP per component weight of the runs' basis
+(Higdon et al. 2008; stancal.numerics.vector_emulator). A wave keeps what
+defines its emulator (the runs it was fitted on, its hyperparameters and
+basis) so that later waves rebuild it exactly, with no optimisation."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+from scipy import linalg
+
+from stancal.numerics.scalable_emulator import (
+    Hyperparameters,
+    fit_hyperparameters,
+    predictive_mean_variance,
+    run_factor,
+    whitener,
+)
+from stancal.problem.output_basis import OutputBasis
+
+
+@dataclass
+class GaussianProcess:
+    """A GP of standardised values over (x, theta) on the unit cube."""
+
+    hyperparameters: Hyperparameters
+    xt_runs: np.ndarray
+    values: np.ndarray
+
+    def __post_init__(self) -> None:
+        self.factor = run_factor(self.xt_runs, self.hyperparameters)
+        self.alpha = linalg.cho_solve(self.factor, self.values - self.hyperparameters.mean)
+        self.inverse_factor = whitener(self.factor)
+
+    @classmethod
+    def fit(cls, xt_runs: np.ndarray, values: np.ndarray, seed: int) -> GaussianProcess:
+        return cls(fit_hyperparameters(xt_runs, values, seed)[0], xt_runs, values)
+
+    def predict(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return predictive_mean_variance(points, self.xt_runs, self.alpha, self.hyperparameters, self.inverse_factor)
+
+    def to_dict(self) -> dict:
+        return {"hyperparameters": self.hyperparameters.as_stan()}
+
+
+def pairs(x_unit: np.ndarray, theta_unit: np.ndarray) -> np.ndarray:
+    """Every (theta_s, x_i): (S * n, D + Q), theta's index varying slowest."""
+    S, n = len(theta_unit), len(x_unit)
+    return np.column_stack([np.tile(x_unit, (S, 1)), np.repeat(theta_unit, n, axis=0)])
+
+
+@dataclass
+class ScalarEmulator:
+    """One GP of the standardised output: y = center + scale * GP."""
+
+    gp: GaussianProcess
+    center: float
+    scale: float
+
+    @classmethod
+    def fit(cls, xt_runs: np.ndarray, y: np.ndarray, seed: int) -> ScalarEmulator:
+        center, scale = float(y.mean()), float(y.std()) or 1.0
+        return cls(GaussianProcess.fit(xt_runs, (y - center) / scale, seed), center, scale)
+
+    def at(self, x_unit: np.ndarray, theta_unit: np.ndarray, groups=()) -> tuple[np.ndarray, np.ndarray]:
+        """Mean and variance (S, n) in output units at every theta and x."""
+        mean, variance = self.gp.predict(pairs(x_unit, theta_unit))
+        shape = (len(theta_unit), len(x_unit))
+        return (self.center + self.scale * mean).reshape(shape), (self.scale**2 * variance).reshape(shape)
+
+    def parts(self) -> list[tuple[GaussianProcess, float]]:
+        """The GPs and the output variance per unit of each (for variance reduction)."""
+        return [(self.gp, self.scale**2)]
+
+    def to_dict(self) -> dict:
+        return {"kind": "scalar", "xt_runs": self.gp.xt_runs.tolist(), "y": (self.center + self.scale
+                * self.gp.values).tolist(), "center": self.center, "scale": self.scale, **self.gp.to_dict()}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> ScalarEmulator:
+        xt, y = np.asarray(d["xt_runs"], float), np.asarray(d["y"], float)
+        gp = GaussianProcess(Hyperparameters.from_stan(d["hyperparameters"]), xt, (y - d["center"]) / d["scale"])
+        return cls(gp, d["center"], d["scale"])
+
+
+@dataclass
+class BasisEmulator:
+    """One GP per component weight of the output basis: y(index) =
+    mean(index) + scale * components(index) @ w, plus the basis's
+    truncation and interpolation error, as stancal.numerics.vector_emulator."""
+
+    basis: OutputBasis
+    gps: list[GaussianProcess]
+    outputs: np.ndarray  # (runs, K): the runs' outputs on the basis's grid
+
+    @classmethod
+    def fit(cls, basis: OutputBasis, xt_runs: np.ndarray, outputs: np.ndarray, seed: int) -> BasisEmulator:
+        scores = basis.weights(outputs)
+        return cls(basis, [GaussianProcess.fit(xt_runs, scores[:, j], seed + j) for j in range(basis.count)],
+                   outputs)
+
+    def at(self, x_unit: np.ndarray, theta_unit: np.ndarray, groups) -> tuple[np.ndarray, np.ndarray]:
+        """Mean and variance (S, n) at every theta and observed value, one
+        experiment (``groups``: its inputs, values and output indices) at a time."""
+        mean = np.empty((len(theta_unit), len(x_unit)))
+        variance = np.empty_like(mean)
+        for row, values, indices in groups:
+            points = np.column_stack([np.broadcast_to(row, (len(theta_unit), len(row))), theta_unit])
+            predicted = [gp.predict(points) for gp in self.gps]
+            weight_mean = np.column_stack([m for m, _ in predicted])
+            weight_variance = np.column_stack([v for _, v in predicted])
+            base, components = self.basis.at(indices)
+            mean[:, values] = base + self.basis.scale * weight_mean @ components.T
+            variance[:, values] = self.basis.scale**2 * (weight_variance @ (components**2).T
+                                                         + self.basis.independent_variance)
+        return mean, variance
+
+    def parts(self) -> list[tuple[GaussianProcess, float]]:
+        """Each component's GP and its output variance per unit weight, averaged over the grid."""
+        return [(gp, float(self.basis.scale**2 * np.mean(self.basis.components[:, j] ** 2)))
+                for j, gp in enumerate(self.gps)]
+
+    def to_dict(self) -> dict:
+        basis = {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in asdict(self.basis).items()}
+        return {"kind": "vector", "xt_runs": self.gps[0].xt_runs.tolist(), "outputs": self.outputs.tolist(),
+                "basis": basis, "components": [gp.to_dict() for gp in self.gps]}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> BasisEmulator:
+        b = d["basis"]
+        basis = OutputBasis(np.asarray(b["grid"], float), np.asarray(b["mean"], float), b["scale"],
+                            np.asarray(b["components"], float), np.asarray(b["explained"], float),
+                            b["truncation_variance"], b["interpolation_variance"])
+        xt, outputs = np.asarray(d["xt_runs"], float), np.asarray(d["outputs"], float)
+        scores = basis.weights(outputs)
+        gps = [GaussianProcess(Hyperparameters.from_stan(c["hyperparameters"]), xt, scores[:, j])
+               for j, c in enumerate(d["components"])]
+        return cls(basis, gps, outputs)
+
+
+def emulator_from_dict(d: dict) -> ScalarEmulator | BasisEmulator:
+    return ScalarEmulator.from_dict(d) if d["kind"] == "scalar" else BasisEmulator.from_dict(d)

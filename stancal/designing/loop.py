@@ -1,0 +1,197 @@
+"""The design loop as the user drives it: a wave of history matching, the
+next runs (and experiments) it proposes, and, with a simulator in Python,
+waves one after another (``run_waves``)."""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from stancal.designing.experiments import next_experiments
+from stancal.designing.proposals import nroy_runs, posterior_runs
+from stancal.designing.targets import DesignSettings
+from stancal.designing.waves import HistoryMatch, Wave, history_match, run_table
+from stancal.problem.data import CalibrationData
+from stancal.problem.vector_data import VectorCalibrationData
+from stancal.stan.registry import DESIGN, commands_taking
+
+logger = logging.getLogger("stancal")
+
+CRITERIA = ("nroy", "posterior")
+POSTERIOR_SAMPLER = {"chains": 2, "warmup": 500, "draws": 500}  # theta's posterior for the posterior criterion
+
+
+@dataclass
+class Design:
+    """One call of the loop: the history match and what it proposes."""
+
+    match: HistoryMatch
+    next_runs: pd.DataFrame  # the inputs, then theta, config order, original units
+    criterion: str
+    next_experiments: pd.DataFrame | None = None
+    notes: dict = field(default_factory=dict)  # the criterion's numbers, the posterior's program
+    posterior_fit: object | None = None  # the fit of theta's posterior (criterion posterior, when made here)
+
+    def to_json(self) -> dict:
+        return {**self.match.to_json(), "criterion": self.criterion, "proposed_runs": len(self.next_runs),
+                "proposed_experiments": 0 if self.next_experiments is None else len(self.next_experiments),
+                **self.notes}
+
+
+def posterior_theta(match: HistoryMatch, seed: int, simulator=None, **sampler):
+    """theta's posterior draws (unit cube) from a fit of the registry's
+    program for the design command (modular: the stage-1 emulator fixed),
+    and the fit."""
+    data = match.data
+    vector = isinstance(data, VectorCalibrationData)
+    method = commands_taking(DESIGN, "vector" if vector else "scalar")[0]
+    options = {**POSTERIOR_SAMPLER, **sampler, "seed": seed}
+    if vector:
+        from stancal.fitting.vector_calibrate import calibrate_vector
+
+        result = calibrate_vector(data, simulator=simulator, method=method, **options)
+    else:
+        from stancal.fitting.calibrate import calibrate
+
+        result = calibrate(data, simulator=simulator, method=method, **options)
+    draws = np.asarray(result.idata["posterior"]["theta"]).reshape(-1, len(match.box.theta))
+    D = len(match.box.inputs)
+    return (draws - match.box.low[D:]) / match.box.width[D:], result
+
+
+def propose_runs(match: HistoryMatch, runs: int, *, criterion: str = "nroy", seed: int = 1,
+                 posterior: pd.DataFrame | None = None, **sampler) -> Design:
+    """The next ``runs`` simulator runs after ``match``: space-filling in
+    NROY x the inputs' range (``nroy``), or where the emulator's variance
+    weighted by theta's posterior falls most (``posterior``; theta's draws
+    ``posterior`` (original units), else from a modular fit with ``sampler``'s
+    options). See stancal.designing.proposals."""
+    if criterion not in CRITERIA:
+        raise ValueError(f"criterion must be one of {', '.join(CRITERIA)}; got {criterion!r}")
+    if runs < 1:
+        raise ValueError(f"--runs must be at least 1; got {runs}")
+    box, inputs = match.box, len(match.box.inputs)
+    existing, _ = run_table(match.data, box)
+    notes: dict = {}
+    fit = None
+    if criterion == "nroy":
+        unit = nroy_runs(match.nroy.theta_unit, existing, inputs, runs, seed)
+        notes["maximin_distance"] = float(_nearest(unit, existing).min())
+    else:
+        if posterior is None:
+            draws, fit = posterior_theta(match, seed, **sampler)
+            notes["posterior_method"] = fit.method
+            notes["posterior_diagnostics"] = fit.diagnostics.summary() if fit.diagnostics else None
+        else:
+            draws = (posterior[box.theta].to_numpy(float) - box.low[inputs:]) / box.width[inputs:]
+        unit, gains = posterior_runs(match.cuts[-1].emulator.parts(), draws, match.targets.x_unit, runs, seed)
+        notes["variance_reduction"] = gains
+    frame = pd.DataFrame(box.to_original(unit), columns=box.columns)
+    return Design(match, frame, criterion, notes=notes, posterior_fit=fit)
+
+
+def _nearest(points: np.ndarray, existing: np.ndarray) -> np.ndarray:
+    """Each point's distance to the nearest existing run or other point."""
+    everything = np.vstack([existing, points])
+    distances = np.linalg.norm(points[:, None, :] - everything[None, :, :], axis=-1)
+    distances[np.arange(len(points)), len(existing) + np.arange(len(points))] = np.inf
+    return distances.min(axis=1)
+
+
+def propose_experiments(match: HistoryMatch, count: int, seed: int = 1) -> pd.DataFrame:
+    """``count`` physical input settings to measure next (next_experiments.csv;
+    stancal.designing.experiments)."""
+    if count < 1:
+        raise ValueError(f"--experiments must be at least 1; got {count}")
+    unit, criterion = next_experiments(match.cuts[-1], match.nroy.theta_unit, count, seed)
+    D = len(match.box.inputs)
+    frame = pd.DataFrame(match.box.low[:D] + unit * match.box.width[:D], columns=match.box.inputs)
+    frame.attrs["theta_variance_trace"] = criterion
+    return frame
+
+
+def design(data, runs: int, *, criterion: str = "nroy", experiments: int = 0, settings: DesignSettings | None = None,
+           waves: list[Wave] | None = None, seed: int = 1, **sampler) -> Design:
+    """A wave of history matching and its proposals: what `stancal design` writes."""
+    match = history_match(data, waves=waves, settings=settings, seed=seed)
+    result = propose_runs(match, runs, criterion=criterion, seed=seed, **sampler)
+    if experiments:
+        result.next_experiments = propose_experiments(match, experiments, seed)
+        result.notes["theta_variance_trace"] = result.next_experiments.attrs["theta_variance_trace"]
+    return result
+
+
+@dataclass
+class WaveLoop:
+    """run_waves' result: the data with every run, and each wave's design."""
+
+    data: CalibrationData | VectorCalibrationData
+    designs: list[Design]
+
+    @property
+    def fractions(self) -> list[float]:
+        return [d.match.nroy_fraction for d in self.designs]
+
+
+def run_waves(config, *, simulator: Callable[[pd.DataFrame], object], waves: int, runs_per_wave: int,
+              criterion: str = "nroy", settings: DesignSettings | None = None, seed: int = 1,
+              stop_shrink: float | None = None) -> WaveLoop:
+    """``waves`` waves of history matching, each running ``simulator`` at the
+    runs it proposes and adding them to the data. ``config``: a config file,
+    a loaded config (stancal.problem.config.Problem) or the data. The
+    simulator takes a DataFrame with next_runs.csv's columns and returns the
+    outputs: one value per row for a scalar output; for a vector output, a
+    (rows, K) array on the runs' grid of output indices (data.basis.grid).
+    ``stop_shrink``: stop once a wave's NROY fraction is above this share of
+    the previous one (NROY stopped shrinking)."""
+    data, settings = _data_and_settings(config, settings)
+    designs: list[Design] = []
+    for number in range(waves):
+        proposed = design(data, runs_per_wave, criterion=criterion, settings=settings,
+                          waves=designs[-1].match.waves if designs else None, seed=seed + number)
+        designs.append(proposed)
+        data = with_runs(data, proposed.next_runs, simulator(proposed.next_runs.copy()), f"w{number + 1}_")
+        if stop_shrink is not None and len(designs) > 1 and \
+                designs[-1].match.nroy_fraction > stop_shrink * designs[-2].match.nroy_fraction:
+            break
+    return WaveLoop(data, designs)
+
+
+def _data_and_settings(config, settings: DesignSettings | None):
+    if isinstance(config, CalibrationData | VectorCalibrationData):
+        return config, settings or DesignSettings()
+    if isinstance(config, str | Path):
+        from stancal.problem.config import load_config
+
+        config = load_config(config)
+    return config.data, settings or DesignSettings(**config.design)
+
+
+def with_runs(data, settings: pd.DataFrame, outputs, prefix: str):
+    """``data`` with new runs at ``settings`` (inputs and theta) and their ``outputs``."""
+    if isinstance(data, VectorCalibrationData):
+        return _with_vector_runs(data, settings, np.asarray(outputs, float), prefix)
+    values = np.asarray(outputs, float).reshape(-1)
+    if len(values) != len(settings):
+        raise ValueError(f"the simulator returned {len(values)} outputs for {len(settings)} runs")
+    added = settings.assign(**{data.output: values})
+    state = data.to_dict()
+    state["runs"] = pd.concat([data.runs, added], ignore_index=True).to_dict(orient="list")
+    return CalibrationData.from_dict(state)
+
+
+def _with_vector_runs(data: VectorCalibrationData, settings: pd.DataFrame, outputs: np.ndarray, prefix: str):
+    grid = data.basis.grid
+    if outputs.shape != (len(settings), len(grid)):
+        raise ValueError(f"the simulator returned outputs of shape {outputs.shape}; a vector output needs "
+                         f"({len(settings)} runs, {len(grid)} output indices of the runs' grid)")
+    rows = []
+    for i, (_, setting) in enumerate(settings.iterrows()):
+        block = pd.DataFrame(grid, columns=data.output_index).assign(**setting.to_dict())
+        rows.append(block.assign(**{data.run: f"{prefix}{i + 1}", data.output: outputs[i]}))
+    return data.with_runs(pd.concat([data.runs, *rows], ignore_index=True))
