@@ -113,10 +113,7 @@ class BasisEmulator:
             predicted = [gp.predict(points) for gp in self.gps]
             weight_mean = np.column_stack([m for m, _ in predicted])
             weight_variance = np.column_stack([v for _, v in predicted])
-            base, components = self.basis.at(indices)
-            mean[:, values] = base + self.basis.scale * weight_mean @ components.T
-            variance[:, values] = self.basis.scale**2 * (weight_variance @ (components**2).T
-                                                         + self.basis.independent_variance)
+            mean[:, values], variance[:, values] = self.basis.predict(indices, weight_mean, weight_variance)
         return mean, variance
 
     def parts(self) -> list[tuple[GaussianProcess, float]]:

@@ -84,9 +84,4 @@ class VectorEmulator:
     def predict(self, points: np.ndarray, indices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The output's predictive mean and variance at each point's
         indices: (points, M) for M output indices shared by the points."""
-        mean_vector, components = self.basis.at(indices)
-        weight_mean, weight_variance = self.weights(points)
-        scale = self.basis.scale
-        mean = mean_vector + scale * weight_mean @ components.T
-        variance = scale**2 * (weight_variance @ (components**2).T + self.basis.independent_variance)
-        return mean, variance
+        return self.basis.predict(indices, *self.weights(points))

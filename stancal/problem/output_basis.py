@@ -117,6 +117,17 @@ class OutputBasis:
                                 f"(its convex hull)")
         return out[:, 0], out[:, 1:]
 
+    def predict(self, indices: np.ndarray, weight_mean: np.ndarray,
+                weight_variance: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The output's mean and variance (points, M) at M output indices,
+        from its weights' predictive means and variances (points, p); the
+        weights are independent, and the truncation and interpolation errors
+        add to every value."""
+        mean_vector, components = self.at(indices)
+        mean = mean_vector + self.scale * weight_mean @ components.T
+        variance = self.scale**2 * (weight_variance @ (components**2).T + self.independent_variance)
+        return mean, variance
+
     def describe(self) -> str:
         return (f"{self.count} components explain {self.explained.sum():.2%} of the runs' variance "
                 f"({', '.join(f'{s:.1%}' for s in self.explained[:6])}{', ...' if self.count > 6 else ''})")
