@@ -60,8 +60,7 @@ def posterior_theta(match: HistoryMatch, seed: int, simulator=None, **sampler):
 
         result = calibrate(data, simulator=simulator, method=method, **options)
     draws = np.asarray(result.idata["posterior"]["theta"]).reshape(-1, len(match.box.theta))
-    D = len(match.box.inputs)
-    return (draws - match.box.low[D:]) / match.box.width[D:], result
+    return match.box.theta_to_unit(draws), result
 
 
 def propose_runs(match: HistoryMatch, runs: int, *, criterion: str = "nroy", seed: int = 1,
@@ -80,27 +79,19 @@ def propose_runs(match: HistoryMatch, runs: int, *, criterion: str = "nroy", see
     notes: dict = {}
     fit = None
     if criterion == "nroy":
-        unit = nroy_runs(match.nroy.theta_unit, existing, inputs, runs, seed)
-        notes["maximin_distance"] = float(_nearest(unit, existing).min())
+        unit, distances = nroy_runs(match.nroy.theta_unit, existing, inputs, runs, seed)
+        notes["maximin_distance"] = float(distances.min())
     else:
         if posterior is None:
             draws, fit = posterior_theta(match, seed, **sampler)
             notes["posterior_method"] = fit.method
             notes["posterior_diagnostics"] = fit.diagnostics.summary() if fit.diagnostics else None
         else:
-            draws = (posterior[box.theta].to_numpy(float) - box.low[inputs:]) / box.width[inputs:]
+            draws = box.theta_to_unit(posterior[box.theta].to_numpy(float))
         unit, gains = posterior_runs(match.cuts[-1].emulator.parts(), draws, match.targets.x_unit, runs, seed)
         notes["variance_reduction"] = gains
     frame = pd.DataFrame(box.to_original(unit), columns=box.columns)
     return Design(match, frame, criterion, notes=notes, posterior_fit=fit)
-
-
-def _nearest(points: np.ndarray, existing: np.ndarray) -> np.ndarray:
-    """Each point's distance to the nearest existing run or other point."""
-    everything = np.vstack([existing, points])
-    distances = np.linalg.norm(points[:, None, :] - everything[None, :, :], axis=-1)
-    distances[np.arange(len(points)), len(existing) + np.arange(len(points))] = np.inf
-    return distances.min(axis=1)
 
 
 def propose_experiments(match: HistoryMatch, count: int, seed: int = 1) -> pd.DataFrame:
@@ -109,8 +100,7 @@ def propose_experiments(match: HistoryMatch, count: int, seed: int = 1) -> pd.Da
     if count < 1:
         raise ValueError(f"--experiments must be at least 1; got {count}")
     unit, criterion = next_experiments(match.cuts[-1], match.nroy.theta_unit, count, seed)
-    D = len(match.box.inputs)
-    frame = pd.DataFrame(match.box.low[:D] + unit * match.box.width[:D], columns=match.box.inputs)
+    frame = pd.DataFrame(match.box.inputs_to_original(unit), columns=match.box.inputs)
     frame.attrs["theta_variance_trace"] = criterion
     return frame
 

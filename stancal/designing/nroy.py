@@ -13,8 +13,9 @@ indicator (Neal 2003, "Slice sampling", Ann. Statist. 31, section 4.2; as
 hmer's ``generate_new_design`` samples NROY): a random direction scaled by
 the current points' spread, a randomly placed window along it, shrunk
 towards the current point until a point inside the level set is drawn. The
-window is a fixed function of the line, so each move leaves the uniform
-distribution on the level set invariant. The emulator is cheap, so
+window is placed uniformly at random around the current point and clipped
+to the box; random placement with shrinkage toward the point keeps the
+uniform distribution on the level set invariant. The emulator is cheap, so
 thousands of evaluations per level cost seconds.
 """
 
@@ -47,15 +48,12 @@ class NroySample:
     fraction: float  # NROY's share of the box
     fraction_cv: float  # coefficient of variation of ``fraction`` for independent samples (a lower bound)
     levels: list[float]  # the nested cuts' thresholds, ending at the cutoff
-    evaluations: int  # implausibility evaluations spent
 
 
 def slice_moves(theta: np.ndarray, inside: Callable[[np.ndarray], np.ndarray], spread: np.ndarray,
-                moves: int, rng: np.random.Generator) -> tuple[np.ndarray, int]:
+                moves: int, rng: np.random.Generator) -> np.ndarray:
     """``moves`` hit-and-run slice moves of every row of ``theta`` within
-    the set {inside}, in the unit cube. Returns the points and the
-    evaluations spent."""
-    evaluations = 0
+    the set {inside}, in the unit cube."""
     theta = theta.copy()
     for _ in range(moves):
         direction = rng.normal(size=theta.shape) * spread
@@ -71,7 +69,6 @@ def slice_moves(theta: np.ndarray, inside: Callable[[np.ndarray], np.ndarray], s
             t = rng.uniform(left[pending], right[pending])
             proposal = np.clip(theta[pending] + t[:, None] * direction[pending], 0.0, 1.0)
             accepted = inside(proposal)
-            evaluations += len(pending)
             theta[pending[accepted]] = proposal[accepted]
             rejected = ~accepted
             below = rejected & (t < 0)
@@ -80,11 +77,11 @@ def slice_moves(theta: np.ndarray, inside: Callable[[np.ndarray], np.ndarray], s
             pending = pending[rejected]
             if not len(pending):
                 break
-    return theta, evaluations
+    return theta
 
 
 def resample_move(seeds: np.ndarray, inside: Callable[[np.ndarray], np.ndarray], points: int, moves: int,
-                  rng: np.random.Generator) -> tuple[np.ndarray, int]:
+                  rng: np.random.Generator) -> np.ndarray:
     """``points`` points uniform in the set, from copies of the seeds (each
     in it) moved apart by slice moves scaled by the seeds' spread."""
     copies = seeds[rng.integers(0, len(seeds), points)]
@@ -100,7 +97,7 @@ def sample_nroy(implausibility: Callable[[np.ndarray], np.ndarray], dimensions: 
     rng = np.random.default_rng(seed)
     theta = rng.uniform(size=(points, dimensions))
     value = implausibility(theta)
-    evaluations, shares, levels = points, [], []
+    shares, levels = [], []
     while np.mean(value <= cutoff) < KEEP and len(levels) < MAX_LEVELS:
         level = float(np.quantile(value, KEEP))
         if levels and levels[-1] - level < STALL * (level - cutoff):  # the levels close in on a minimum above
@@ -108,9 +105,8 @@ def sample_nroy(implausibility: Callable[[np.ndarray], np.ndarray], dimensions: 
         passing = value <= level
         shares.append(float(passing.mean()))
         levels.append(level)
-        theta, spent = resample_move(theta[passing], lambda t, c=level: implausibility(t) <= c, points, MOVES, rng)
+        theta = resample_move(theta[passing], lambda t, c=level: implausibility(t) <= c, points, MOVES, rng)
         value = implausibility(theta)
-        evaluations += spent + points
     inside = value <= cutoff
     if not inside.any():
         raise NroyEmpty(f"every theta is implausible at cutoff {cutoff:g}: the smallest implausibility found is "
@@ -118,8 +114,8 @@ def sample_nroy(implausibility: Callable[[np.ndarray], np.ndarray], dimensions: 
                         f"(raise [design] discrepancy_sd or noise_sd, or --cutoff)")
     shares.append(float(inside.mean()))
     levels.append(cutoff)
-    theta, spent = resample_move(theta[inside], lambda t: implausibility(t) <= cutoff, points, FINAL_MOVES, rng)
+    theta = resample_move(theta[inside], lambda t: implausibility(t) <= cutoff, points, FINAL_MOVES, rng)
     value = implausibility(theta)
     shares_array = np.array(shares)
     cv = float(np.sqrt(np.sum((1 - shares_array) / (shares_array * points))))
-    return NroySample(theta, value, float(np.prod(shares_array)), cv, levels, evaluations + spent + points)
+    return NroySample(theta, value, float(np.prod(shares_array)), cv, levels)

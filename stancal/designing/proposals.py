@@ -21,7 +21,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.stats import qmc
 
-from stancal.designing.emulators import GaussianProcess
+from stancal.designing.emulators import GaussianProcess, pairs
 from stancal.numerics.scalable_emulator import JITTER, se_correlation
 
 CANDIDATES = 4000  # for maximin
@@ -40,26 +40,32 @@ def candidates(theta_unit: np.ndarray, inputs: int, count: int, rng: np.random.G
     return np.column_stack([x, theta])
 
 
-def maximin(pool: np.ndarray, existing: np.ndarray, count: int) -> np.ndarray:
+def maximin(pool: np.ndarray, existing: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray]:
     """Indices of ``count`` rows of ``pool``, each the farthest from
-    ``existing`` and the rows chosen before it (greedy maximin)."""
+    ``existing`` and the rows chosen before it (greedy maximin), and each
+    pick's distance to the nearest of those when picked (their minimum is
+    the design's smallest distance between any two of its runs)."""
     if count > len(pool):
         raise ValueError(f"{count} runs asked for, from {len(pool)} candidates")
     nearest = np.full(len(pool), np.inf)
     for row in existing:
         nearest = np.minimum(nearest, np.linalg.norm(pool - row, axis=1))
-    chosen = []
+    chosen, distances = [], []
     for _ in range(count):
         best = int(np.argmax(nearest))
         chosen.append(best)
+        distances.append(nearest[best])
         nearest = np.minimum(nearest, np.linalg.norm(pool - pool[best], axis=1))
-    return np.array(chosen)
+    return np.array(chosen), np.array(distances)
 
 
-def nroy_runs(theta_unit: np.ndarray, existing: np.ndarray, inputs: int, count: int, seed: int) -> np.ndarray:
-    """``count`` new runs (count, D + Q), unit cube: maximin over NROY x the inputs' box."""
+def nroy_runs(theta_unit: np.ndarray, existing: np.ndarray, inputs: int, count: int,
+              seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """``count`` new runs (count, D + Q), unit cube: maximin over NROY x the
+    inputs' box; and each pick's distance to its nearest earlier run (maximin)."""
     pool = candidates(theta_unit, inputs, max(CANDIDATES, 4 * count), np.random.default_rng(seed))
-    return pool[maximin(pool, existing, count)]
+    chosen, distances = maximin(pool, existing, count)
+    return pool[chosen], distances
 
 
 def posterior_covariance(gp: GaussianProcess, a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -112,7 +118,7 @@ def posterior_runs(parts: list[tuple[GaussianProcess, float]], posterior_theta: 
                                        replace=False)]
     unique_x = np.unique(x_unit, axis=0) if inputs else np.zeros((1, 0))
     xs = unique_x[rng.choice(len(unique_x), min(REFERENCE_POINTS, len(unique_x)), replace=False)]
-    references = np.column_stack([np.tile(xs, (len(draws), 1)), np.repeat(draws, len(xs), axis=0)])
+    references = pairs(xs, draws)
     pool = candidates(posterior_theta, inputs, POSTERIOR_CANDIDATES, rng)
     if inputs:
         half = POSTERIOR_CANDIDATES // 2

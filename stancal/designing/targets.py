@@ -20,7 +20,7 @@ analysis", Bayesian Analysis 5, section 3).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -82,9 +82,8 @@ class Targets:
         """The estimated noise variance, or ``residual_variance`` (the least-squares fit's) when smaller."""
         if not self.noise_estimated or residual_variance >= self.noise_variance[0]:
             return self
-        return Targets(self.x_unit, self.z, np.full(self.count, residual_variance), self.discrepancy_variance,
-                       "estimated as the residual variance of the emulator's least-squares fit of theta",
-                       self.discrepancy_source, self.groups)
+        return replace(self, noise_variance=np.full(self.count, residual_variance),
+                       noise_source="estimated as the residual variance of the emulator's least-squares fit of theta")
 
     def summary(self) -> dict:
         return {"observations": self.count, "noise_sd": float(np.sqrt(np.mean(self.noise_variance))),
@@ -97,15 +96,17 @@ def rice_variance(z: np.ndarray, neighbour: np.ndarray) -> float:
     return float(np.mean((z - z[neighbour]) ** 2) / 2)
 
 
-def targets_of(data, settings: DesignSettings) -> Targets:
-    """The Targets of a scalar or vector calibration problem."""
+def targets_of(data, settings: DesignSettings, box: UnitBox | None = None) -> Targets:
+    """The Targets of a scalar or vector calibration problem (``box``: the
+    design's UnitBox, UnitBox.of(data) when not given)."""
+    box = box or UnitBox.of(data)
     if isinstance(data, VectorCalibrationData):
-        x_unit, z, groups, known, neighbour = _vector_values(data)
+        x_unit, z, groups, known, neighbour = _vector_values(data, box)
     else:
         if not data.observations.is_gaussian or not data.observations.observed.all():
             raise DataError("stancal design takes a gaussian output without censored rows ([model] likelihood, "
                             "lower, upper): implausibility compares the emulator with measured values")
-        x_unit = UnitBox.of(data).inputs_to_unit(data.physical)
+        x_unit = box.inputs_to_unit(data.physical)
         z = data.physical[data.output].to_numpy(float)
         groups, known = [], None
         neighbour = cKDTree(x_unit).query(x_unit, k=2)[1][:, 1]
@@ -124,7 +125,7 @@ def targets_of(data, settings: DesignSettings) -> Targets:
     return Targets(x_unit, z, noise, discrepancy, noise_source, discrepancy_source, groups)
 
 
-def _vector_values(data: VectorCalibrationData):
+def _vector_values(data: VectorCalibrationData, box: UnitBox):
     """A vector output's values experiment by experiment (in the order of
     data.experiments), each sorted along its first output index; a value's
     neighbour is the next one along the index within its experiment."""
@@ -132,7 +133,7 @@ def _vector_values(data: VectorCalibrationData):
         raise DataError("stancal design does not take [simulator.theta_per_experiment] yet: history matching "
                         "needs theta shared by every experiment")
     physical = data.physical
-    x_rows = UnitBox.of(data).inputs_to_unit(data.experiments)
+    x_rows = box.inputs_to_unit(data.experiments)
     x_parts, z_parts, known_parts, groups, neighbours, start = [], [], [], [], [], 0
     for row, name in zip(x_rows, data.experiments.index, strict=True):
         rows = physical[physical[data.experiment] == name].sort_values(data.output_index)
@@ -142,9 +143,10 @@ def _vector_values(data: VectorCalibrationData):
         z_parts.append(rows[data.output].to_numpy(float))
         if data.noise_sd:
             known_parts.append(rows[data.noise_sd].to_numpy(float))
-        neighbours.append(start + np.minimum(np.arange(1, m + 1), m - 1) if m > 1 else np.array([start]))
+        neighbour = start + np.arange(1, m + 1) if m > 1 else np.array([start])
         if m > 1:
-            neighbours[-1][-1] = start + m - 2
+            neighbour[-1] = start + m - 2  # the last value's neighbour is the one before it
+        neighbours.append(neighbour)
         start += m
     known = np.concatenate(known_parts) if data.noise_sd else None
     return (np.vstack(x_parts), np.concatenate(z_parts), groups, known, np.concatenate(neighbours))
@@ -181,6 +183,15 @@ class UnitBox:
         """(rows, D) of a frame with the inputs (D = 0 allowed)."""
         D = len(self.inputs)
         return (frame[self.inputs].to_numpy(float).reshape(len(frame), D) - self.low[:D]) / self.width[:D]
+
+    def theta_to_unit(self, values: np.ndarray) -> np.ndarray:
+        """(rows, Q) of theta in original units, on the unit cube."""
+        D = len(self.inputs)
+        return (np.asarray(values, float) - self.low[D:]) / self.width[D:]
+
+    def inputs_to_original(self, unit: np.ndarray) -> np.ndarray:
+        D = len(self.inputs)
+        return self.low[:D] + unit * self.width[:D]
 
     def theta_to_original(self, unit: np.ndarray) -> np.ndarray:
         D = len(self.inputs)

@@ -12,7 +12,7 @@ holds by then."""
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import pandas as pd
@@ -52,8 +52,8 @@ class Wave:
         if len(self.noise_variance) != targets.count:
             raise DataError(f"wave {self.number} was matched to {len(self.noise_variance)} observations and the "
                             f"physical data now hold {targets.count}; use a new --out folder")
-        own = Targets(targets.x_unit, targets.z, np.asarray(self.noise_variance), self.discrepancy_variance,
-                      targets.noise_source, targets.discrepancy_source, targets.groups)
+        own = replace(targets, noise_variance=np.asarray(self.noise_variance),
+                      discrepancy_variance=self.discrepancy_variance)
         return Cut(emulator_from_dict(self.emulator), own, self.nth, self.cutoff)
 
     def to_dict(self) -> dict:
@@ -89,9 +89,7 @@ class HistoryMatch:
 
     def implausibility(self, theta: pd.DataFrame) -> np.ndarray:
         """Every wave's cut at theta (original units), as one implausibility."""
-        D = len(self.box.inputs)
-        unit = (theta[self.box.theta].to_numpy(float) - self.box.low[D:]) / self.box.width[D:]
-        return combined(self.cuts, unit)
+        return combined(self.cuts, self.box.theta_to_unit(theta[self.box.theta].to_numpy(float)))
 
     def to_json(self) -> dict:
         return {"nroy_fraction": self.nroy_fraction, "nroy_fraction_cv": self.nroy.fraction_cv,
@@ -143,7 +141,8 @@ def history_match(data, *, waves: list[Wave] | None = None, settings: DesignSett
     wave (nothing was appended since), that wave is redone instead."""
     settings = settings or DesignSettings()
     total = run_count(data)
-    box, targets = UnitBox.of(data), targets_of(data, settings)
+    box = UnitBox.of(data)
+    targets = targets_of(data, settings, box)
     earlier = list(waves or [])
     if earlier and earlier[-1].runs_total == total:  # no runs appended since: redo that wave
         earlier = earlier[:-1]
