@@ -278,6 +278,8 @@ def run_design(args: argparse.Namespace) -> dict:
     from stancal.designing.waves import load_waves
     from stancal.reporting.design_report import write_design
 
+    # before the config is read and any NROY work is done, on purpose: a bad flag is one line at once, not an
+    # error after minutes of history matching (propose_runs checks --runs again for callers of the API)
     for flag, value, lowest in (("--runs", args.runs, 1), ("--experiments", args.experiments, 0)):
         if value < lowest:
             raise ValueError(f"{flag} must be at least {lowest}; got {value}")

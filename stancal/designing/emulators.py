@@ -18,6 +18,7 @@ from stancal.numerics.scalable_emulator import (
     fit_hyperparameters,
     predictive_mean_variance,
     run_factor,
+    se_correlation,
     whitener,
 )
 from stancal.problem.output_basis import OutputBasis
@@ -42,6 +43,15 @@ class GaussianProcess:
 
     def predict(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return predictive_mean_variance(points, self.xt_runs, self.alpha, self.hyperparameters, self.inverse_factor)
+
+    def covariance(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """The predictive covariance between the rows of a and b given the
+        runs, no nugget at them (as ``predict``'s variance): k(a, b) - k(a, X)
+        K^-1 k(X, b), through the stored whitener, one product per side."""
+        h = self.hyperparameters
+        whitened_a = h.sd**2 * se_correlation(a, self.xt_runs, h.length_scale) @ self.inverse_factor.T
+        whitened_b = h.sd**2 * se_correlation(b, self.xt_runs, h.length_scale) @ self.inverse_factor.T
+        return h.sd**2 * se_correlation(a, b, h.length_scale) - whitened_a @ whitened_b.T
 
     def to_dict(self) -> dict:
         return {"hyperparameters": self.hyperparameters.as_stan()}

@@ -170,9 +170,7 @@ def with_runs(data, settings: pd.DataFrame, outputs, prefix: str):
     if len(values) != len(settings):
         raise ValueError(f"the simulator returned {len(values)} outputs for {len(settings)} runs")
     added = settings.assign(**{data.output: values})
-    state = data.to_dict()
-    state["runs"] = pd.concat([data.runs, added], ignore_index=True).to_dict(orient="list")
-    return CalibrationData.from_dict(state)
+    return data.with_runs(pd.concat([data.runs, added], ignore_index=True))
 
 
 def _with_vector_runs(data: VectorCalibrationData, settings: pd.DataFrame, outputs: np.ndarray, prefix: str):

@@ -22,7 +22,7 @@ import numpy as np
 from scipy.stats import qmc
 
 from stancal.designing.emulators import GaussianProcess, pairs
-from stancal.numerics.scalable_emulator import JITTER, se_correlation
+from stancal.numerics.scalable_emulator import JITTER
 
 CANDIDATES = 4000  # for maximin
 POSTERIOR_CANDIDATES = 1500  # for the posterior criterion (a dense candidate-candidate covariance)
@@ -68,17 +68,6 @@ def nroy_runs(theta_unit: np.ndarray, existing: np.ndarray, inputs: int, count: 
     return pool[chosen], distances
 
 
-def posterior_covariance(gp: GaussianProcess, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """The GP's covariance between rows of a and b given its runs (no nugget)."""
-    from scipy import linalg
-
-    h = gp.hyperparameters
-    prior = h.sd**2 * se_correlation(a, b, h.length_scale)
-    cross_b = h.sd**2 * se_correlation(gp.xt_runs, b, h.length_scale)
-    cross_a = h.sd**2 * se_correlation(a, gp.xt_runs, h.length_scale)
-    return prior - cross_a @ linalg.cho_solve(gp.factor, cross_b)
-
-
 def variance_reduction_batch(parts: list[tuple[GaussianProcess, float]], pool: np.ndarray, references: np.ndarray,
                              count: int) -> tuple[np.ndarray, list[float]]:
     """Indices of ``count`` rows of ``pool`` chosen one at a time, each the
@@ -86,7 +75,7 @@ def variance_reduction_batch(parts: list[tuple[GaussianProcess, float]], pool: n
     ``references`` (each GP weighted by its output variance per unit), and
     each pick's reduction (output units squared, summed over the references).
     A new run carries the GP's nugget (and jitter), as the runs do."""
-    states = [(weight, posterior_covariance(gp, pool, references), posterior_covariance(gp, pool, pool))
+    states = [(weight, gp.covariance(pool, references), gp.covariance(pool, pool))
               for gp, weight in parts]
     nuggets = [gp.hyperparameters.nugget**2 + JITTER * gp.hyperparameters.sd**2 for gp, _ in parts]
     chosen, gains = [], []

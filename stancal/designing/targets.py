@@ -34,12 +34,13 @@ CUTOFF = 3.0  # Pukelsheim (1994): 95 % of any unimodal distribution lies within
 
 @dataclass(frozen=True)
 class DesignSettings:
-    """The [design] table of a config (docs/config.md), each key's default in
-    stancal.problem.config_schema."""
+    """The [design] table of a config (docs/config.md). Each key's default
+    lives here; stancal.problem.config_schema documents them."""
 
     discrepancy_sd: float | None = None  # output units; None: discrepancy_fraction of the observations' sd
     discrepancy_fraction: float = DISCREPANCY_FRACTION
-    noise_sd: float | None = None  # output units; None: the known sd column, else Rice's estimate
+    noise_sd: float | None = None  # output units; None: the known sd column, else the smaller of Rice's
+    # estimate and the emulator's least-squares residual variance (Targets.noise_bounded_by)
     nth_maximum: int | None = None  # 1, 2 or 3; None: chosen from the number of observations
     cutoff: float = CUTOFF
     nroy_points: int = 2000  # NROY sample size (nroy.csv)

@@ -236,16 +236,25 @@ class CalibrationData:
 
     def _rebuilt(self, source: pd.DataFrame, inputs: Sequence[str] | None = None,
                  theta: Mapping[str, tuple[float, float]] | None = None,
-                 covariates: Sequence[str] | None = None, keep_runs: bool = True) -> CalibrationData:
-        """This problem rebuilt (and checked) with some parts changed; same categories."""
+                 covariates: Sequence[str] | None = None, keep_runs: bool = True,
+                 runs: pd.DataFrame | None = None) -> CalibrationData:
+        """This problem rebuilt (and checked) with some parts changed; same
+        categories. ``runs``: other runs in place of these (``keep_runs``
+        False: none)."""
+        if runs is None and keep_runs:
+            runs = self.runs
         return CalibrationData(source, self.inputs if inputs is None else inputs, self.output,
                                bounds_of(self.parameters) if theta is None else theta,
                                self.covariates if covariates is None else covariates,
-                               self.runs if keep_runs else None, levels=self.levels, **self.observation_columns)
+                               runs, levels=self.levels, **self.observation_columns)
 
     def subset(self, rows: Sequence[int]) -> CalibrationData:
         """The same problem on some physical rows (positions), same categories."""
         return self._rebuilt(self.source.iloc[list(rows)])
+
+    def with_runs(self, runs: pd.DataFrame) -> CalibrationData:
+        """The same problem with other simulator runs (every run, as ``runs``), checked as runs are."""
+        return self._rebuilt(self.source, runs=runs)
 
     def variant(self, inputs: Sequence[str], extra_theta: Mapping[str, tuple[float, float]]) -> CalibrationData:
         """The problem as a simulator variant sees it: its own inputs and

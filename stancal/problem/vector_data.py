@@ -172,16 +172,17 @@ class VectorCalibrationData:
     def subset(self, rows: Sequence[int]) -> VectorCalibrationData:
         """The same problem on some measured values (positions); the runs,
         and so the basis, are unchanged."""
-        return VectorCalibrationData(
-            self.source.iloc[list(rows)], self.experiment, self.inputs, self.output, self.output_index,
-            bounds_of(self.parameters), bounds_of(self.per_experiment), self.runs, self.run, self.noise_sd,
-            self.covariates, **self._basis_options, levels=self.levels)
+        return self._rebuilt(self.source.iloc[list(rows)], self.runs)
 
     def with_runs(self, runs: pd.DataFrame) -> VectorCalibrationData:
         """The same problem with other simulator runs (a long table, as ``runs``),
         its basis made again from them."""
+        return self._rebuilt(self.source, runs)
+
+    def _rebuilt(self, source: pd.DataFrame, runs: pd.DataFrame | None) -> VectorCalibrationData:
+        """This problem rebuilt (and checked) on other measured values or runs; same categories and basis options."""
         return VectorCalibrationData(
-            self.source, self.experiment, self.inputs, self.output, self.output_index, bounds_of(self.parameters),
+            source, self.experiment, self.inputs, self.output, self.output_index, bounds_of(self.parameters),
             bounds_of(self.per_experiment), runs, self.run, self.noise_sd, self.covariates,
             **self._basis_options, levels=self.levels)
 

@@ -2,7 +2,9 @@
 design.json, waves.json (every wave's cut, read by the next wave),
 next_experiments.csv with --experiments, figures and report.md. The files
 are written to a temporary folder beside the target and then moved into
-it one by one (os.replace), so that a failure leaves the folder as it was."""
+it one by one (os.replace), so that a failure while they are made (the
+fits, the figures) leaves the folder as it was; the moves themselves are
+not one atomic step."""
 
 from __future__ import annotations
 
@@ -16,6 +18,7 @@ import numpy as np
 
 from stancal.designing.implausibility import combined
 from stancal.designing.loop import Design
+from stancal.designing.waves import run_table
 from stancal.reporting.html import write_html
 from stancal.reporting.plots import finish, pyplot
 from stancal.reporting.series import axis_label
@@ -79,12 +82,12 @@ def plot_nroy_pairs(design: Design, path: Path | None = None, units: dict[str, s
     fig, axes = plt.subplots(Q, Q, figsize=(size + 2.5, size), squeeze=False, layout="constrained")
     extent = lambda i, j: (low[i], low[i] + width[i], low[j], low[j] + width[j])  # noqa: E731
     image_min = image_depth = None
+    nroy = match.nroy_frame()
     for i in range(Q):
         for j in range(Q):
             ax = axes[j, i]
             if i == j:
-                values = match.box.theta_to_original(match.nroy.theta_unit)[:, i]
-                ax.hist(values, bins=BINS, range=(low[i], low[i] + width[i]), color="tab:green", alpha=0.7)
+                ax.hist(nroy[names[i]], bins=BINS, range=(low[i], low[i] + width[i]), color="tab:green", alpha=0.7)
                 ax.set_yticks([])
             elif j > i:
                 image_min = ax.imshow(np.clip(grids["minimum"][i, j], 0, top), origin="lower", aspect="auto",
@@ -154,8 +157,6 @@ def plot_proposed_runs(design: Design, path: Path | None = None, units: dict[str
     """Pairs of the runs' columns (inputs and theta): NROY x the inputs'
     range (the NROY sample, each draw at uniform inputs), the existing runs
     and the proposed ones."""
-    from stancal.designing.waves import run_table
-
     plt = pyplot()
     box = design.match.box
     columns = box.columns[:MAX_PAIRS_COLUMNS]
@@ -222,7 +223,7 @@ def _ordinal(n: int) -> str:
 
 
 def write_design(design: Design, folder: str | Path, units: dict[str, str] | None = None) -> dict:
-    """Every file of a design folder, written atomically (see the module)."""
+    """Every file of a design folder, staged and then moved in file by file (see the module)."""
     folder = Path(folder)
     folder.parent.mkdir(parents=True, exist_ok=True)
     summary = design.to_json()
