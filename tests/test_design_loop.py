@@ -77,6 +77,16 @@ def test_the_nth_maximum_and_its_default():
     assert nth_maximum_for(131, 3.0) == 2 and nth_maximum_for(132, 3.0) == 3
 
 
+def test_the_nth_maximum_says_when_no_n_meets_the_risk(caplog):
+    with caplog.at_level("WARNING", logger="stancal"):
+        assert nth_maximum_for(303, 3.0) == 3
+    assert not caplog.records  # the 3rd maximum still meets 5 % there
+    with caplog.at_level("WARNING", logger="stancal"):
+        assert nth_maximum_for(1000, 3.0) == 3
+    (record,) = [r for r in caplog.records if r.name == "stancal"]
+    assert "1000 observed values" in record.getMessage() and "chance 51 %" in record.getMessage()
+
+
 def test_the_vector_emulator_agrees_with_stage_ones():
     """The basis emulator's mean and variance at observed values equal
     stancal.numerics.vector_emulator's (all runs in its variance)."""
