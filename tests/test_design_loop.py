@@ -87,6 +87,26 @@ def test_the_nth_maximum_says_when_no_n_meets_the_risk(caplog):
     assert "1000 observed values" in record.getMessage() and "chance 51 %" in record.getMessage()
 
 
+def test_a_basis_emulators_variance_weights_average_over_the_observed_indices():
+    """The posterior criterion's weight per component is its output variance
+    per unit weight where the data are, not over the whole grid."""
+    from stancal.problem.output_basis import OutputBasis
+
+    grid = np.linspace(0, 1, 21)[:, None]
+    xt = np.random.default_rng(3).uniform(size=(25, 2))
+    outputs = np.array([np.exp(-(1 + 2 * t) * grid[:, 0]) * (1 + x) for x, t in xt])
+    basis = OutputBasis.from_runs(grid, outputs, components=2)
+    gps = [GaussianProcess(Hyperparameters(0.0, 1.0, np.array([0.5, 0.5]), 0.01), xt, basis.weights(outputs)[:, j])
+           for j in range(2)]
+    emulator = BasisEmulator(basis, gps, outputs)
+    indices = np.array([0.0, 0.05, 0.1])  # early values only, where the curves differ most
+    observed = emulator.parts([(np.array([0.5]), slice(0, 3), indices)])
+    components = basis.components[:3]
+    assert [w for _, w in observed] == pytest.approx(basis.scale**2 * np.mean(components**2, axis=0))
+    assert [w for _, w in emulator.parts()] == pytest.approx(basis.scale**2 * np.mean(basis.components**2, axis=0))
+    assert observed[0][1] != pytest.approx(emulator.parts()[0][1])
+
+
 def test_the_vector_emulator_agrees_with_stage_ones():
     """The basis emulator's mean and variance at observed values equal
     stancal.numerics.vector_emulator's (all runs in its variance)."""

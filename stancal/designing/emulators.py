@@ -82,7 +82,7 @@ class ScalarEmulator:
         shape = (len(theta_unit), len(x_unit))
         return (self.center + self.scale * mean).reshape(shape), (self.scale**2 * variance).reshape(shape)
 
-    def parts(self) -> list[tuple[GaussianProcess, float]]:
+    def parts(self, groups=()) -> list[tuple[GaussianProcess, float]]:
         """The GPs and the output variance per unit of each (for variance reduction)."""
         return [(self.gp, self.scale**2)]
 
@@ -126,10 +126,18 @@ class BasisEmulator:
             mean[:, values], variance[:, values] = self.basis.predict(indices, weight_mean, weight_variance)
         return mean, variance
 
-    def parts(self) -> list[tuple[GaussianProcess, float]]:
-        """Each component's GP and its output variance per unit weight, averaged over the grid."""
-        return [(gp, float(self.basis.scale**2 * np.mean(self.basis.components[:, j] ** 2)))
-                for j, gp in enumerate(self.gps)]
+    def parts(self, groups=()) -> list[tuple[GaussianProcess, float]]:
+        """Each component's GP and its output variance per unit weight,
+        averaged over the observed output indices (``groups``, as ``at``
+        takes them), or over the grid without them: the variance that
+        matters is where the data are, not where the runs' grid is dense."""
+        if groups:
+            columns = self.basis.grid.shape[1]
+            observed = np.vstack([np.asarray(indices, float).reshape(-1, columns) for _, _, indices in groups])
+            components = self.basis.at(observed)[1]
+        else:
+            components = self.basis.components
+        return [(gp, float(self.basis.scale**2 * np.mean(components[:, j] ** 2))) for j, gp in enumerate(self.gps)]
 
     def to_dict(self) -> dict:
         basis = {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in asdict(self.basis).items()}

@@ -88,7 +88,8 @@ def propose_runs(match: HistoryMatch, runs: int, *, criterion: str = "nroy", see
             notes["posterior_diagnostics"] = fit.diagnostics.summary() if fit.diagnostics else None
         else:
             draws = box.theta_to_unit(posterior[box.theta].to_numpy(float))
-        unit, gains = posterior_runs(match.cuts[-1].emulator.parts(), draws, match.targets.x_unit, runs, seed)
+        last = match.cuts[-1]
+        unit, gains = posterior_runs(last.emulator.parts(last.targets.groups), draws, match.targets.x_unit, runs, seed)
         notes["variance_reduction"] = gains
     frame = pd.DataFrame(box.to_original(unit), columns=box.columns)
     return Design(match, frame, criterion, notes=notes, posterior_fit=fit)
