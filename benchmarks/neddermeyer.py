@@ -9,8 +9,8 @@ itself, by quadrature, no discrepancy).
 
 The ablations change the Stan data of one fit and nothing else:
 - no_discrepancy: the discrepancy GP left out (use_discrepancy = 0);
-- no_truncation: the basis's independent variance (truncation, plus interpolation, which is 0 here:
-  the grid has two index columns) left out of the likelihood;
+- no_truncation: the basis's independent variance (truncation, plus interpolation along time; the runs
+  are constant in angle) left out of the likelihood;
 - exact_basis: the mean curve and components at the measured indices
   computed from the runs' physics there, not interpolated from the grid;
 - known_noise: the noise sd known (0.01 cm), not estimated;
@@ -18,7 +18,7 @@ The ablations change the Stan data of one fit and nothing else:
   the noise and the discrepancy, in standardised units, are ten times
   narrower in centimetres);
 - joint: koh_emulator, the weight GPs' hyperparameters sampled with theta
-  instead of fixed at stage 1's mode;
+  instead of fixed at stage 1's mode (its chains start as calibrate_vector's do);
 - physics: koh with the physics itself in Stan (simulator.stan), no
   emulator: the same discrepancy model's near-exact posterior.
 Writes benchmarks/neddermeyer_{config,share995}_basis.json (``--basis``) and prints a table.
@@ -42,10 +42,9 @@ sys.path.insert(0, str(CASE))
 
 from reference import make_data, reference_posterior  # noqa: E402
 
-from stancal.fitting.inits import spread_theta_inits  # noqa: E402
 from stancal.fitting.plan import plan_vector  # noqa: E402
 from stancal.fitting.stage_one import fit_vector_emulator  # noqa: E402
-from stancal.fitting.vector_calibrate import joint_inits, prediction_rows  # noqa: E402
+from stancal.fitting.vector_calibrate import chain_inits, prediction_rows  # noqa: E402
 from stancal.problem.config import load_config  # noqa: E402
 from stancal.problem.data import bounds_of  # noqa: E402
 from stancal.problem.options import VectorOptions  # noqa: E402
@@ -115,10 +114,7 @@ def fit(name: str, data, emulator, chains: int, warmup: int, draws: int, seed: i
     new_rows = prediction_rows(data)
     stan_data = build_vector_stan_data(data, plan.program.data, plan.options, new_rows.iloc[:0], emulator)
     change(data, stan_data)
-    inits = spread_theta_inits(chains, len(data.parameters), np.random.default_rng(seed))
-    if plan.program.samples_emulator:
-        for init in inits:
-            init.update(joint_inits(emulator))
+    inits = chain_inits(plan.program, backend, flat, stan_data, emulator, chains, seed)  # as calibrate_vector's
     started = time.perf_counter()
     sample = backend.sample(flat, to_stan_json(stan_data), inits=inits, chains=chains, warmup=warmup,
                             draws=draws, seed=seed, adapt_delta=0.9, max_treedepth=10)

@@ -3,6 +3,7 @@ it), and each fit that several tests read is made once per session."""
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import re
 import subprocess
@@ -79,6 +80,19 @@ def cooling_data(seed: int) -> stancal.CalibrationData:
 @pytest.fixture(scope="session")
 def exact_cooling_data() -> stancal.CalibrationData:
     return cooling_data(seed=7)
+
+
+def case_study_module(folder: Path, name: str = "make_data"):
+    """A case study's module (make_data.py, reference.py, ...), loaded by
+    path under ``<folder>_<name>`` (each case study has its own make_data),
+    once per process; registered before it runs, as dataclasses need."""
+    key = f"{folder.name}_{name}"
+    if key not in sys.modules:
+        spec = importlib.util.spec_from_file_location(key, folder / f"{name}.py")
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[key] = module
+        spec.loader.exec_module(module)
+    return sys.modules[key]
 
 
 def fit(data, **kwargs):

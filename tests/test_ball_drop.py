@@ -6,19 +6,14 @@ a discrepancy over radius and height, noise estimated)."""
 
 from __future__ import annotations
 
-import importlib.util
-
 import numpy as np
-from conftest import ROOT, assert_healthy
+from conftest import ROOT, assert_healthy, case_study_module
 
 BALL_DROP = ROOT / "case_studies" / "ball_drop"
 
 
 def _physics():
-    spec = importlib.util.spec_from_file_location("ball_drop_physics", BALL_DROP / "make_data.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return case_study_module(BALL_DROP)
 
 
 def test_ball_drop_predicts_the_quadratic_drag_reality_from_a_linear_drag_simulator():

@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+from conftest import case_study_module
 from scipy.stats import qmc
 
 import stancal
@@ -408,11 +409,7 @@ def test_the_case_studys_real_fin_is_the_simulator_plus_radiation(monkeypatch):
     """case_studies/design_loop: the finite-difference "real" fin without
     radiation is the closed-form simulator (to 1e-3 deg C on 400 nodes), and
     with it the fin is cooler, most at the hot base's side."""
-    import importlib.util
-
-    spec = importlib.util.spec_from_file_location("fin_physics", ROOT_CASES / "design_loop" / "simulator.py")
-    fin = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(fin)
+    fin = case_study_module(ROOT_CASES / "design_loop", "simulator")
     x = np.linspace(0, 0.3, 7)
     simulated = fin.fin_temperature(pd.DataFrame({"x": x, "T_b": 120.0, **fin.TRUTH}))
     radiating = fin.measured(x, 120.0)

@@ -5,7 +5,6 @@ Python API with the joint emulator) and shield build-up (Poisson counts; the
 real effect is a multiplicative variant; decoys include a nearly constant
 air pressure)."""
 
-import importlib.util
 
 import numpy as np
 import pandas as pd
@@ -17,6 +16,7 @@ from conftest import (
     assert_gap_summary_healthy,
     assert_healthy,
     assert_trouble_reported,
+    case_study_module,
     no_stancal_warnings,
 )
 
@@ -30,13 +30,8 @@ from stancal.stan.backends import get_backend
 
 PIPE = ROOT / "case_studies" / "pipe_flow"
 SHIELD = ROOT / "case_studies" / "shield_buildup"
-# loaded under its own name: conftest already imported cooling's make_data
-_spec = importlib.util.spec_from_file_location("pipe_make_data", PIPE / "make_data.py")
-pipe_physics = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(pipe_physics)
-_spec = importlib.util.spec_from_file_location("shield_make_data", SHIELD / "make_data.py")
-shield_physics = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(shield_physics)
+# loaded under their own names: conftest already imported cooling's make_data
+pipe_physics, shield_physics = case_study_module(PIPE), case_study_module(SHIELD)
 
 COOLING_K_TRUE = 0.05
 # the joint emulator is slower per draw than the cheap simulator (COOLING_SAMPLING)

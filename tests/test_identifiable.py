@@ -266,8 +266,7 @@ def test_l2_from_simulator_runs_uses_the_emulator(exact_cooling_data):
     # the emulator mean's R-hat was 1.027 at 2 x (300 + 150) and 1.0106 at 4 x (300 + 300). Every
     # gradient factors the (points + runs)-square covariance: every other run of the 60 (their range
     # still spans the readings') took this test from 105 s to 25 s
-    data = stancal.CalibrationData(exact_cooling_data.physical, ["t", "T0"], "temperature", {"k": (0.01, 0.2)},
-                                   runs=exact_cooling_data.runs.iloc[::2])
+    data = exact_cooling_data.with_runs(exact_cooling_data.runs.iloc[::2])
     result = fit(data, method="l2", chains=4, warmup=400, draws=700)
     assert_healthy(result)
     assert result.l2["base_method"] == "koh_emulator"

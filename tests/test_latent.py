@@ -4,12 +4,10 @@ truth, and the validation of each new input kind."""
 
 from __future__ import annotations
 
-import importlib.util
-
 import numpy as np
 import pandas as pd
 import pytest
-from conftest import ROOT, assert_healthy, fit, no_stancal_warnings
+from conftest import ROOT, assert_healthy, case_study_module, fit, no_stancal_warnings
 
 import stancal
 from stancal.problem.codes import Censoring, Likelihood
@@ -19,14 +17,6 @@ from stancal.stan.source import shipped_models_dir
 COUNTS = ROOT / "case_studies" / "detector_counts"
 CENSORED = ROOT / "case_studies" / "detection_limit"
 BEAM = ROOT / "case_studies" / "beam_stiffness"
-
-
-def case_study_module(folder):
-    """A case study's make_data.py (every case study has one: load by path)."""
-    spec = importlib.util.spec_from_file_location(f"{folder.name}_make_data", folder / "make_data.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 detector = case_study_module(COUNTS)

@@ -7,13 +7,10 @@ the measurements behind the tolerances."""
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-
 import numpy as np
 import pandas as pd
 import pytest
-from conftest import ROOT, assert_healthy, no_stancal_warnings
+from conftest import ROOT, assert_healthy, case_study_module, no_stancal_warnings
 
 NEDDERMEYER = ROOT / "case_studies" / "neddermeyer"
 # SEPIA's posterior sd over the prior sd (yield stress, HE energy): its example's own printout of
@@ -21,30 +18,19 @@ NEDDERMEYER = ROOT / "case_studies" / "neddermeyer"
 SEPIA_SD_OVER_PRIOR = np.array([0.083, 0.12])
 
 
-def _case_module(name: str):
-    """A module of the case study (make_data, reference), loaded by path under its own name."""
-    if f"neddermeyer_{name}" in sys.modules:
-        return sys.modules[f"neddermeyer_{name}"]
-    spec = importlib.util.spec_from_file_location(f"neddermeyer_{name}", NEDDERMEYER / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    return module
-
-
-def _problem(**basis):
+def _problem():
     """The shipped case study, with the basis the default rule keeps (not the config's 3 components)."""
     from stancal.problem.vector_data import VectorCalibrationData
 
     physical, runs = pd.read_csv(NEDDERMEYER / "physical.csv"), pd.read_csv(NEDDERMEYER / "runs.csv")
-    theta = _case_module("make_data").THETA_BOUNDS
+    theta = case_study_module(NEDDERMEYER).THETA_BOUNDS
     return VectorCalibrationData(physical, "shot", ["mass_ratio"], "radius", ["time", "angle"], theta,
-                                 runs=runs, run="run", **basis)
+                                 runs=runs, run="run")
 
 
 def test_the_regenerated_data_are_the_shipped_ones(tmp_path):
     """make_data.py writes the CSVs the case study ships, byte for byte."""
-    _case_module("make_data").main(tmp_path)
+    case_study_module(NEDDERMEYER).main(tmp_path)
     for name in ("physical.csv", "runs.csv"):
         assert (tmp_path / name).read_bytes() == (NEDDERMEYER / name).read_bytes(), name
 
@@ -55,7 +41,7 @@ def test_the_reference_is_the_quadrature_of_the_physics_and_holds_the_truth():
     border below 1e-6) and a finer grid changes its sds by under 1 %; the
     truth (the middle of each range) within 2 sds; theta's two parameters on
     one ridge (correlation above 0.9: a stronger cylinder needs more energy)."""
-    make_data, reference = _case_module("make_data"), _case_module("reference")
+    make_data, reference = case_study_module(NEDDERMEYER), case_study_module(NEDDERMEYER, "reference")
     physical = pd.read_csv(NEDDERMEYER / "physical.csv")
     ref = reference.reference_posterior(physical)
     finer = reference.reference_posterior(physical, fine=81, zoom=0.07)  # a finer step, over less of the box
@@ -72,7 +58,7 @@ def test_the_default_basis_keeps_the_components_that_carry_theta():
     independent noise) below the measurements' 0.01 cm, keeping SEPIA's 3
     components. The default before issue 31 (99.5 % of the runs' variance)
     kept 1 and left 0.025 cm: theta's sd was then 0.83 of its prior's."""
-    make_data = _case_module("make_data")
+    make_data = case_study_module(NEDDERMEYER)
     basis = _problem().basis
     truncation_sd = np.sqrt(basis.truncation_variance) * basis.scale
     assert basis.count == 3 and truncation_sd < make_data.NOISE_SD / 2, (basis.describe(), truncation_sd)
@@ -90,7 +76,7 @@ def test_modular_on_neddermeyer_is_as_sharp_as_sepia_and_near_the_physics():
     sds were 0.83 and 0.69 of the prior's."""
     from stancal.fitting.vector_calibrate import calibrate_vector
 
-    make_data, reference = _case_module("make_data"), _case_module("reference")
+    make_data, reference = case_study_module(NEDDERMEYER), case_study_module(NEDDERMEYER, "reference")
     data = _problem()
     with no_stancal_warnings():
         result = calibrate_vector(data, method="modular", discrepancy="gp", noise="one", chains=4, warmup=500,

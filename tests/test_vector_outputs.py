@@ -401,7 +401,7 @@ def test_the_posterior_keeps_one_noise_sd_or_one_per_experiment():
 
 
 @pytest.mark.slow
-def test_joint_vector_emulator_agrees_with_the_quadrature_when_the_runs_pin_it_down():
+def test_joint_vector_emulator_agrees_with_the_quadrature_when_the_runs_pin_it_down(vector_problem):
     """koh_emulator for a vector output samples the weight GPs'
     hyperparameters with theta. With 40 runs of a smooth simulator the
     emulator is nearly exact, so theta's posterior must agree with the
@@ -417,7 +417,7 @@ def test_joint_vector_emulator_agrees_with_the_quadrature_when_the_runs_pin_it_d
     # the weight GPs (R-hat 1.035 there, at this seed and 4 x (500 + 500)); the main mode's chains mixed
     # (R-hat <= 1.007). Now one mode, R-hat <= 1.006, theta's sds 5 % wider than the quadrature's. Slow: the
     # joint fit factors every component's runs covariance at each step, 290 s on two shared cores
-    data = vector_data(runs=long_runs(40, 2))  # vector_problem
+    data = vector_problem
     with no_stancal_warnings():
         result = calibrate_vector(data, method="koh_emulator", discrepancy="none", chains=4, warmup=500,
                                   draws=500, seed=3)

@@ -284,7 +284,8 @@ def diagnose_gap(
     candidate's fit (a scalar output's), from the baseline's, which then
     runs first, with half its warm-up; off by default, as on the cooling
     case it saved no wall time on two cores (docs/benchmarks.md). Unless ``every_candidate`` or ``kfold``,
-    a candidate that cannot lead whatever its unreliable points' held-out
+    or the comparison falls back to K-fold (too many unreliable points), a
+    candidate that cannot lead whatever its unreliable points' held-out
     densities turn out to be keeps its PSIS scores, unrefitted
     (scoring.settled; its scheme says so).
     """
@@ -325,9 +326,10 @@ def diagnose_gap(
         task = functools.partial(_fit_task, vector=vector, plan=plan, seed=seed, sampling=calibrate_options)
 
         def fit_task(c: Candidate | None, start: CalibrationResult | None) -> FitTask:
-            return task(label_name(c), c, data_for(c), None if vector else data_for(c).source.reset_index(drop=True),
+            fitted = data_for(c)  # a variant's data are rebuilt and checked at each call
+            return task(label_name(c), c, fitted, None if vector else fitted.source.reset_index(drop=True),
                         folder(*home(c)), None if start is None else warm_candidate_options(
-                            start, bounds_of(data_for(c).parameters), calibrate_options,
+                            start, bounds_of(fitted.parameters), calibrate_options,
                             fit_seed(seed, f"warm {label_name(c)}")))
 
         fits = _full_fits(functools.partial(run, runner), fit_task, candidates, warm_candidates and not vector,
@@ -376,7 +378,8 @@ def _full_fits(run, fit_task, candidates: list[Candidate], warm: bool, failed: l
     if not warm:
         return run([fit_task(c, None) for c in [None, *candidates]])
     baseline = run([fit_task(None, None)])
-    _without_failures([None], baseline, failed)  # without the baseline, nothing to start from or compare
+    if isinstance(baseline[0], FitFailure):  # raises: without the baseline, nothing to start from or compare
+        _record_failure(None, baseline[0], failed)
     return [*baseline, *run([fit_task(c, baseline[0]) for c in candidates])]
 
 
@@ -408,7 +411,7 @@ def comparison_scheme(labels: list, scores: list[Score], kfold: int | None,
     settled candidate is judged on PSIS-LOO's bounds, so when the comparison
     falls back to K-fold every fit is refitted: its PSIS score beside the
     others' K-fold ones would rank two scales as one."""
-    skipped = set() if every or kfold is not None else set(settled(scores))
+    skipped = set() if every else set(settled(scores))  # K-fold asked for: refitted below
     chosen = _scheme([c for i, c in enumerate(labels) if i not in skipped],
                      [s for i, s in enumerate(scores) if i not in skipped], kfold)
     if chosen is not None:

@@ -87,6 +87,17 @@ def joint_start(stan_backend, program, stan_data: dict[str, Any], seed: int) -> 
     return {name: np.asarray(mode[name][0, 0]).tolist() for name in ("theta_unit", "theta_exp_unit") if name in mode}
 
 
+def chain_inits(row, stan_backend, program, stan_data: dict[str, Any], emulator: VectorEmulator | None,
+                chains: int, seed: int) -> list[dict[str, Any]]:
+    """Where each chain starts: theta spread over its box, or for the joint
+    fit (the registry row samples the emulator) every chain at the modular
+    mode with its weight GPs at stage 1's values (joint_start)."""
+    if not row.samples_emulator:
+        return spread_theta_inits(chains, int(stan_data["Q"]), np.random.default_rng(seed))
+    start = joint_start(stan_backend, program, stan_data, seed) | joint_inits(emulator)
+    return [dict(start) for _ in range(chains)]
+
+
 def calibrate_vector(
     data: VectorCalibrationData,
     *,
@@ -138,10 +149,7 @@ def calibrate_vector(
     new_rows = prediction_rows(data) if new_rows is None else new_rows
     emulator = run_stage_one(row.stage_one, data, options, [flat], backend=stan_backend, seed=seed)
     stan_data = build_vector_stan_data(data, row.data, options, new_rows, emulator)
-    inits = spread_theta_inits(chains, len(data.parameters), np.random.default_rng(seed))
-    if row.samples_emulator:  # the joint fit starts at the modular mode, its weight GPs at stage 1's values
-        start = joint_start(stan_backend, flat, stan_data, seed) | joint_inits(emulator)
-        inits = [dict(start) for _ in inits]
+    inits = chain_inits(row, stan_backend, flat, stan_data, emulator, chains, seed)
     logger.info("sampling %s: %d experiments, %d values%s; %d chains x (%d + %d)", row.name,
                 stan_data["E"], stan_data["N"], f", {stan_data['C']} components" if emulator else "",
                 chains, warmup, draws)

@@ -152,11 +152,10 @@ def interpolation_variance(grid: np.ndarray, scaled: np.ndarray) -> float:
     estimated."""
     if grid.shape[1] == 1:
         return _line_variance(grid[:, 0], scaled)
-    lines = [_tensor_lines(grid, axis) for axis in range(grid.shape[1])]
-    if grid.shape[1] != 2 or any(axis_lines is None for axis_lines in lines):
+    if grid.shape[1] != 2 or not _is_tensor(grid):
         return 0.0
-    return float(sum(np.mean([_line_variance(grid[line, axis], scaled[:, line]) for line in axis_lines])
-                     for axis, axis_lines in enumerate(lines)))
+    return float(sum(np.mean([_line_variance(grid[line, axis], scaled[:, line]) for line in _lines(grid, axis)])
+                     for axis in range(grid.shape[1])))
 
 
 def _line_variance(t: np.ndarray, scaled: np.ndarray) -> float:
@@ -170,12 +169,13 @@ def _line_variance(t: np.ndarray, scaled: np.ndarray) -> float:
     return float(np.mean(error**2) / 30)
 
 
-def _tensor_lines(grid: np.ndarray, axis: int) -> list[np.ndarray] | None:
-    """The grid's lines along ``axis`` (the rows where every other column is
-    fixed), or None when the grid is not every combination of its columns'
-    values, once each."""
+def _is_tensor(grid: np.ndarray) -> bool:
+    """The grid holds every combination of its columns' values, once each."""
     counts = [len(np.unique(grid[:, c])) for c in range(grid.shape[1])]
-    if len(np.unique(grid, axis=0)) != len(grid) or int(np.prod(counts)) != len(grid):
-        return None
+    return len(np.unique(grid, axis=0)) == len(grid) == int(np.prod(counts))
+
+
+def _lines(grid: np.ndarray, axis: int) -> list[np.ndarray]:
+    """A tensor grid's lines along ``axis``: the rows where every other column is fixed."""
     others = np.delete(grid, axis, axis=1)
     return [np.flatnonzero((others == key).all(axis=1)) for key in np.unique(others, axis=0)]
