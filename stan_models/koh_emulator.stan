@@ -10,6 +10,7 @@
 functions {
 #include gp_kernels.stan
 #include gp_conditional.stan
+#include fidelity.stan
 #include koh_joint.stan
 #include loo.stan
 #include priors.stan
@@ -49,6 +50,8 @@ transformed data {
   array[M] vector[D + Q] xt_sim;
   for (j in 1:M) xt_sim[j] = append_row(x_sim[j], theta_sim[j]);
   vector[M + N] y_joint = append_row(y_sim, y);
+  matrix[M, 1] w_sim = rep_matrix(1, M, 1);  // one fidelity: every run on the one GP (fidelity.stan)
+  row_vector[1] w_top = [1];
   check_given_normals(P_normals, P);
 }
 parameters {
@@ -87,9 +90,10 @@ model {
                                           emulator_nugget);
     y_sim ~ multi_normal_cholesky(rep_vector(emulator_mean, M), cholesky_decompose(K_sim));
   } else {
-    matrix[M + N, M + N] K = koh_joint_cov(xt_sim, append_theta(x, theta_unit), x_delta, kernel_id,
-                                           emulator_sd, emulator_length_scale, emulator_nugget,
-                                           rho, delta_sd, delta_length_scale, noise_sd);
+    matrix[M + N, M + N] K = koh_joint_cov(xt_sim, w_sim, append_theta(x, theta_unit), w_top, x_delta,
+                                           kernel_id, {emulator_sd}, {emulator_length_scale},
+                                           rep_vector(emulator_nugget, M), rho, delta_sd,
+                                           delta_length_scale, noise_sd);
     vector[M + N] mu = append_row(rep_vector(emulator_mean, M), rho * emulator_mean + h * beta);
     y_joint ~ multi_normal_cholesky(mu, cholesky_decompose(K));
   }
@@ -109,9 +113,9 @@ generated quantities {
   {
     tuple(vector[N], vector[N], vector[N], vector[N], vector[N], vector[P], vector[P], vector[P]) q
       = koh_joint_quantities_rng(y_sim, y, xt_sim, x, theta_unit, x_delta, h, beta, x_new, x_delta_new,
-                                 h_new, normals_new, prior_only, kernel_id, emulator_mean, emulator_sd,
-                                 emulator_length_scale, emulator_nugget, rho, delta_sd,
-                                 delta_length_scale, noise_sd, y_center, y_scale);
+                                 h_new, normals_new, prior_only, kernel_id, w_sim, w_top, {emulator_mean},
+                                 {emulator_sd}, {emulator_length_scale}, rep_vector(emulator_nugget, M),
+                                 rho, delta_sd, delta_length_scale, noise_sd, y_center, y_scale);
     log_lik = q.1;
     y_loo_mean = q.2;
     y_rep = q.3;

@@ -28,6 +28,7 @@ calibrated; the cheaper ones teach it where their runs are dense.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -95,8 +96,8 @@ def _stacked(levels: list[Level]) -> tuple[np.ndarray, np.ndarray]:
     return residual, which
 
 
-def predict(levels: list[Level], points: np.ndarray, level: int | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Co-kriging mean and variance of f_level (default the top) at
+def predictive(levels: list[Level], points: np.ndarray, level: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Co-kriging mean and covariance of f_level (default the top) at
     ``points`` given every level's runs (no nugget at the points: the
     simulator is deterministic there)."""
     top = len(levels) - 1 if level is None else level
@@ -104,9 +105,23 @@ def predict(levels: list[Level], points: np.ndarray, level: int | None = None) -
     residual, _ = _stacked(levels)
     cross = np.hstack([level_covariance(levels, points, top, lv.xt, a) for a, lv in enumerate(levels)])
     mean = level_mean(levels, top) + cross @ linalg.cho_solve(factor, residual)
-    prior = level_covariance(levels, points[:1], top, points[:1], top)[0, 0]  # stationary: one value
-    variance = prior - np.einsum("ij,ji->i", cross, linalg.cho_solve(factor, cross.T))
-    return mean, np.maximum(variance, 0.0)
+    return mean, level_covariance(levels, points, top, points, top) - cross @ linalg.cho_solve(factor, cross.T)
+
+
+def predict(levels: list[Level], points: np.ndarray, level: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The mean and variance of ``predictive``."""
+    mean, covariance = predictive(levels, points, level)
+    return mean, np.maximum(np.diag(covariance), 0.0)
+
+
+def mean_function(levels: list[Level]) -> Callable[[np.ndarray], np.ndarray]:
+    """The top level's co-kriging mean as a function of points, with the
+    runs' factorisation done once (for many calls: the L2 projection)."""
+    residual, _ = _stacked(levels)
+    alpha = linalg.cho_solve(linalg.cho_factor(joint_covariance(levels), lower=True), residual)
+    top, mean = len(levels) - 1, level_mean(levels, len(levels) - 1)
+    return lambda points: mean + np.hstack(
+        [level_covariance(levels, points, top, lv.xt, a) for a, lv in enumerate(levels)]) @ alpha
 
 
 def recursive_predict(levels: list[Level], points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -115,10 +115,18 @@ def _problem(raw: dict[str, Any], base: Path) -> Problem:
         covariates=physical.get("covariates", []),
         runs=runs,
         **observation,
+        low_fidelity_runs=_low_fidelity_runs(simulator, base),
     )
     candidates = _candidates(raw.get("candidates", {}), base)
     return Problem(data=data, simulator=stan, model=model, candidates=candidates, units=dict(raw.get("units", {})),
                    design=dict(raw.get("design", {})))
+
+
+def _low_fidelity_runs(simulator: dict[str, Any], base: Path) -> list[pd.DataFrame]:
+    """[simulator.low_fidelity] runs: one CSV, or several (levels, cheapest first)."""
+    files = simulator.get("low_fidelity", {}).get("runs", [])
+    return [_read_csv(base / name, "simulator.low_fidelity.runs") for name in ([files] if isinstance(files, str)
+                                                                             else files)]
 
 
 def _vector_problem(physical: dict, simulator: dict, theta: dict, runs: pd.DataFrame | None, stan: Path | None,
