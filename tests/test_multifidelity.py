@@ -101,13 +101,20 @@ def test_the_summary_states_the_levels_and_what_the_cheap_runs_add(mf_fit):
     emulator = mf_fit.to_summary_json()["emulator"]
     assert len(emulator["level_rho"]) == 1 and 0.5 < emulator["level_rho"][0] < 1.5  # 0.86, 0.91, 0.94
     assert emulator["loo_rmse"] < 0.5 * emulator["loo_rmse_without_low_fidelity"]  # 0.15 vs 1.02 at seed 0
-    assert "multi-fidelity" in emulator["stage1"]
+    assert "multi-fidelity" in emulator["stage1"] and emulator["warning"] is None
+
+
+def test_the_report_says_what_the_cheap_runs_gave(mf_fit, tmp_path):
+    stancal.write_calibration(mf_fit, tmp_path)
+    report = (tmp_path / "report.md").read_text()
+    assert "## Emulator of several fidelities" in report and "leave-one-out error" in report
 
 
 def test_cheap_runs_narrow_theta_against_the_expensive_runs_alone(mf_fit):
     data = problem()
-    alone = fit(stancal.CalibrationData(data.source, ["t"], "excess", {"k": K_BOUNDS}, runs=data.runs),
-                method="modular", discrepancy="none", draws=1000)
+    with pytest.warns(stancal.InputRangeWarning, match="extrapolates"):  # 6 runs leave the ends uncovered
+        expensive_only = stancal.CalibrationData(data.source, ["t"], "excess", {"k": K_BOUNDS}, runs=data.runs)
+    alone = fit(expensive_only, method="modular", discrepancy="none", draws=1000)
     assert_healthy(alone)
     sd = {name: float(np.asarray(r.idata["posterior"]["theta"]).std()) for name, r in (("mf", mf_fit),
                                                                                         ("alone", alone))}
@@ -121,6 +128,7 @@ def test_the_default_method_with_low_fidelity_runs_is_modular_and_says_so(caplog
     assert "multi-fidelity" in caplog.text
     with pytest.raises(ValueError, match="method 'koh_emulator' does not take low-fidelity runs; modular"):
         plan_scalar(problem(low=10, high=4), method="koh_emulator")
+    assert plan_scalar(problem(low=10, high=4), simulator="any.stan", method="koh").fidelities == 1  # no runs used
     with pytest.raises(ValueError, match="squared exponential kernel only"):
         plan_scalar(problem(low=10, high=4), options=model_options(
             kernel="matern52"))

@@ -139,7 +139,7 @@ def plan_scalar(data: CalibrationData, simulator: str | Path | None = None, meth
             options = replace(options, basis_functions=basis.counts, boundary_factor=basis.boundary_factors)
     _check_fidelities(data, chosen, options, method)
     return Plan(chosen, options, _path(simulator), _path(program), l2, basis_given,
-                parametrization_given=parametrization_given, fidelities=data.fidelities)
+                parametrization_given=parametrization_given, fidelities=data.fidelities if chosen.runs else 1)
 
 
 def plan_vector(data: VectorCalibrationData, simulator: str | Path | None = None, method: str | None = None,
@@ -245,7 +245,7 @@ def _scalable_version(data: CalibrationData, base: Program, options: ModelOption
 def _check_fidelities(data: CalibrationData, chosen: Program, options: ModelOptions, method: str | None) -> None:
     """Low-fidelity runs reach a program that takes them (said in one
     line), or name why not, before anything compiles."""
-    if data.fidelities == 1:
+    if data.fidelities == 1 or not chosen.runs:  # a Stan simulator needs no runs of any fidelity
         return
     if chosen.stage_one_fidelities is None:
         takes = [p.name for p in PROGRAMS.values() if p.stage_one_fidelities and p.output == chosen.output]

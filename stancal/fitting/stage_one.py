@@ -182,6 +182,7 @@ def fit_fidelity_emulator(data: CalibrationData, seed: int) -> dict[str, Any]:
         "loo_rmse": value.loo_with,
         "loo_rmse_without_low_fidelity": value.loo_without,
         "level_rho": value.rho,
+        "warning": value.warning(),
         "runs_sd": float(data.runs_on_link_scale().std(ddof=1)),
         "stage1": (f"multi-fidelity: {len(levels)} levels, hyperparameters level by level at their posterior "
                    f"mode (scipy L-BFGS), co-kriging given every level's runs"),
