@@ -11,7 +11,9 @@ discrepancy; modular; koh_emulator. The latent families (koh_latent) run on
 their test designs: Poisson counts (the detector, 35 points), binomial
 successes (the decay survival, 16 points), censored concentrations (the
 detection-limit lab, every third of its 90 points, censored by the lab's
-two limits) and a functional theta(x) (the beam's E(temperature), 45 points).
+two limits) and a functional theta(x) (the beam's E(temperature), 45 points);
+modular with two fidelities runs on case_studies/cooling_fidelity (28
+points, 150 cheap and 15 expensive runs, no discrepancy).
 """
 
 from __future__ import annotations
@@ -35,6 +37,7 @@ from test_latent import BEAM, CENSORED, COUNTS, beam_data, censored_data, exact_
 
 import stancal  # noqa: E402
 from stancal.diagnosing.sbc import simulation_based_calibration  # noqa: E402
+from stancal.problem.config import load_config  # noqa: E402
 
 SIMULATOR = COOLING / "simulator.stan"
 
@@ -51,7 +54,8 @@ def censored_design() -> stancal.CalibrationData:
 
 
 DESIGNS = {"counts": lambda: exact_counts("poisson", seed=1), "binomial": binomial_design,
-           "censored": censored_design, "beam": beam_data}
+           "censored": censored_design, "beam": beam_data,
+           "cooling_fidelity": lambda: load_config(ROOT / "case_studies" / "cooling_fidelity" / "config.toml").data}
 LATENT = {
     "koh_latent_poisson": ("counts", {"simulator": COUNTS / "simulator.stan", "method": "koh", "discrepancy": "gp"}),
     "koh_latent_binomial": ("binomial", {"simulator": CENSORED / "simulator.stan", "method": "koh",
@@ -61,6 +65,8 @@ LATENT = {
     "koh_latent_functional": ("beam", {"simulator": BEAM / "simulator.stan", "method": "koh", "discrepancy": "none",
                                            "functional": ["E"], "functional_inputs": ["temperature"]}),
 }
+# families on a design of their own (the rest use the cooling design)
+OWN_DESIGN = {**LATENT, "modular_multifidelity": ("cooling_fidelity", {"method": "modular", "discrepancy": "none"})}
 FAMILIES = {
     "koh": {"simulator": SIMULATOR, "method": "koh", "discrepancy": "gp"},
     "koh_none": {"simulator": SIMULATOR, "method": "koh", "discrepancy": "none"},
@@ -68,7 +74,7 @@ FAMILIES = {
     "koh_scaled": {"simulator": SIMULATOR, "method": "koh", "discrepancy": "scaled"},
     "modular": {"method": "modular", "discrepancy": "gp"},
     "koh_emulator": {"method": "koh_emulator", "discrepancy": "gp"},
-    **{name: options for name, (_, options) in LATENT.items()},
+    **{name: options for name, (_, options) in OWN_DESIGN.items()},
 }
 
 
@@ -85,7 +91,7 @@ def main() -> None:
         started = time.perf_counter()
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            data = DESIGNS[LATENT[family][0]]() if family in LATENT else cooling_data(seed=7)
+            data = DESIGNS[OWN_DESIGN[family][0]]() if family in OWN_DESIGN else cooling_data(seed=7)
             result = simulation_based_calibration(data, simulations=args.sims, scheduler=args.scheduler,
                                                   draws_per_fit=args.draws_per_fit, seed=1, warmup=300,
                                                   **FAMILIES[family])
