@@ -110,6 +110,7 @@ def test_the_report_says_what_the_cheap_runs_gave(mf_fit, tmp_path):
     assert "## Emulator of several fidelities" in report and "leave-one-out error" in report
 
 
+@pytest.mark.slow  # a second fit; case_studies/cooling_fidelity/compare.py measures the same on the case study
 def test_cheap_runs_narrow_theta_against_the_expensive_runs_alone(mf_fit):
     data = problem()
     with pytest.warns(stancal.InputRangeWarning, match="extrapolates"):  # 6 runs leave the ends uncovered
