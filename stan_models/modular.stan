@@ -65,9 +65,8 @@ transformed data {
   vector[M] run_nugget_sd = to_vector(emulator_nugget)[run_level];
   real top_mean = w_top * to_vector(emulator_mean);
   real top_variance = fidelity_variance(w_top, emulator_sd);
-  matrix[M, M] L_sim = cholesky_decompose(add_jitter(
-    add_diag(fidelity_cov(xt_sim, w_sim, kernel_id, emulator_sd, emulator_length_scale), square(run_nugget_sd)),
-    top_variance));
+  matrix[M, M] L_sim = cholesky_decompose(
+    fidelity_run_cov(xt_sim, w_sim, w_top, kernel_id, emulator_sd, emulator_length_scale, run_nugget_sd));
   vector[M] alpha_sim = mdivide_right_tri_low(
     mdivide_left_tri_low(L_sim, y_sim - w_sim * to_vector(emulator_mean))', L_sim)';
   // the physical points share theta, so the emulator's covariance among them

@@ -17,20 +17,19 @@ import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
 import stancal  # noqa: E402
+from stancal.fitting.stage_one import fidelity_levels  # noqa: E402
 from stancal.numerics import multifidelity as mf  # noqa: E402
-from stancal.numerics.scalable_emulator import Hyperparameters  # noqa: E402
 from stancal.problem.config import load_config  # noqa: E402
-from stancal.stan.standata import emulator_run_data  # noqa: E402
 
 HERE = Path(__file__).parent
 sys.path.insert(0, str(HERE))
-from make_data import K_TRUE, design, with_loss  # noqa: E402
+from make_data import K_BOUNDS, K_TRUE, design, with_loss  # noqa: E402
 
 SAMPLING = {"chains": 4, "warmup": 500, "draws": 1000, "seed": 7}
 
 
 def fits(data: stancal.CalibrationData) -> dict[str, stancal.CalibrationResult]:
-    expensive_only = stancal.CalibrationData(data.source, data.inputs, data.output, {"k": (0.02, 0.1)},
+    expensive_only = stancal.CalibrationData(data.source, data.inputs, data.output, {"k": K_BOUNDS},
                                              runs=data.runs)
     return {
         "150 cheap + 15 expensive runs (multi-fidelity)": stancal.calibrate(
@@ -61,12 +60,8 @@ def holdout_table(data: stancal.CalibrationData, result: stancal.CalibrationResu
     fresh = design(500, seed=99)
     truth = with_loss(fresh["t"], fresh["T0"], fresh["k"]).to_numpy()
     unit = np.hstack([data.scaling.to_unit(fresh, data.inputs), data.scaling.to_unit(fresh, data.theta_names)])
-    runs = [emulator_run_data(data, r) for r in data.runs_by_fidelity()]
-    xt = [np.hstack([r["x_sim"], r["theta_sim"]]) for r in runs]
-    per_level = result.emulator["hyperparameters"]["levels"]
-    levels = [mf.Level(Hyperparameters.from_stan(h), h["rho"] or 1.0, x, r["y_sim"])
-              for h, x, r in zip(per_level, xt, runs, strict=True)]
-    alone = mf.fit_levels([xt[-1]], [runs[-1]["y_sim"]])
+    levels = fidelity_levels(data, result.emulator["hyperparameters"]["levels"])
+    alone = mf.fit_levels([levels[-1].xt], [levels[-1].y])
     rows = []
     for name, model in (("multi-fidelity (150 + 15 runs)", levels), ("expensive runs alone (15)", alone)):
         mean, variance = mf.predict(model, unit)

@@ -78,12 +78,17 @@ real fidelity_variance(row_vector w_top, array[] real level_sd) {
 }
 
 /**
- * Rows of the weights for points at the given levels.
+ * The covariance of the runs of every level: the kernel, each run's nugget
+ * (its level's) and the jitter (add_jitter) of the top level's variance.
  *
- * @param weights fidelity_weights(level_rho)
- * @param level each point's level
- * @return size(level) x L
+ * @param xt_sim the runs' (x, theta) on the unit cube
+ * @param w_sim their weights on the levels' GPs
+ * @param w_top the top level's weights (the jitter's scale)
+ * @param run_nugget_sd each run's nugget sd
+ * @return covariance matrix, size(xt_sim) x size(xt_sim)
  */
-matrix weights_at(matrix weights, array[] int level) {
-  return weights[level, :];
+matrix fidelity_run_cov(array[] vector xt_sim, matrix w_sim, row_vector w_top, int kernel_id,
+                        array[] real level_sd, array[,] real level_length_scale, vector run_nugget_sd) {
+  return add_jitter(add_diag(fidelity_cov(xt_sim, w_sim, kernel_id, level_sd, level_length_scale),
+                             square(run_nugget_sd)), fidelity_variance(w_top, level_sd));
 }

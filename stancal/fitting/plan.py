@@ -14,7 +14,15 @@ from stancal.problem.data import CalibrationData
 from stancal.problem.functional import check_functional
 from stancal.problem.options import EXACT_SIZE_LIMIT, RESTRICTED_DISCREPANCIES, ModelOptions, VectorOptions
 from stancal.problem.vector_data import VectorCalibrationData
-from stancal.stan.registry import L2, PROGRAMS, STAGE_ONE_PROGRAM, Program, default_program, for_method
+from stancal.stan.registry import (
+    L2,
+    PROGRAMS,
+    STAGE_ONE_PROGRAM,
+    Program,
+    default_program,
+    fidelity_programs,
+    for_method,
+)
 from stancal.stan.source import FlatProgram, flatten
 
 logger = logging.getLogger("stancal")
@@ -248,7 +256,7 @@ def _check_fidelities(data: CalibrationData, chosen: Program, options: ModelOpti
     if data.fidelities == 1 or not chosen.runs:  # a Stan simulator needs no runs of any fidelity
         return
     if chosen.stage_one_fidelities is None:
-        takes = [p.name for p in PROGRAMS.values() if p.stage_one_fidelities and p.output == chosen.output]
+        takes = [p.name for p in fidelity_programs(chosen.output)]
         raise ValueError(f"method '{chosen.name}' does not take low-fidelity runs; {', '.join(takes)} does "
                          f"(review section 8.3), or leave [simulator.low_fidelity] out")
     if options.kernel != "se":

@@ -151,10 +151,20 @@ def _one_fidelity_mean(data: CalibrationData, hyperparameters: dict[str, Any], k
 
 def _fidelity_mean(data: CalibrationData, per_level: list[dict[str, Any]]):
     """The same for the multi-fidelity emulator: the top level's co-kriging mean."""
+    return mean_function(fidelity_levels(data, per_level))
+
+
+def fidelity_runs(data: CalibrationData) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Every simulator's runs, cheapest first, as the emulator sees them:
+    (x, theta) on the unit cube, y standardised."""
     runs = [emulator_run_data(data, r) for r in data.runs_by_fidelity()]
-    return mean_function([Level(Hyperparameters.from_stan(h), 1.0 if h["rho"] is None else float(h["rho"]),
-                                np.hstack([r["x_sim"], r["theta_sim"]]), r["y_sim"])
-                          for h, r in zip(per_level, runs, strict=True)])
+    return [(np.hstack([r["x_sim"], r["theta_sim"]]), r["y_sim"]) for r in runs]
+
+
+def fidelity_levels(data: CalibrationData, per_level: list[dict[str, Any]]) -> list[Level]:
+    """The multi-fidelity emulator that stage 1's per-level hyperparameters describe, on the data's runs."""
+    return [Level(Hyperparameters.from_stan(h), 1.0 if h["rho"] is None else float(h["rho"]), xt, y)
+            for h, (xt, y) in zip(per_level, fidelity_runs(data), strict=True)]
 
 
 def fit_fidelity_emulator(data: CalibrationData, seed: int) -> dict[str, Any]:
@@ -163,14 +173,14 @@ def fit_fidelity_emulator(data: CalibrationData, seed: int) -> dict[str, Any]:
     Gratiet & Garnier 2014); the top level's leave-one-out error with and
     without the cheaper runs, and a warning when they do not help."""
     started = time.perf_counter()
-    runs = [emulator_run_data(data, r) for r in data.runs_by_fidelity()]
-    levels = fit_levels([np.hstack([r["x_sim"], r["theta_sim"]]) for r in runs], [r["y_sim"] for r in runs], seed)
+    runs = fidelity_runs(data)
+    levels = fit_levels([xt for xt, _ in runs], [y for _, y in runs], seed)
     value = cheap_runs_value(levels, seed)
     seconds = time.perf_counter() - started
     logger.info("stage 1: %d levels of fidelity (%s runs, cheapest first), hyperparameters level by level "
                 "in %.1f s; scale on the level below %s; leave-one-out error at the calibrated simulator's runs "
                 "%.3g with the cheaper runs, %.3g without (standardised units)", len(levels),
-                " + ".join(str(r["M"]) for r in runs), seconds, ", ".join(f"{r:.3g}" for r in value.rho),
+                " + ".join(str(len(y)) for _, y in runs), seconds, ", ".join(f"{r:.3g}" for r in value.rho),
                 value.loo_with, value.loo_without)
     if value.warning():
         logger.warning("%s", value.warning())

@@ -39,8 +39,9 @@ from stancal.numerics.scalable_emulator import (
     Hyperparameters,
     fit_hyperparameters,
     negative_log_posterior,
-    run_covariance,
+    run_factor,
     se_correlation,
+    unpack,
 )
 
 RHO_STEP = 1e-5  # central difference for rho's gradient: the objective is smooth and cheap in it
@@ -136,7 +137,7 @@ def recursive_predict(levels: list[Level], points: np.ndarray) -> tuple[np.ndarr
         if (matched < 0).any():
             raise ValueError(f"recursive_predict needs nested designs: level {k + 1} has runs its level below lacks")
         below = np.zeros(len(lv.y)) if k == 0 else levels[k - 1].y[matched]
-        factor = linalg.cho_factor(run_covariance(lv.xt, h), lower=True)
+        factor = run_factor(lv.xt, h)
         cross = h.sd**2 * se_correlation(points, lv.xt, h.length_scale)
         own_mean = h.mean + cross @ linalg.cho_solve(factor, lv.y - lv.rho * below - h.mean)
         own_variance = h.sd**2 - np.einsum("ij,ji->i", cross, linalg.cho_solve(factor, cross.T))
@@ -153,7 +154,7 @@ def matching_runs(xt: np.ndarray, xt_below: np.ndarray) -> np.ndarray:
 
 
 def _packed(h: Hyperparameters) -> np.ndarray:
-    """The unconstrained vector of negative_log_posterior: (mean, log sd, log length scales, log nugget)."""
+    """scalable_emulator.unpack's inverse: the unconstrained vector of negative_log_posterior."""
     return np.concatenate([[h.mean, np.log(h.sd)], np.log(h.length_scale), [np.log(max(h.nugget, 1e-8))]])
 
 
@@ -172,7 +173,7 @@ def level_below(levels: list[Level], xt: np.ndarray) -> np.ndarray:
     matched = matching_runs(xt, levels[-1].xt)
     out = np.where(matched >= 0, levels[-1].y[np.maximum(matched, 0)], 0.0)
     if (matched < 0).any():
-        out[matched < 0] = predict(levels, xt[matched < 0])[0]
+        out[matched < 0] = mean_function(levels)(xt[matched < 0])
     return out
 
 
@@ -185,9 +186,7 @@ def fit_level(levels: list[Level], xt: np.ndarray, y: np.ndarray, seed: int) -> 
     found = optimize.minimize(_objective, np.concatenate([[slope], _packed(start)]), args=(xt, y, below),
                               jac=True, method="L-BFGS-B", options={"maxiter": 500})
     best = found.x if np.isfinite(found.fun) else np.concatenate([[slope], _packed(start)])
-    u = best[1:]
-    h = Hyperparameters(float(u[0]), float(np.exp(u[1])), np.exp(u[2:-1]), float(np.exp(u[-1])))
-    return Level(h, float(best[0]), xt, y)
+    return Level(unpack(best[1:]), float(best[0]), xt, y)
 
 
 def fit_levels(xt: list[np.ndarray], y: list[np.ndarray], seed: int = 0) -> list[Level]:

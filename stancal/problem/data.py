@@ -87,8 +87,9 @@ def require_runs_within_bounds(runs: pd.DataFrame, parameters: Sequence[Paramete
                             f"[{p.lower}, {p.upper}] in {_rows(bad, runs.index)}")
 
 
-def warn_outside_runs(physical: pd.DataFrame, runs: pd.DataFrame, inputs: Sequence[str]) -> None:
-    """InputRangeWarning for physical inputs beyond the runs' range, where the emulator extrapolates."""
+def warn_outside_runs(physical: pd.DataFrame, runs: pd.DataFrame, inputs: Sequence[str], stacklevel: int = 4) -> None:
+    """InputRangeWarning for physical inputs beyond the runs' range, where the
+    emulator extrapolates; ``stacklevel`` points at the code that built the data."""
     for column in inputs:
         lo, hi = runs[column].min(), runs[column].max()
         values = physical[column].to_numpy()
@@ -96,7 +97,7 @@ def warn_outside_runs(physical: pd.DataFrame, runs: pd.DataFrame, inputs: Sequen
         if outside.any():
             warnings.warn(f"physical input '{column}' lies outside the simulator runs' range [{lo:g}, {hi:g}] "
                           f"in {_rows(outside, physical.index)}{_of_file(physical)}; the emulator extrapolates there",
-                          InputRangeWarning, stacklevel=4)
+                          InputRangeWarning, stacklevel=stacklevel)
 
 
 def _of_file(frame: pd.DataFrame) -> str:
@@ -215,7 +216,7 @@ class CalibrationData:
         self.runs = None if runs is None else self._check_runs(runs)
         self.low_fidelity_runs = self._check_low_fidelity(low_fidelity_runs)
         if self.runs is not None:  # every simulator's runs teach the emulator
-            warn_outside_runs(self.physical, pd.concat(self.runs_by_fidelity()), self.inputs)
+            warn_outside_runs(self.physical, pd.concat(self.runs_by_fidelity()), self.inputs, stacklevel=3)
         self.scaling = self._scaling()
 
     @property

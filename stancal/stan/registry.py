@@ -171,8 +171,13 @@ def default_program(output: str, *, simulator: bool, fidelities: int = 1) -> Pro
     too, the first of those that takes them."""
     chosen = for_method("koh" if simulator else "koh_emulator" if output == "scalar" else "modular", output)
     if fidelities > 1 and chosen.stage_one_fidelities is None and not simulator:
-        return next(p for p in PROGRAMS.values() if p.output == output and p.stage_one_fidelities and not p.helper)
+        return fidelity_programs(output)[0]
     return chosen
+
+
+def fidelity_programs(output: str) -> list[Program]:
+    """The programs of an output kind that take runs of cheaper simulators too."""
+    return [p for p in PROGRAMS.values() if p.output == output and p.stage_one_fidelities and not p.helper]
 
 
 def commands_taking(command: str, output: str) -> list[str]:
