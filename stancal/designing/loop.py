@@ -12,10 +12,11 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from stancal.designing.emulators import stage_one_emulator
 from stancal.designing.experiments import next_experiments
 from stancal.designing.proposals import nroy_runs, posterior_runs
 from stancal.designing.targets import DesignSettings
-from stancal.designing.waves import HistoryMatch, Wave, history_match, run_table
+from stancal.designing.waves import HistoryMatch, Wave, fit_emulator, history_match, run_table
 from stancal.problem.data import CalibrationData
 from stancal.problem.vector_data import VectorCalibrationData
 from stancal.stan.registry import DESIGN, commands_taking
@@ -69,27 +70,41 @@ def propose_runs(match: HistoryMatch, runs: int, *, criterion: str = "nroy", see
     NROY x the inputs' range (``nroy``), or where the emulator's variance
     weighted by theta's posterior falls most (``posterior``; theta's draws
     ``posterior`` (original units), else from a modular fit with ``sampler``'s
-    options). See stancal.designing.proposals."""
+    options). See stancal.designing.proposals.
+
+    The posterior criterion's variance is that of the emulator the
+    calibration uses, the one theta's posterior came from: the fit's stage 1
+    (every run; stage_one_emulator) when the fit is made here, else one
+    fitted to every run as stage 1 fits it; not the wave's own, which is
+    refocused on NROY's runs."""
     if criterion not in CRITERIA:
         raise ValueError(f"criterion must be one of {', '.join(CRITERIA)}; got {criterion!r}")
     if runs < 1:
         raise ValueError(f"--runs must be at least 1; got {runs}")
     box, inputs = match.box, len(match.box.inputs)
-    existing, _ = run_table(match.data, box)
+    existing, outputs = run_table(match.data, box)
     notes: dict = {}
     fit = None
     if criterion == "nroy":
-        unit, distances = nroy_runs(match.nroy.theta_unit, existing, inputs, runs, seed)
+        theta = box.run_theta(match.nroy.theta_unit, np.random.default_rng(seed))
+        unit, distances = nroy_runs(theta, existing, inputs, runs, seed)
         notes["maximin_distance"] = float(distances.min())
     else:
+        if box.per_experiment:
+            raise ValueError("--criterion posterior does not take [simulator.theta_per_experiment] yet; "
+                             "use --criterion nroy")
+        emulator = None
         if posterior is None:
             draws, fit = posterior_theta(match, seed, **sampler)
             notes["posterior_method"] = fit.method
             notes["posterior_diagnostics"] = fit.diagnostics.summary() if fit.diagnostics else None
+            emulator = stage_one_emulator(match.data, box, fit.emulator)
         else:
             draws = box.theta_to_unit(posterior[box.theta].to_numpy(float))
-        last = match.cuts[-1]
-        unit, gains = posterior_runs(last.emulator.parts(last.targets.groups), draws, match.targets.x_unit, runs, seed)
+        notes["posterior_emulator"] = ("the posterior fit's stage 1" if emulator is not None
+                                       else "fitted to every run, as stage 1")
+        emulator = emulator or fit_emulator(match.data, existing, outputs, seed)
+        unit, gains = posterior_runs(emulator.parts(match.targets.groups), draws, match.targets.x_unit, runs, seed)
         notes["variance_reduction"] = gains
     frame = pd.DataFrame(box.to_original(unit), columns=box.columns)
     return Design(match, frame, criterion, notes=notes, posterior_fit=fit)
@@ -100,6 +115,9 @@ def propose_experiments(match: HistoryMatch, count: int, seed: int = 1) -> pd.Da
     stancal.designing.experiments)."""
     if count < 1:
         raise ValueError(f"--experiments must be at least 1; got {count}")
+    if match.box.per_experiment:
+        raise ValueError("--experiments does not take [simulator.theta_per_experiment] yet (a new experiment "
+                         "brings its own theta)")
     unit, criterion = next_experiments(match.cuts[-1], match.nroy.theta_unit, count, seed)
     frame = pd.DataFrame(match.box.inputs_to_original(unit), columns=match.box.inputs)
     frame.attrs["theta_variance_trace"] = criterion
