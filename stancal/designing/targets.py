@@ -307,7 +307,9 @@ class UnitBox:
 
     def _nroy_low_width(self) -> tuple[np.ndarray, np.ndarray]:
         D = len(self.inputs)
-        columns = np.concatenate([np.arange(self.shared), *(s[self.shared:] for s in self.selections())]).astype(int)
+        # each experiment's own theta has its name's bounds
+        own = np.tile(self.shared + np.arange(len(self.per_experiment)), len(self.experiments))
+        columns = np.concatenate([np.arange(self.shared), own]).astype(int)
         return self.low[D:][columns], self.width[D:][columns]
 
     def to_unit(self, frame) -> np.ndarray:
