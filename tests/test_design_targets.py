@@ -274,3 +274,46 @@ def test_the_posterior_criterion_uses_the_emulator_of_every_run_not_the_waves_re
     _, refocused = posterior_runs(match.cuts[-1].emulator.parts(), unit, match.targets.x_unit, 1, seed=3)
     assert design.notes["variance_reduction"][0] == pytest.approx(gains[0], rel=1e-9)
     assert refocused[0] != pytest.approx(gains[0], rel=1e-3)
+
+
+# ---- the experiments criterion's discrepancy length -----------------------------------
+def test_next_experiments_take_the_discrepancy_length_from_a_fit():
+    """A fit's posterior median length scale (original units), over the
+    inputs' range, replaces the default 0.2; the criterion is then the
+    direct computation's with that length."""
+    import xarray as xr
+    from test_design_loop import toy_data
+
+    from stancal.designing.experiments import discrepancy_covariance
+
+    data = toy_data()
+    match = stancal.history_match(data, seed=2)
+    default = stancal.propose_experiments(match, 1, seed=4)
+    assert default.attrs["discrepancy_length"] == [0.2] and "no fit" in default.attrs["discrepancy_length_source"]
+    draws = np.random.default_rng(1).lognormal(np.log(0.5), 0.2, size=(2, 50, 1))  # x's range is 1: 0.5 of it
+    posterior = xr.Dataset({"delta_length_scale": (("chain", "draw", "delta_input"), draws)},
+                           coords={"delta_input": ["x"]})
+
+    class Fit:
+        idata = {"posterior": posterior}
+
+    settings = stancal.propose_experiments(match, 1, seed=4, fit=Fit())
+    length = np.median(draws) / float(np.ptp(data.physical["x"]))
+    assert settings.attrs["discrepancy_length"] == pytest.approx([length])
+    assert settings.attrs["discrepancy_length_source"] == "the posterior median of the fit's"
+    cut, rng = match.cuts[-1], np.random.default_rng(4)
+    theta = match.nroy.theta_unit[rng.choice(len(match.nroy.theta_unit), 16, replace=False)]
+    x = np.vstack([cut.targets.x_unit, settings[["x"]].to_numpy()])
+    step = 1e-3
+    traces = []
+    for t in theta:
+        gradient = np.column_stack([
+            (cut.emulator.at(x, np.clip(t + step * e, 0, 1)[None])[0] - cut.emulator.at(x, np.clip(
+                t - step * e, 0, 1)[None])[0])[0] / (np.clip(t + step * e, 0, 1) - np.clip(t - step * e, 0, 1))[q]
+            for q, e in enumerate(np.eye(2))])
+        variance = np.mean([cut.emulator.at(x, s[None])[1][0] for s in theta], axis=0)
+        V = discrepancy_covariance(cut, x, x, length) + np.diag(variance + cut.targets.noise_variance.mean())
+        traces.append(np.trace(np.linalg.inv(12 * np.eye(2) + gradient.T @ np.linalg.solve(V, gradient))))
+    assert settings.attrs["theta_variance_trace"][0] == pytest.approx(np.mean(traces), rel=1e-6)
+    assert settings.attrs["theta_variance_trace"][0] != pytest.approx(default.attrs["theta_variance_trace"][0],
+                                                                      rel=1e-3)

@@ -13,7 +13,7 @@ import numpy as np
 import pandas as pd
 
 from stancal.designing.emulators import stage_one_emulator
-from stancal.designing.experiments import next_experiments
+from stancal.designing.experiments import DISCREPANCY_LENGTH, index_range, next_experiments
 from stancal.designing.proposals import nroy_runs, posterior_runs
 from stancal.designing.targets import DesignSettings
 from stancal.designing.waves import HistoryMatch, Wave, fit_emulator, history_match, run_table
@@ -110,17 +110,36 @@ def propose_runs(match: HistoryMatch, runs: int, *, criterion: str = "nroy", see
     return Design(match, frame, criterion, notes=notes, posterior_fit=fit)
 
 
-def propose_experiments(match: HistoryMatch, count: int, seed: int = 1) -> pd.DataFrame:
+def discrepancy_length(match: HistoryMatch, fit=None) -> tuple[np.ndarray | float, str]:
+    """The discrepancy's length scales for the experiments criterion, on its
+    positions' unit cube (the inputs', then a vector output's index), and
+    where they came from: the posterior median of ``fit``'s (a calibration
+    of this problem) when it has a discrepancy, else DISCREPANCY_LENGTH."""
+    posterior = None if fit is None else fit.idata["posterior"]
+    if posterior is None or "delta_length_scale" not in posterior:
+        return DISCREPANCY_LENGTH, f"{DISCREPANCY_LENGTH:g} of each range (no fit with a discrepancy)"
+    draws = posterior["delta_length_scale"]  # original units, one per discrepancy input
+    median = draws.median(dim=("chain", "draw"))
+    names = [*match.box.inputs, *getattr(match.data, "output_index", [])]
+    widths = np.concatenate([match.box.width[:len(match.box.inputs)], index_range(match.targets)[1]])
+    return median.sel(delta_input=names).to_numpy() / widths, "the posterior median of the fit's"
+
+
+def propose_experiments(match: HistoryMatch, count: int, seed: int = 1, fit=None) -> pd.DataFrame:
     """``count`` physical input settings to measure next (next_experiments.csv;
-    stancal.designing.experiments)."""
+    stancal.designing.experiments); the discrepancy's length scales from
+    ``fit`` (a calibration of the problem) when given (discrepancy_length)."""
     if count < 1:
         raise ValueError(f"--experiments must be at least 1; got {count}")
     if match.box.per_experiment:
         raise ValueError("--experiments does not take [simulator.theta_per_experiment] yet (a new experiment "
                          "brings its own theta)")
-    unit, criterion = next_experiments(match.cuts[-1], match.nroy.theta_unit, count, seed)
+    length, source = discrepancy_length(match, fit)
+    unit, criterion = next_experiments(match.cuts[-1], match.nroy.theta_unit, count, seed, length)
     frame = pd.DataFrame(match.box.inputs_to_original(unit), columns=match.box.inputs)
     frame.attrs["theta_variance_trace"] = criterion
+    frame.attrs["discrepancy_length"] = np.atleast_1d(length).tolist()  # the positions' unit cube
+    frame.attrs["discrepancy_length_source"] = source
     return frame
 
 
@@ -130,8 +149,9 @@ def design(data, runs: int, *, criterion: str = "nroy", experiments: int = 0, se
     match = history_match(data, waves=waves, settings=settings, seed=seed)
     result = propose_runs(match, runs, criterion=criterion, seed=seed, **sampler)
     if experiments:
-        result.next_experiments = propose_experiments(match, experiments, seed)
-        result.notes["theta_variance_trace"] = result.next_experiments.attrs["theta_variance_trace"]
+        result.next_experiments = propose_experiments(match, experiments, seed, result.posterior_fit)
+        for key in ("theta_variance_trace", "discrepancy_length", "discrepancy_length_source"):
+            result.notes[key] = result.next_experiments.attrs[key]
     return result
 
 
