@@ -317,3 +317,32 @@ def test_next_experiments_take_the_discrepancy_length_from_a_fit():
     assert settings.attrs["theta_variance_trace"][0] == pytest.approx(np.mean(traces), rel=1e-6)
     assert settings.attrs["theta_variance_trace"][0] != pytest.approx(default.attrs["theta_variance_trace"][0],
                                                                       rel=1e-3)
+
+
+def test_next_experiments_leave_censored_rows_out_of_what_is_known():
+    """The criterion equals the one on the observed rows alone."""
+    from dataclasses import replace
+
+    from stancal.designing.experiments import next_experiments
+
+    data = censored_data()
+    match = stancal.history_match(data, settings=DesignSettings(noise_sd=0.02, nroy_points=1000), seed=2)
+    cut = match.cuts[-1]
+    t, keep = cut.targets, cut.targets.observed
+    observed = replace(t, x_unit=t.x_unit[keep], z=t.z[keep], noise_variance=t.noise_variance[keep],
+                       lower=t.lower[keep], upper=t.upper[keep], model_variance=t.model_variance[keep])
+    ours = stancal.propose_experiments(match, 2, seed=4)
+    unit, theirs = next_experiments(Cut(cut.emulator, observed, cut.nth, cut.cutoff), match.nroy.theta_unit, 2, 4)
+    assert ours.attrs["theta_variance_trace"] == pytest.approx(theirs, rel=1e-12)
+
+
+def test_a_per_experiment_design_folder_is_written(tmp_path):
+    from stancal.designing.loop import design
+    from stancal.reporting.design_report import write_design
+
+    result = design(per_experiment_data(runs=30), 3, settings=DesignSettings(discrepancy_sd=0.05, nroy_points=1000),
+                    seed=1)
+    write_design(result, tmp_path / "design")
+    assert list(pd.read_csv(tmp_path / "design" / "nroy.csv").columns) == ["a", "b[e1]", "b[e2]", "b[e3]"]
+    assert list(pd.read_csv(tmp_path / "design" / "next_runs.csv").columns) == ["x", "a", "b"]
+    assert (tmp_path / "design" / "nroy_pairs.png").stat().st_size > 0

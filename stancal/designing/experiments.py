@@ -19,7 +19,9 @@ length scales in stancal's programs centre on), and P0 = 12 I the precision of t
 uniform prior on its unit cube. The criterion is the mean over NROY draws
 of trace(J^-1); settings are added one at a time, each the candidate of a
 Latin hypercube of the inputs' range that lowers it most, J updated by the
-Schur complement of the candidate's values. This is chosen over the IMSPE of
+Schur complement of the candidate's values. Censored rows are left out of
+what is known (their information is less than a value's), and counts enter
+on the link scale with the targets' delta-method variances. This is chosen over the IMSPE of
 zeta (Leatherman et al. 2017) because the design loop's goal is theta, and
 because it needs only the emulator and the stated variances, not a fitted
 discrepancy GP, so it works at every wave."""
@@ -95,14 +97,18 @@ def next_experiments(cut: Cut, nroy_theta: np.ndarray, count: int, seed: int,
     rng = np.random.default_rng(seed)
     theta = nroy_theta[rng.choice(len(nroy_theta), min(THETA_DRAWS, len(nroy_theta)), replace=False)]
     index_low, index_width = index_range(targets)
-    gradient, emulator_variance = _jacobian(cut, targets.x_unit, targets.groups, theta)
-    where = positions(targets.x_unit, targets.groups, index_low, index_width)
-    own = emulator_variance + float(np.mean(targets.noise_variance))  # each value's own variance
+    # what is known: the observed values (a censored row's information is less than a value's; left out, it
+    # is not overstated); a vector output's values are all observed
+    x_known = targets.x_unit if targets.groups else targets.x_unit[targets.observed]
+    noise = float(np.mean(targets.noise_variance[targets.observed]))  # a new value's, as the data's on average
+    gradient, emulator_variance = _jacobian(cut, x_known, targets.groups, theta)
+    where = positions(x_known, targets.groups, index_low, index_width)
+    own = emulator_variance + noise  # each value's own variance
     pool = qmc.LatinHypercube(d=inputs, seed=rng).random(SETTINGS_CANDIDATES)
     pool_x, pool_groups, m = candidate_values(targets, pool)
     pool_gradient, pool_variance = _jacobian(cut, pool_x, pool_groups, theta)
     pool_where = positions(pool_x, pool_groups, index_low, index_width)
-    pool_own = pool_variance + float(np.mean(targets.noise_variance))
+    pool_own = pool_variance + noise
     C, S, Q = len(pool), len(theta), theta.shape[1]
     chosen, criterion = [], []
     for _ in range(count):

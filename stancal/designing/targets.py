@@ -305,7 +305,8 @@ class UnitBox:
         columns = np.array(self.selections())[chosen]
         return np.take_along_axis(nroy_unit, columns, axis=1)
 
-    def _nroy_low_width(self) -> tuple[np.ndarray, np.ndarray]:
+    def nroy_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """NROY's theta's low ends and widths (nroy_names' order)."""
         D = len(self.inputs)
         # each experiment's own theta has its name's bounds
         own = np.tile(self.shared + np.arange(len(self.per_experiment)), len(self.experiments))
@@ -323,7 +324,7 @@ class UnitBox:
 
     def theta_to_unit(self, values: np.ndarray) -> np.ndarray:
         """(rows, Q) of NROY's theta (nroy_names) in original units, on the unit cube."""
-        low, width = self._nroy_low_width()
+        low, width = self.nroy_bounds()
         return (np.asarray(values, float) - low) / width
 
     def inputs_to_original(self, unit: np.ndarray) -> np.ndarray:
@@ -332,7 +333,7 @@ class UnitBox:
 
     def theta_to_original(self, unit: np.ndarray) -> np.ndarray:
         """NROY's theta (nroy_names) in original units."""
-        low, width = self._nroy_low_width()
+        low, width = self.nroy_bounds()
         return low + unit * width
 
     def to_original(self, unit: np.ndarray) -> np.ndarray:

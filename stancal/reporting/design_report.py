@@ -41,15 +41,15 @@ def pairs_grid(design: Design, seed: int = 0) -> dict:
     fraction x P(bin | NROY) / P(bin), from the NROY sample (so it stays
     resolved when NROY is a tiny part of the box)."""
     match = design.match
-    Q = len(match.box.theta)
+    Q = len(match.box.nroy_names)
     uniform = np.random.default_rng(seed).uniform(size=(UNIFORM_POINTS, Q))
     points = np.vstack([uniform, match.nroy.theta_unit])
     value = np.concatenate([combined(match.cuts, uniform), match.nroy.implausibility])
     cells = np.minimum((points * BINS).astype(int), BINS - 1)
     nroy_cells = cells[UNIFORM_POINTS:]
     minimum, depth = {}, {}
-    for i in range(Q):
-        for j in range(Q):
+    for i in range(min(Q, MAX_PAIRS_COLUMNS)):
+        for j in range(min(Q, MAX_PAIRS_COLUMNS)):
             if i == j:
                 continue
             grid = np.full((BINS, BINS), np.nan)
@@ -66,14 +66,14 @@ def plot_nroy_pairs(design: Design, path: Path | None = None, units: dict[str, s
     """Lower triangle: minimum implausibility (the cutoff marked in the
     colour bar); upper: optical depth; diagonal: theta's NROY histogram."""
     match = design.match
-    if len(match.box.theta) == 1:
+    if len(match.box.nroy_names) == 1:
         return plot_nroy_line(design, path, units)
     plt = pyplot()
     from matplotlib.colors import LinearSegmentedColormap, LogNorm
 
-    names, Q = match.box.theta, len(match.box.theta)
-    D = len(match.box.inputs)
-    low, width = match.box.low[D:], match.box.width[D:]
+    names = match.box.nroy_names[:MAX_PAIRS_COLUMNS]  # the first theta (shared, then the first experiments')
+    Q = len(names)
+    low, width = (bound[:Q] for bound in match.box.nroy_bounds())
     grids = pairs_grid(design)
     cutoff = match.cutoff
     top = max(2 * cutoff, float(np.nanmax([np.nanmax(g) for g in grids["minimum"].values()] or [cutoff])))
@@ -128,7 +128,7 @@ def plot_nroy_line(design: Design, path: Path | None = None, units: dict[str, st
     ax.fill_between(theta, 0, 1, where=value <= match.cutoff, transform=ax.get_xaxis_transform(),
                     color="tab:green", alpha=0.2, label="NROY")
     ax.set_ylim(0, min(float(value.max()) * 1.05, 5 * match.cutoff))
-    ax.set_xlabel(axis_label(match.box.theta[0], units))
+    ax.set_xlabel(axis_label(match.box.nroy_names[0], units))
     ax.set_ylabel("implausibility (sd)")
     ax.legend(fontsize=8)
     ax.set_title(f"NROY after wave {len(match.waves)}: {match.nroy_fraction:.3g} of theta's range", fontsize=10)
@@ -167,7 +167,8 @@ def plot_proposed_runs(design: Design, path: Path | None = None, units: dict[str
     existing = box.to_original(run_table(design.match.data, box)[0])
     proposed = design.next_runs[box.columns].to_numpy(float)
     nroy = design.match.nroy.theta_unit[:BACKGROUND_POINTS]  # a uniform sample: its first rows are one too
-    spread = np.column_stack([np.random.default_rng(0).uniform(size=(len(nroy), len(box.inputs))), nroy])
+    rng = np.random.default_rng(0)
+    spread = np.column_stack([rng.uniform(size=(len(nroy), len(box.inputs))), box.run_theta(nroy, rng)])
     background = box.to_original(spread)
     C = len(columns)
     panel = 2.4 if C <= 4 else 1.7  # inches: many columns make small panels
