@@ -183,6 +183,8 @@ def targets_of(data, settings: DesignSettings, box: UnitBox | None = None) -> Ta
     else:
         discrepancy = (settings.discrepancy_fraction * float(np.std(z[observed]))) ** 2
         discrepancy_source = f"{settings.discrepancy_fraction:g} x the observations' sd ([design] discrepancy_fraction)"
+    if model.any():  # counts: every variance is on the link scale
+        discrepancy_source += ", on the link scale"
     return Targets(x_unit, z, model + extra, discrepancy, noise_source, discrepancy_source, model_variance=model,
                    **values)
 
