@@ -213,7 +213,9 @@ def test_theta_per_experiment_matches_each_experiment_at_its_own_theta():
     assert match.implausibility(pd.DataFrame([swapped]))[0] > 3.0
 
 
-def test_theta_per_experiment_runs_waves_and_proposes_runs_of_the_runs_columns():
+def test_theta_per_experiment_runs_waves_and_writes_its_folder(tmp_path):
+    from stancal.reporting.design_report import write_design
+
     data = per_experiment_data(runs=30)
 
     def simulator(frame):
@@ -227,6 +229,9 @@ def test_theta_per_experiment_runs_waves_and_proposes_runs_of_the_runs_columns()
     assert loop.fractions[-1] < loop.fractions[0]
     with pytest.raises(ValueError, match="--experiments does not take"):
         stancal.propose_experiments(last.match, 1)
+    write_design(last, tmp_path / "design")
+    assert list(pd.read_csv(tmp_path / "design" / "nroy.csv").columns) == ["a", "b[e1]", "b[e2]", "b[e3]"]
+    assert list(pd.read_csv(tmp_path / "design" / "next_runs.csv").columns) == ["x", "a", "b"]
 
 
 # ---- the posterior criterion's emulator -----------------------------------------------
@@ -238,8 +243,8 @@ def test_the_stage_one_emulator_on_the_design_box_is_the_calibrations():
 
     data = count_data("poisson")
     runs = data.runs.copy()
-    runs.loc[0, "x"] = 1.4  # a run beyond the physical range: the two unit cubes differ
-    runs.loc[0, "y"] = rate(runs.iloc[[0]])[0]
+    runs.loc[2, "x"] = 1.4  # a run beyond the physical range: the two unit cubes differ
+    runs.loc[2, "y"] = rate(runs.iloc[[2]])[0]
     data = data.with_runs(runs)
     hyper = {"emulator_mean": 0.1, "emulator_sd": 1.2, "emulator_length_scale": [0.4, 0.6, 0.5],
              "emulator_nugget": 0.02}
@@ -334,15 +339,3 @@ def test_next_experiments_leave_censored_rows_out_of_what_is_known():
     ours = stancal.propose_experiments(match, 2, seed=4)
     unit, theirs = next_experiments(Cut(cut.emulator, observed, cut.nth, cut.cutoff), match.nroy.theta_unit, 2, 4)
     assert ours.attrs["theta_variance_trace"] == pytest.approx(theirs, rel=1e-12)
-
-
-def test_a_per_experiment_design_folder_is_written(tmp_path):
-    from stancal.designing.loop import design
-    from stancal.reporting.design_report import write_design
-
-    result = design(per_experiment_data(runs=30), 3, settings=DesignSettings(discrepancy_sd=0.05, nroy_points=1000),
-                    seed=1)
-    write_design(result, tmp_path / "design")
-    assert list(pd.read_csv(tmp_path / "design" / "nroy.csv").columns) == ["a", "b[e1]", "b[e2]", "b[e3]"]
-    assert list(pd.read_csv(tmp_path / "design" / "next_runs.csv").columns) == ["x", "a", "b"]
-    assert (tmp_path / "design" / "nroy_pairs.png").stat().st_size > 0
