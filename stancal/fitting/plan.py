@@ -186,11 +186,16 @@ def _latent_parametrization(data: CalibrationData, chosen: Program, options: Mod
     Papaspiliopoulos, Roberts & Sköld 2007), said in one line."""
     if not (chosen.latent and options.has_discrepancy) or options.discrepancy_parametrization_reason:
         return options
+    if options.discrepancy_parametrization == "partial" and not chosen.partial_centring:
+        offered = [p.name for p in PROGRAMS.values() if p.partial_centring]
+        raise ValueError(f"discrepancy_parametrization 'partial' is offered by {', '.join(offered)}, not by "
+                         f"{chosen.name}; choose centred, non_centred or auto")
     if options.discrepancy_parametrization != "auto":
         return replace(options, discrepancy_parametrization_reason=(
             f"{options.discrepancy_parametrization} (set by the user: model.discrepancy_parametrization)"))
     x_delta = data.scaling.to_unit(data.physical, data.discrepancy_inputs)
-    choice = choose_parametrization(data.observations, x_delta, len(data.inputs), options.kernel_id)
+    choice = choose_parametrization(data.observations, x_delta, len(data.inputs), options.kernel_id,
+                                    partial=chosen.partial_centring)
     logger.info("the discrepancy's latent GP is sampled %s", choice.reason)
     return replace(options, discrepancy_parametrization=choice.parametrization,
                    discrepancy_parametrization_reason=choice.reason)

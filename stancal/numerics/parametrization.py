@@ -89,6 +89,23 @@ def information_per_point(observations: Observations) -> np.ndarray:
     return np.where(exact, 1 / NOISE_PRIOR_MEDIAN**2, 0.0)
 
 
+def model_scale_values(observations: Observations, standardised: np.ndarray) -> np.ndarray:
+    """The data's value at each point on the model (link) scale, where the
+    likelihood's normal approximation is centred: log(y + 1/2) for counts,
+    the empirical logit log((y + 1/2) / (n - y + 1/2)) for binomial successes,
+    the ``standardised`` value for a Gaussian output (0 where censored: its
+    information is 0 there, information_per_point)."""
+    y = np.nan_to_num(np.asarray(observations.value, dtype=float))
+    kind = observations.likelihood
+    if kind in (Likelihood.POISSON, Likelihood.NEGBINOMIAL):
+        return np.log(y + 0.5)
+    if kind is Likelihood.BINOMIAL:
+        n = np.asarray(observations.trials, dtype=float)
+        return np.log((y + 0.5) / (n - y + 0.5))
+    exact = np.asarray(observations.censoring) == Censoring.OBSERVED
+    return np.where(exact, np.nan_to_num(np.asarray(standardised, dtype=float)), 0.0)
+
+
 def prior_conditional_variance(x_delta: np.ndarray, inputs: int, kernel_id: int) -> np.ndarray:
     """v_i = 1 / (K^-1)_ii: the discrepancy prior's variance at each point
     given the others, K at the hyperparameters' prior medians (the first
@@ -102,10 +119,23 @@ def prior_conditional_variance(x_delta: np.ndarray, inputs: int, kernel_id: int)
 
 
 def choose_parametrization(observations: Observations, x_delta: np.ndarray, inputs: int,
-                           kernel_id: int) -> Choice:
-    """Centred when the data dominate the prior (information times the prior's
-    conditional variance >= DOMINANCE) at more than half the points, else non-centred."""
-    ratio = information_per_point(observations) * prior_conditional_variance(x_delta, inputs, kernel_id)
+                           kernel_id: int, partial: bool = False) -> Choice:
+    """Where the program offers it (``partial``), partially non-centred when
+    the data dominate the prior's marginal variance (information times
+    DISCREPANCY_PRIOR_SD^2 >= DOMINANCE) at more than half the points; else
+    centred when they dominate its conditional variance at more than half the
+    points, else non-centred."""
+    information = information_per_point(observations)
+    if partial:
+        marginal = information * DISCREPANCY_PRIOR_SD**2
+        share = float(np.mean(marginal >= DOMINANCE))
+        if share > 0.5:
+            return Choice("partial", (
+                f"partial (partially non-centred with the data's information, chosen from the data): the "
+                f"data's information per point is at least {DOMINANCE:g} times the discrepancy prior's "
+                f"precision 1 / sd^2 at {100 * share:.0f} % of the points (median {np.median(marginal):.3g} "
+                f"times), so they pin the discrepancy along its smooth directions but not along the rough ones"))
+    ratio = information * prior_conditional_variance(x_delta, inputs, kernel_id)
     dominated = float(np.mean(ratio >= DOMINANCE))
     chosen = "centred" if dominated > 0.5 else "non_centred"
     return Choice(chosen, (
