@@ -111,6 +111,8 @@ def main() -> None:
     started = time.perf_counter()
     gap = diagnose_gap(problem.data, problem.candidates, simulator=problem.simulator, seed=args.seed, **sampling)
     figures = {"sampling": sampling, **gap_figures(gap, baseline_s, time.perf_counter() - started)}
+    print(json.dumps(figures, indent=1), flush=True)
+    print_targets(figures)
     if args.kfold:
         reference = diagnose_gap(problem.data, problem.candidates, simulator=problem.simulator, seed=args.seed,
                                  kfold=args.kfold, warm_refits=False, warm_candidates=False, **sampling)
@@ -118,8 +120,8 @@ def main() -> None:
         figures["kfold"] = {"folds": args.kfold, "candidates": kfold}
         figures["distance_in_se"] = {name: round(abs(c["elpd_diff"] - kfold[name]["elpd_diff"]) / kfold[name]["se"], 2)
                                      for name, c in figures["candidates"].items() if name in kfold}
-    print(json.dumps(figures, indent=1), flush=True)
-    print_targets(figures)
+        print(json.dumps(figures["kfold"], indent=1), flush=True)
+        print_targets(figures)
     if args.json:
         args.json.write_text(json.dumps(figures, indent=1))
 
