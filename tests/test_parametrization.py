@@ -144,6 +144,17 @@ def test_the_stan_data_carry_the_flag():
         assert stan_data["delta_centred"] == flag
         np.testing.assert_allclose(stan_data["delta_pseudo"], np.log(data.observations.value + 0.5))
         np.testing.assert_allclose(stan_data["delta_information"], data.observations.value)
+    # a censored Gaussian output: the program's own y_real, 0 where censored
+    rng = np.random.default_rng(1)
+    frame = pd.DataFrame({"d": np.linspace(0.5, 3, 6), "s": 0.0, "y": rng.normal(size=6)})
+    frame.loc[:2, "y"] = np.nan
+    frame["hi"] = np.where(frame.y.isna(), 0.0, np.nan)
+    gaussian = stancal.CalibrationData(frame, ["d", "s"], "y", {"mu": (0.05, 1.0)}, upper="hi")
+    plan = make_plan(gaussian, COUNTS_SIMULATOR, discrepancy_parametrization="partial")
+    stan_data = build_stan_data(gaussian, plan.program.data, plan.options, gaussian.physical[gaussian.inputs])
+    np.testing.assert_array_equal(stan_data["delta_pseudo"], stan_data["y_real"])
+    np.testing.assert_allclose(stan_data["delta_pseudo"][3:], gaussian.scaling.standardise(frame.y[3:]))
+    assert np.all(stan_data["delta_pseudo"][:3] == 0)
 
 
 def test_partial_is_offered_only_where_the_registry_says():
@@ -155,6 +166,9 @@ def test_partial_is_offered_only_where_the_registry_says():
     data = counts_data(1e5, corners=True)
     with pytest.raises(ValueError, match="'partial' is offered by koh_latent, not by koh_latent_emulator"):
         make_plan(data.with_runs(runs), method="modular", discrepancy_parametrization="partial")
+    # a Gaussian program integrates its GP out: 'partial' is an error there too, not silently ignored
+    with pytest.raises(ValueError, match="'partial' is offered by koh_latent, not by koh;"):
+        make_plan(counts_data(20, "gaussian"), COUNTS_SIMULATOR, discrepancy_parametrization="partial")
 
 
 def fake_fit(share: float, draws: int = 200, max_treedepth: int = 10) -> dict:

@@ -54,7 +54,12 @@ class Program:
     samples_emulator: bool = False  # the emulator's hyperparameters are sampled with theta
     commands: frozenset[str] = frozenset()
     helper: bool = False  # a stage-1 program, not a calibration
-    partial_centring: bool = False  # its latent discrepancy can be sampled partially non-centred (delta_centred 2)
+
+    @property
+    def partial_centring(self) -> bool:
+        """Its latent discrepancy can be sampled partially non-centred
+        (delta_centred 2): its Stan data carry the data's information per point."""
+        return sd.partial_centring in self.data
 
     @property
     def path(self) -> Path:
@@ -83,7 +88,7 @@ PROGRAMS: dict[str, Program] = {program.name: program for program in (
     Program("koh_latent", "koh_latent.stan",
             "KOH with latent GPs: counts, binomial, censored outputs, functional theta", simulator=True,
             latent=True, estimate_rho=False, data=(*_LATENT, sd.simulator_points, sd.partial_centring),
-            partial_centring=True, commands=_SCALAR),
+            commands=_SCALAR),
     Program("koh_latent_emulator", "koh_latent_emulator.stan",
             "koh_latent from simulator runs: stage-1 emulator on the link scale, latent at the data", runs=True,
             stage_one=STAGE_ONE_GP, latent=True, estimate_rho=False,

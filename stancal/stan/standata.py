@@ -123,8 +123,7 @@ def partial_centring(inputs: StanInputs) -> dict[str, Any]:
     """The data's value and information per point on the model scale, for
     koh_latent.stan's partially non-centred discrepancy (functions/latent_partial.stan)."""
     data = inputs.data
-    standardised = data.scaling.standardise(np.nan_to_num(data.observations.value))
-    return {"delta_pseudo": model_scale_values(data.observations, standardised),
+    return {"delta_pseudo": model_scale_values(data.observations, _gaussian_values(data)),
             "delta_information": information_per_point(data.observations)}
 
 
@@ -166,11 +165,17 @@ def scalable_emulator(inputs: StanInputs) -> dict[str, Any]:
     return scalable_emulator_data(inputs.data, inputs.emulator, inputs.points)
 
 
+def _gaussian_values(data: CalibrationData) -> np.ndarray:
+    """koh_latent*.stan's y_real: a Gaussian output standardised where it is
+    observed exactly, 0 where it is censored or not Gaussian."""
+    obs = data.observations
+    return np.where(obs.observed & obs.is_gaussian, data.scaling.standardise(np.nan_to_num(obs.value)), 0.0)
+
+
 def latent_data(data: CalibrationData, options: ModelOptions, new_points: pd.DataFrame,
                 trials_new: np.ndarray) -> dict[str, Any]:
     """The observation model and functional theta of koh_latent*.stan."""
     obs = data.observations
-    observed = obs.observed & obs.is_gaussian
     grid = functional_grid(data, options.functional_inputs)
     slots = [options.functional.index(name) + 1 if name in options.functional else 0
              for name in data.theta_names]
@@ -180,7 +185,7 @@ def latent_data(data: CalibrationData, options: ModelOptions, new_points: pd.Dat
                                     return_inverse=True)
     return {
         "likelihood_id": int(obs.likelihood),
-        "y_real": np.where(observed, data.scaling.standardise(np.nan_to_num(obs.value)), 0.0),
+        "y_real": _gaussian_values(data),
         "y_int": np.where(obs.is_gaussian, 0, np.nan_to_num(obs.value)).astype(int),
         "trials": obs.trials,
         "censoring": obs.censoring,
