@@ -137,9 +137,11 @@ TABLES: tuple[Table, ...] = (
             "pin theta(x)) or non_centred", SCALAR,
             choices=FUNCTIONAL_PARAMETRIZATIONS),
         Key("discrepancy_parametrization", "string", '"auto"', "the latent programs' discrepancy GP (counts, "
-            "binomial, censored outputs, functional theta): centred, non_centred, or auto (centred when the "
-            "data's information per point dominates the prior at most points; refitted the other way once if "
-            "more than 5 % of transitions hit the maximum tree depth)", SCALAR, choices=PARAMETRIZATIONS),
+            "binomial, censored outputs, functional theta): centred, non_centred, partial (partially non-centred "
+            "with the data's information per point; koh_latent), or auto (partial where offered and the data "
+            "dominate the prior's variance at most points, else centred when they dominate its conditional "
+            "variance at most points; refitted non-centred once if more than 5 % of transitions hit the "
+            "maximum tree depth)", SCALAR, choices=PARAMETRIZATIONS),
         Key("approximation", "string", '"auto"', "exact (dense GPs), hsgp (Hilbert-space, scalable) or auto "
             f"(hsgp above {EXACT_SIZE_LIMIT:,} points plus runs)", SCALAR,
             choices=APPROXIMATIONS),
