@@ -6,9 +6,14 @@ WAVES waves) against a Latin hypercube of the same count over the whole box.
 For each: the emulator's error at the true theta (its mean at the measured
 inputs against the simulator there, RMS, and its predictive sd), then a
 ``modular`` calibration on the runs (2 chains) and theta's 90 % interval
-widths, as a share of the prior's, and whether the truth lies inside.
+widths, as a share of the prior's, and whether the truth lies inside. Per
+seed and wave it also records whether NROY still holds the truth: the true
+theta's implausibility under every wave's cut so far, against the cutoff
+(history matching must never rule the truth out; Vernon et al. 2010).
 
-    python benchmarks/design_vs_lhs.py [--seeds 4] [--chains 2 --warmup 500 --draws 500]
+    python benchmarks/design_vs_lhs.py [--seeds 4] [--chains 2 --warmup 500 --draws 500] [--waves-only]
+
+``--waves-only`` runs the design loop and the truth's check alone, no fits.
 
 Writes benchmarks/design_vs_lhs.json and .png (copied to docs/img) and prints a table.
 """
@@ -67,7 +72,20 @@ def calibrated(data: stancal.CalibrationData, sampler: dict, seed: int) -> dict:
     return out
 
 
-def one_seed(seed: int, sampler: dict) -> dict:
+def truth_by_wave(loop) -> list[dict]:
+    """Each wave's NROY fraction and the true theta's implausibility under
+    every cut up to that wave; the truth is in NROY when it is at most the cutoff."""
+    rows = []
+    for design in loop.designs:
+        match = design.match
+        value = float(match.implausibility(pd.DataFrame([TRUTH]))[0])
+        rows.append({"wave": len(match.waves), "runs": match.waves[-1].runs_total,
+                     "nroy_fraction": match.nroy_fraction, "truth_implausibility": value,
+                     "truth_in_nroy": value <= match.cutoff})
+    return rows
+
+
+def one_seed(seed: int, sampler: dict | None) -> dict:
     table = physical(seed=1000 + seed)
     start = data_with(table, initial_runs(INITIAL_RUNS, seed=seed))
     loop = stancal.run_waves(start, simulator=fin_temperature, waves=WAVES, runs_per_wave=RUNS_PER_WAVE,
@@ -75,7 +93,13 @@ def one_seed(seed: int, sampler: dict) -> dict:
     designed = loop.data
     count = len(designed.runs)
     lhs = data_with(table, initial_runs(count, seed=500 + seed))
-    row = {"seed": seed, "runs": count, "nroy_fraction_by_wave": loop.fractions}
+    row = {"seed": seed, "runs": count, "nroy_fraction_by_wave": loop.fractions, "truth_by_wave": truth_by_wave(loop)}
+    for wave in row["truth_by_wave"]:
+        print(f"seed {seed} wave {wave['wave']}: {wave['runs']} runs, NROY {wave['nroy_fraction']:.3g}, the truth's "
+              f"implausibility {wave['truth_implausibility']:.2f}: "
+              f"{'in NROY' if wave['truth_in_nroy'] else 'RULED OUT'}", flush=True)
+    if sampler is None:
+        return row
     for name, data in (("designed", designed), ("lhs", lhs)):
         row[name] = {**emulator_error(data, seed), **calibrated(data, sampler, seed)}
         print(f"seed {seed} {name}: {json.dumps(row[name])}", flush=True)
@@ -117,11 +141,15 @@ def main() -> None:
     parser.add_argument("--chains", type=int, default=2)
     parser.add_argument("--warmup", type=int, default=500)
     parser.add_argument("--draws", type=int, default=500)
+    parser.add_argument("--waves-only", action="store_true", help="the design loop and the truth's check, no fits")
     args = parser.parse_args()
-    sampler = {"chains": args.chains, "warmup": args.warmup, "draws": args.draws}
+    sampler = None if args.waves_only else {"chains": args.chains, "warmup": args.warmup, "draws": args.draws}
     rows = [one_seed(seed, sampler) for seed in range(1, args.seeds + 1)]
-    (Path(__file__).parent / "design_vs_lhs.json").write_text(json.dumps({"sampler": sampler, "rows": rows},
-                                                                         indent=1))
+    print_truth_table(rows)
+    name = "design_vs_lhs_waves.json" if sampler is None else "design_vs_lhs.json"
+    (Path(__file__).parent / name).write_text(json.dumps({"sampler": sampler, "rows": rows}, indent=1))
+    if sampler is None:
+        return
     plot(rows, Path(__file__).parent / "design_vs_lhs.png")
     shutil.copy(Path(__file__).parent / "design_vs_lhs.png", ROOT / "docs" / "img" / "design_vs_lhs.png")
     print("| arm | runs | emulator RMS error at the truth | " + " | ".join(f"{n} width / prior, covered"
@@ -131,6 +159,16 @@ def main() -> None:
                  f"{sum(r[arm][n]['covers'] for r in rows)}/{len(rows)}" for n in ACTIVE]
         print(f"| {arm} | {np.mean([r['runs'] for r in rows]):.0f} | "
               f"{np.mean([r[arm]['rms_error'] for r in rows]):.3g} °C | " + " | ".join(cells) + " |")
+
+
+def print_truth_table(rows: list[dict]) -> None:
+    """Per wave: the seeds that reached it, those whose NROY still holds the truth, the largest implausibility."""
+    print("| wave | seeds | truth in NROY | largest implausibility of the truth |")
+    print("|---|---|---|---|")
+    for wave in range(1, max(len(r["truth_by_wave"]) for r in rows) + 1):
+        at = [w for r in rows for w in r["truth_by_wave"] if w["wave"] == wave]
+        print(f"| {wave} | {len(at)} | {sum(w['truth_in_nroy'] for w in at)} | "
+              f"{max(w['truth_implausibility'] for w in at):.2f} |")
 
 
 if __name__ == "__main__":

@@ -1,7 +1,8 @@
 // Kennedy-O'Hagan calibration with a cheap simulator written in Stan and a
 // latent GP discrepancy, for what the Gaussian program koh.stan cannot
-// integrate out (sampled centred or non-centred by the data flag
-// delta_centred, functions/latent_gp.stan; stancal chooses from the data):
+// integrate out (sampled centred, non-centred or partially non-centred by the
+// data flag delta_centred, functions/latent_gp.stan and latent_partial.stan;
+// stancal chooses from the data):
 //   g(E[y_i]) = g(f(x_i, theta(x_i))) + h(x_i, z_i)' beta + delta(x_i, z_i)
 // with optional mean terms h (a candidate unmodelled effect, as in koh.stan):
 // - non-Gaussian outputs (review section 8.1.4; Grosskopf et al. 2021):
@@ -20,6 +21,7 @@ functions {
 #include gp_kernels.stan
 #include gp_conditional.stan
 #include latent_gp.stan
+#include latent_partial.stan
 #include observation_model.stan
 #include latent_loo.stan
 #include functional_theta.stan
@@ -58,7 +60,10 @@ data {
   array[N_fun] vector[D_fun] x_fun;     // the distinct values, scaled to [0, 1]
   array[F > 0 ? N : 0] int<lower=1, upper=N_fun> fun_point;  // which of them each physical point has
   int<lower=0, upper=1> functional_centred;  // 1 = sample theta(x)'s logit values, 0 = their standard normals
-  int<lower=0, upper=1> delta_centred;  // 1 = sample the discrepancy's values, 0 = their standard normals
+  int<lower=0, upper=2> delta_centred;  // 1 = sample the discrepancy's values, 0 = their standard normals,
+                                        // 2 = partially non-centred with the data's information (latent_partial.stan)
+  vector[N] delta_pseudo;               // delta_centred 2: the data's value per point, model scale
+  vector<lower=0>[N] delta_information; // delta_centred 2: the data's information per point, model scale
   int<lower=0> G;                       // number of grid points for the theta(x) curves
   array[G] vector[D_fun] x_fun_grid;    // the grid, scaled like x_fun
   int<lower=0, upper=1> prior_only;     // 1 = ignore y: draws from the prior
@@ -83,6 +88,7 @@ parameters {
   array[use_discrepancy ? D : 0] real<lower=0> delta_input_length_scale;  // simulator inputs: fraction of input range
   array[use_discrepancy ? D_delta - D : 0] real<lower=0> delta_relevance;  // covariates: inverse length scale
   vector[use_discrepancy ? N : 0] delta_raw;              // the discrepancy (centred) or its standard normals
+                                                          // (partial: the standardised z of latent_partial.stan)
   vector[H] beta;                                         // mean-term coefficients, model-scale units
   vector<lower=0>[F] theta_function_sd;                   // logit scale
   array[F] vector<lower=0>[D_fun] theta_function_length_scale;  // fraction of input range
@@ -102,8 +108,16 @@ transformed parameters {
     theta_lower, theta_upper);
   vector[Q] theta;                      // scalar theta; a functional one's mean over the points
   for (j in 1:Q) theta[j] = mean(theta_points[:, j]);
+  // the linear predictor without the discrepancy GP, model scale: the simulator runs once per gradient
+  // (the partial form, the likelihood and generated quantities all use it)
+  vector[N] eta_rest = simulator_model_scale(likelihood_id, simulator_at_rows(X, theta_points, 0, 1), X,
+                                             y_center, y_scale) + h * beta;
   vector[N] delta = rep_vector(0, N);   // discrepancy at the physical points, model scale
-  if (use_discrepancy) {
+  if (use_discrepancy && delta_centred == 2) {
+    // its GP prior and the transform's Jacobian enter the target here (latent_partial.stan)
+    delta = latent_gp_partial_lp(delta_raw, eta_rest, delta_pseudo, delta_information, x_delta, kernel_id,
+                                 delta_sd[1], delta_length_scale);
+  } else if (use_discrepancy) {
     delta = latent_gp_values(delta_raw, delta_centred, x_delta, kernel_id, delta_sd[1], delta_length_scale);
   }
 }
@@ -114,8 +128,9 @@ model {
   delta_sd ~ discrepancy_sd();                       // half-normal(0, 0.5)
   delta_input_length_scale ~ discrepancy_length_scale();  // inverse gamma(3, 1)
   delta_relevance ~ covariate_relevance();           // half-normal(0, 2)
-  // the discrepancy's GP (centred) or its standard normals (non-centred)
-  if (use_discrepancy) {
+  // the discrepancy's GP (centred) or its standard normals (non-centred); the partially non-centred
+  // form adds its prior and Jacobian in transformed parameters
+  if (use_discrepancy && delta_centred < 2) {
     target += latent_gp_prior_lupdf(delta_raw | delta_centred, x_delta, kernel_id, delta_sd[1],
                                     delta_length_scale);
   }
@@ -127,10 +142,9 @@ model {
                                          functional_slot, x_fun, kernel_id, theta_function_sd,
                                          theta_function_length_scale);
   if (!prior_only) {
-    vector[N] eta = simulator_model_scale(likelihood_id, simulator_at_rows(X, theta_points, 0, 1), X,
-                                          y_center, y_scale) + h * beta + delta;
     target += sum(observation_log_lik(
-      likelihood_id, eta, observation_sd(likelihood_id, noise_sd), negbinomial_precision(likelihood_id, inv_sqrt_phi),
+      likelihood_id, eta_rest + delta, observation_sd(likelihood_id, noise_sd),
+      negbinomial_precision(likelihood_id, inv_sqrt_phi),
       y_real, y_int, trials, censoring, lower_bound, upper_bound));
   }
 }
@@ -154,9 +168,6 @@ generated quantities {
     if (likelihood_id == 1) noise_sd_original[1] = noise_sd[1] * y_scale;
     if (likelihood_id == 3) phi[1] = precision;
     if (use_discrepancy) delta_sd_original[1] = delta_sd[1] * units;
-    // the linear predictor without the discrepancy GP
-    vector[N] eta_rest = simulator_model_scale(likelihood_id, simulator_at_rows(X, theta_points, 0, 1), X,
-                                               y_center, y_scale) + h * beta;
     tuple(vector[N], vector[N], vector[N]) at_points = latent_point_quantities_rng(
       likelihood_id, eta_rest, delta, x_delta, kernel_id, delta_sd, delta_length_scale, sd_obs, precision,
       y_real, y_int, trials, censoring, lower_bound, upper_bound, y_center, y_scale, loo_rule);

@@ -397,6 +397,7 @@ def test_the_posterior_criterion_fits_modular_and_proposes_runs_where_theta_is(t
     design = stancal.propose_runs(match, 5, criterion="posterior", seed=3, chains=2, warmup=500, draws=1000,
                                   discrepancy="none")
     assert design.notes["posterior_method"] == "modular"
+    assert design.notes["posterior_emulator"] == "the posterior fit's stage 1"  # not the wave's own
     assert_healthy(design.posterior_fit)
     draws = design.posterior_fit.theta_draws()[["a", "b"]].to_numpy()
     proposed = design.next_runs[["a", "b"]].to_numpy()

@@ -95,9 +95,10 @@ def negbinomial_fit():
 def test_poisson_recovers_mu_and_covers_the_counts(poisson_fit):
     assert_healthy(poisson_fit, divergences=POISSON_DIVERGENCES)
     assert poisson_fit.method == "koh_latent"
-    # 35 large counts close together: the plan chose the non-centred discrepancy (numerics.parametrization)
-    assert poisson_fit.options.discrepancy_parametrization == "non_centred"
-    assert "non_centred (chosen from the data)" in poisson_fit.options.discrepancy_parametrization_reason
+    # 35 large counts close together: the plan chose the partially non-centred discrepancy
+    # (numerics.parametrization; non-centred before koh_latent offered the partial form)
+    assert poisson_fit.options.discrepancy_parametrization == "partial"
+    assert "partial (partially non-centred" in poisson_fit.options.discrepancy_parametrization_reason
     low, high = interval(poisson_fit, "mu")
     assert low < detector.MU_TRUE < high
     observed = poisson_fit.data.observations.value

@@ -37,9 +37,9 @@ def counts_data(mean_count: float, likelihood: str = "poisson", points: int = 30
                                    trials="n" if trials is not None else None)
 
 
-def choose(data: stancal.CalibrationData, kernel: int = SE) -> rule.Choice:
+def choose(data: stancal.CalibrationData, kernel: int = SE, partial: bool = False) -> rule.Choice:
     x_delta = data.scaling.to_unit(data.physical, data.discrepancy_inputs)
-    return rule.choose_parametrization(data.observations, x_delta, len(data.inputs), kernel)
+    return rule.choose_parametrization(data.observations, x_delta, len(data.inputs), kernel, partial=partial)
 
 
 def test_the_prior_medians_are_the_programs_priors():
@@ -93,30 +93,82 @@ def test_noisy_gaussian_and_censored_outputs_are_non_centred():
     assert choose(data).parametrization == "non_centred"
 
 
+def test_where_the_program_offers_it_large_counts_are_partially_non_centred():
+    # information times the prior's variance 0.5^2 against DOMINANCE, at the points themselves:
+    # close together or far apart alike, for the partial form adapts to each direction of the GP
+    for corners in (True, False):
+        assert choose(counts_data(1e5, corners=corners), partial=True).parametrization == "partial"
+        assert choose(counts_data(1e5, corners=corners)).parametrization != "partial"
+    assert choose(counts_data(4 * rule.DOMINANCE * 1.5), partial=True).parametrization == "partial"
+    assert choose(counts_data(4 * rule.DOMINANCE * 0.8), partial=True).parametrization == "non_centred"
+    assert choose(counts_data(1e5, corners=True), partial=True).reason.startswith(
+        "partial (partially non-centred with the data's information, chosen from the data)")
+    # a few trials say little: the rule falls through to its centred / non-centred choice
+    assert choose(counts_data(0, "binomial", trials=10), partial=True).parametrization == "non_centred"
+
+
+def test_the_data_on_the_model_scale():
+    counts = counts_data(20)
+    y = counts.observations.value
+    np.testing.assert_allclose(rule.model_scale_values(counts.observations, y), np.log(y + 0.5))
+    binomial = counts_data(0, "binomial", trials=10)
+    y = binomial.observations.value
+    np.testing.assert_allclose(rule.model_scale_values(binomial.observations, y),
+                               np.log((y + 0.5) / (10 - y + 0.5)))
+
+
 def test_the_plan_decides_once_and_the_user_overrides():
     plan = make_plan(counts_data(1e5, corners=True), COUNTS_SIMULATOR)
-    assert plan.program.latent and not plan.parametrization_given
-    assert plan.options.discrepancy_parametrization == "centred"
-    assert plan.options.discrepancy_parametrization_reason.startswith("centred (chosen from the data)")
-    data = counts_data(500)
+    assert plan.program.latent and plan.program.partial_centring and not plan.parametrization_given
+    assert plan.options.discrepancy_parametrization == "partial"
+    assert plan.options.discrepancy_parametrization_reason.startswith("partial (partially non-centred")
+    data = counts_data(5)
     assert make_plan(data, COUNTS_SIMULATOR).options.discrepancy_parametrization == "non_centred"
     told = make_plan(data, COUNTS_SIMULATOR, discrepancy_parametrization="centred")
     assert told.parametrization_given and told.options.discrepancy_parametrization == "centred"
     assert "set by the user" in told.options.discrepancy_parametrization_reason
     # no discrepancy: nothing to choose
     assert make_plan(data, COUNTS_SIMULATOR, discrepancy="none").options.discrepancy_parametrization == "auto"
-    with pytest.raises(ValueError, match="discrepancy_parametrization must be one of auto, centred, non_centred"):
-        ModelOptions(discrepancy_parametrization="partial")
+    with pytest.raises(ValueError, match="discrepancy_parametrization must be one of auto, centred, non_centred, "
+                                         "partial"):
+        ModelOptions(discrepancy_parametrization="fully_centred")
 
 
 def test_the_stan_data_carry_the_flag():
     from stancal.stan.standata import build_stan_data
 
     data = counts_data(500)
-    for chosen, flag in (("centred", 1), ("non_centred", 0)):
+    for chosen, flag in (("centred", 1), ("non_centred", 0), ("partial", 2)):
         plan = make_plan(data, COUNTS_SIMULATOR, discrepancy_parametrization=chosen)
         stan_data = build_stan_data(data, plan.program.data, plan.options, data.physical[data.inputs])
         assert stan_data["delta_centred"] == flag
+        np.testing.assert_allclose(stan_data["delta_pseudo"], np.log(data.observations.value + 0.5))
+        np.testing.assert_allclose(stan_data["delta_information"], data.observations.value)
+    # a censored Gaussian output: the program's own y_real, 0 where censored
+    rng = np.random.default_rng(1)
+    frame = pd.DataFrame({"d": np.linspace(0.5, 3, 6), "s": 0.0, "y": rng.normal(size=6)})
+    frame.loc[:2, "y"] = np.nan
+    frame["hi"] = np.where(frame.y.isna(), 0.0, np.nan)
+    gaussian = stancal.CalibrationData(frame, ["d", "s"], "y", {"mu": (0.05, 1.0)}, upper="hi")
+    plan = make_plan(gaussian, COUNTS_SIMULATOR, discrepancy_parametrization="partial")
+    stan_data = build_stan_data(gaussian, plan.program.data, plan.options, gaussian.physical[gaussian.inputs])
+    np.testing.assert_array_equal(stan_data["delta_pseudo"], stan_data["y_real"])
+    np.testing.assert_allclose(stan_data["delta_pseudo"][3:], gaussian.scaling.standardise(frame.y[3:]))
+    assert np.all(stan_data["delta_pseudo"][:3] == 0)
+
+
+def test_partial_is_offered_only_where_the_registry_says():
+    from stancal.stan.registry import PROGRAMS
+
+    assert [p.name for p in PROGRAMS.values() if p.partial_centring] == ["koh_latent"]
+    runs = pd.DataFrame({"d": [0.5, 3.0, 0.5, 3.0], "s": [0.0, 5.0, 5.0, 0.0], "mu": [0.1, 0.5, 0.9, 0.3],
+                         "y": [800.0, 10.0, 60.0, 200.0]})
+    data = counts_data(1e5, corners=True)
+    with pytest.raises(ValueError, match="'partial' is offered by koh_latent, not by koh_latent_emulator"):
+        make_plan(data.with_runs(runs), method="modular", discrepancy_parametrization="partial")
+    # a Gaussian program integrates its GP out: 'partial' is an error there too, not silently ignored
+    with pytest.raises(ValueError, match="'partial' is offered by koh_latent, not by koh;"):
+        make_plan(counts_data(20, "gaussian"), COUNTS_SIMULATOR, discrepancy_parametrization="partial")
 
 
 def fake_fit(share: float, draws: int = 200, max_treedepth: int = 10) -> dict:

@@ -76,8 +76,10 @@ class ScalarEmulator:
         center, scale = float(y.mean()), float(y.std()) or 1.0
         return cls(GaussianProcess.fit(xt_runs, (y - center) / scale, seed), center, scale)
 
-    def at(self, x_unit: np.ndarray, theta_unit: np.ndarray, groups=()) -> tuple[np.ndarray, np.ndarray]:
-        """Mean and variance (S, n) in output units at every theta and x."""
+    def at(self, x_unit: np.ndarray, theta_unit: np.ndarray, groups=(), group_theta=None) -> tuple[np.ndarray,
+                                                                                               np.ndarray]:
+        """Mean and variance (S, n) in output units at every theta and x
+        (``group_theta``: per-experiment theta, a vector output's only)."""
         mean, variance = self.gp.predict(pairs(x_unit, theta_unit))
         shape = (len(theta_unit), len(x_unit))
         return (self.center + self.scale * mean).reshape(shape), (self.scale**2 * variance).reshape(shape)
@@ -113,13 +115,17 @@ class BasisEmulator:
         return cls(basis, [GaussianProcess.fit(xt_runs, scores[:, j], seed + j) for j in range(basis.count)],
                    outputs)
 
-    def at(self, x_unit: np.ndarray, theta_unit: np.ndarray, groups) -> tuple[np.ndarray, np.ndarray]:
+    def at(self, x_unit: np.ndarray, theta_unit: np.ndarray, groups, group_theta=None) -> tuple[np.ndarray,
+                                                                                             np.ndarray]:
         """Mean and variance (S, n) at every theta and observed value, one
-        experiment (``groups``: its inputs, values and output indices) at a time."""
+        experiment (``groups``: its inputs, values and output indices) at a
+        time; ``group_theta``: each experiment's own theta (S, Q) in place of
+        ``theta_unit`` (per-experiment theta)."""
         mean = np.empty((len(theta_unit), len(x_unit)))
         variance = np.empty_like(mean)
-        for row, values, indices in groups:
-            points = np.column_stack([np.broadcast_to(row, (len(theta_unit), len(row))), theta_unit])
+        for g, (row, values, indices) in enumerate(groups):
+            theta = theta_unit if group_theta is None else group_theta[g]
+            points = np.column_stack([np.broadcast_to(row, (len(theta), len(row))), theta])
             predicted = [gp.predict(points) for gp in self.gps]
             weight_mean = np.column_stack([m for m, _ in predicted])
             weight_variance = np.column_stack([v for _, v in predicted])
@@ -159,3 +165,32 @@ class BasisEmulator:
 
 def emulator_from_dict(d: dict) -> ScalarEmulator | BasisEmulator:
     return ScalarEmulator.from_dict(d) if d["kind"] == "scalar" else BasisEmulator.from_dict(d)
+
+
+def stage_one_emulator(data, box, stage_one) -> ScalarEmulator | BasisEmulator | None:
+    """The emulator a modular calibration of ``data`` used (its stage 1:
+    every run, its hyperparameters; Liu, Bayarri & Berger 2009), on the
+    design's unit box ``box`` (a UnitBox), or None without a stage 1. The
+    calibration's unit cube spans the inputs over the physical data's and
+    the runs' range, the box over the physical data's: a length scale in
+    one is the other's times the ratio of the widths, so the GP is the same.
+    ``stage_one``: a scalar result's ``emulator`` dict, or a vector result's
+    VectorEmulator. The vector one is conditioned here on every run for its
+    variance (stage 1 on at most its VARIANCE_RUNS; the same below that)."""
+    scaling = data.scaling
+    factor = np.array([scaling.width[c] for c in box.columns]) / box.width
+
+    def on_box(h: Hyperparameters) -> Hyperparameters:
+        return Hyperparameters(h.mean, h.sd, h.length_scale * factor, h.nugget)
+
+    if isinstance(stage_one, dict):
+        if "hyperparameters" not in stage_one:
+            return None
+        h = on_box(Hyperparameters.from_stan(stage_one["hyperparameters"]))
+        gp = GaussianProcess(h, box.to_unit(data.runs), scaling.standardise(data.runs_on_link_scale()))
+        return ScalarEmulator(gp, scaling.y_center, scaling.y_scale)
+    if stage_one is None:
+        return None
+    xt, scores = box.to_unit(data.run_settings), stage_one.basis.weights(data.run_outputs)
+    gps = [GaussianProcess(on_box(c.hyperparameters), xt, scores[:, j]) for j, c in enumerate(stage_one.components)]
+    return BasisEmulator(stage_one.basis, gps, data.run_outputs)

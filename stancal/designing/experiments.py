@@ -11,11 +11,17 @@ G the derivatives of E[f(x_i, theta)] in theta at every measured value
 correlated between values by a squared exponential of length
 DISCREPANCY_LENGTH over the inputs' unit cube and, for a vector output, the
 output index's range: a value close to one already measured shares its
-discrepancy and teaches less), and P0 = 12 I the precision of theta's
+discrepancy and teaches less; the length is the calibration's, its
+posterior median, when a fit of the problem is at hand (the posterior
+criterion's), else DISCREPANCY_LENGTH, a fifth of each range: a
+discrepancy that varies smoothly over the settings, as the GP prior's
+length scales in stancal's programs centre on), and P0 = 12 I the precision of theta's
 uniform prior on its unit cube. The criterion is the mean over NROY draws
 of trace(J^-1); settings are added one at a time, each the candidate of a
 Latin hypercube of the inputs' range that lowers it most, J updated by the
-Schur complement of the candidate's values. This is chosen over the IMSPE of
+Schur complement of the candidate's values. Censored rows are left out of
+what is known (their information is less than a value's), and counts enter
+on the link scale with the targets' delta-method variances. This is chosen over the IMSPE of
 zeta (Leatherman et al. 2017) because the design loop's goal is theta, and
 because it needs only the emulator and the stated variances, not a fitted
 discrepancy GP, so it works at every wave."""
@@ -30,7 +36,8 @@ from stancal.designing.implausibility import Cut
 SETTINGS_CANDIDATES = 300
 THETA_DRAWS = 16
 STEP = 1e-3  # theta's unit cube
-DISCREPANCY_LENGTH = 0.2  # the discrepancy's correlation length, unit cube of the inputs (and output index)
+DISCREPANCY_LENGTH = 0.2  # without a fit: the discrepancy's correlation length, unit cube of the inputs
+# (and output index)
 
 
 def _jacobian(cut: Cut, x_unit: np.ndarray, groups, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -50,6 +57,15 @@ def _jacobian(cut: Cut, x_unit: np.ndarray, groups, theta: np.ndarray) -> tuple[
     return gradient, variance[:S].mean(axis=0)
 
 
+def index_range(targets) -> tuple[np.ndarray, np.ndarray]:
+    """The observed output indices' low end and width per column (a
+    vector output's; empty for a scalar one), the unit the discrepancy's
+    position along the output is measured in."""
+    every_index = np.vstack([g[2] for g in targets.groups]) if targets.groups else np.zeros((1, 0))
+    width = np.ptp(every_index, axis=0)
+    return every_index.min(axis=0), width + (width == 0)
+
+
 def positions(x_unit: np.ndarray, groups, index_low: np.ndarray, index_width: np.ndarray) -> np.ndarray:
     """Where each value's discrepancy sits: its inputs and, for a vector output, its output index (unit range)."""
     if not groups:
@@ -60,39 +76,48 @@ def positions(x_unit: np.ndarray, groups, index_low: np.ndarray, index_width: np
     return np.column_stack([x_unit, index])
 
 
-def discrepancy_covariance(cut: Cut, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    squared = ((a[:, None, :] - b[None, :, :]) ** 2).sum(-1)
-    return cut.targets.discrepancy_variance * np.exp(-0.5 * squared / DISCREPANCY_LENGTH**2)
+def discrepancy_covariance(cut: Cut, a: np.ndarray, b: np.ndarray,
+                           length: float | np.ndarray = DISCREPANCY_LENGTH) -> np.ndarray:
+    """The discrepancy's squared-exponential covariance between positions;
+    ``length``: one, or one per position column."""
+    squared = (((a[:, None, :] - b[None, :, :]) / length) ** 2).sum(-1)
+    return cut.targets.discrepancy_variance * np.exp(-0.5 * squared)
 
 
-def next_experiments(cut: Cut, nroy_theta: np.ndarray, count: int, seed: int) -> tuple[np.ndarray, list[float]]:
+def next_experiments(cut: Cut, nroy_theta: np.ndarray, count: int, seed: int,
+                     length: float | np.ndarray = DISCREPANCY_LENGTH) -> tuple[np.ndarray, list[float]]:
     """``count`` input settings (count, D), unit cube of the inputs, and the
-    criterion (mean trace of theta's covariance, unit cube) after each pick."""
+    criterion (mean trace of theta's covariance, unit cube) after each pick.
+    ``length``: the discrepancy's length scales on the positions' unit
+    cube (the inputs', then the output index's, index_range)."""
     targets = cut.targets
     inputs = targets.x_unit.shape[1]
     if not inputs:
         raise ValueError("--experiments needs simulator inputs to choose ([physical] inputs is empty)")
     rng = np.random.default_rng(seed)
     theta = nroy_theta[rng.choice(len(nroy_theta), min(THETA_DRAWS, len(nroy_theta)), replace=False)]
-    every_index = np.vstack([g[2] for g in targets.groups]) if targets.groups else np.zeros((1, 0))
-    index_low, index_width = every_index.min(axis=0), np.ptp(every_index, axis=0) + (np.ptp(every_index, axis=0) == 0)
-    gradient, emulator_variance = _jacobian(cut, targets.x_unit, targets.groups, theta)
-    where = positions(targets.x_unit, targets.groups, index_low, index_width)
-    own = emulator_variance + float(np.mean(targets.noise_variance))  # each value's own variance
+    index_low, index_width = index_range(targets)
+    # what is known: the observed values (a censored row's information is less than a value's; left out, it
+    # is not overstated); a vector output's values are all observed
+    x_known = targets.x_unit if targets.groups else targets.x_unit[targets.observed]
+    noise = float(np.mean(targets.noise_variance[targets.observed]))  # a new value's, as the data's on average
+    gradient, emulator_variance = _jacobian(cut, x_known, targets.groups, theta)
+    where = positions(x_known, targets.groups, index_low, index_width)
+    own = emulator_variance + noise  # each value's own variance
     pool = qmc.LatinHypercube(d=inputs, seed=rng).random(SETTINGS_CANDIDATES)
     pool_x, pool_groups, m = candidate_values(targets, pool)
     pool_gradient, pool_variance = _jacobian(cut, pool_x, pool_groups, theta)
     pool_where = positions(pool_x, pool_groups, index_low, index_width)
-    pool_own = pool_variance + float(np.mean(targets.noise_variance))
+    pool_own = pool_variance + noise
     C, S, Q = len(pool), len(theta), theta.shape[1]
     chosen, criterion = [], []
     for _ in range(count):
-        V_inv = np.linalg.inv(discrepancy_covariance(cut, where, where) + np.diag(own))
+        V_inv = np.linalg.inv(discrepancy_covariance(cut, where, where, length) + np.diag(own))
         known = np.einsum("snq,nk,skr->sqr", gradient, V_inv, gradient) + 12 * np.eye(Q)
-        B = discrepancy_covariance(cut, where, pool_where)  # (n, C m)
+        B = discrepancy_covariance(cut, where, pool_where, length)  # (n, C m)
         solved = V_inv @ B
         blocks = pool_where.reshape(C, m, -1)
-        own_blocks = np.array([discrepancy_covariance(cut, w, w) for w in blocks]) + np.apply_along_axis(
+        own_blocks = np.array([discrepancy_covariance(cut, w, w, length) for w in blocks]) + np.apply_along_axis(
             np.diag, 1, pool_own.reshape(C, m))
         schur = own_blocks - np.einsum("nci,ncj->cij", B.reshape(-1, C, m), solved.reshape(-1, C, m))
         U = (pool_gradient.reshape(S, C, m, Q)

@@ -64,17 +64,32 @@ class Cut:
     def each(self, theta_unit: np.ndarray) -> np.ndarray:
         """I_i(theta): (S, n) at S points of theta's unit cube."""
         t = self.targets
-        mean, variance = self.emulator.at(t.x_unit, np.atleast_2d(theta_unit), t.groups)
-        return np.abs(t.z - mean) / np.sqrt(variance + t.discrepancy_variance + t.noise_variance)
+        mean, variance = t.emulate(self.emulator, theta_unit)
+        return t.distance(mean) / np.sqrt(variance + t.discrepancy_variance + t.noise_variance)
 
     def __call__(self, theta_unit: np.ndarray) -> np.ndarray:
         """The combined implausibility (S,)."""
         return nth_largest(self.each(theta_unit), self.nth)
 
+    def at_runs(self, run_theta: np.ndarray) -> np.ndarray:
+        """The cut at runs' theta (R, Q_runs): the combined implausibility,
+        or with per-experiment theta the smallest over experiments of the
+        n-th largest over that experiment's values at the run's theta. A run
+        whose theta lies in NROY's projection for some experiment passes it
+        (the n-th largest of a subset is at most the whole's), so refocusing
+        keeps every run that may, and perhaps a few more."""
+        t = self.targets
+        if not t.group_theta:
+            return self(run_theta)
+        mean, variance = self.emulator.at(t.x_unit, run_theta, t.groups)
+        each = t.distance(mean) / np.sqrt(variance + t.discrepancy_variance + t.noise_variance)
+        return np.min([nth_largest(each[:, values], self.nth) for _, values, _ in t.groups], axis=0)
 
-def combined(cuts: list[Cut], theta_unit: np.ndarray) -> np.ndarray:
+
+def combined(cuts: list[Cut], theta_unit: np.ndarray, at_runs: bool = False) -> np.ndarray:
     """Every wave's cut at once, on a common scale: the largest ratio of a
     wave's implausibility to its cutoff, times the last wave's cutoff (so
-    theta is not ruled out exactly when it passes every wave's cut)."""
-    ratio = np.max([cut(theta_unit) / cut.cutoff for cut in cuts], axis=0)
+    theta is not ruled out exactly when it passes every wave's cut).
+    ``at_runs``: ``theta_unit`` are runs' theta (Cut.at_runs), not NROY's."""
+    ratio = np.max([(cut.at_runs(theta_unit) if at_runs else cut(theta_unit)) / cut.cutoff for cut in cuts], axis=0)
     return ratio * cuts[-1].cutoff

@@ -12,10 +12,11 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from stancal.designing.experiments import next_experiments
+from stancal.designing.emulators import stage_one_emulator
+from stancal.designing.experiments import DISCREPANCY_LENGTH, index_range, next_experiments
 from stancal.designing.proposals import nroy_runs, posterior_runs
 from stancal.designing.targets import DesignSettings
-from stancal.designing.waves import HistoryMatch, Wave, history_match, run_table
+from stancal.designing.waves import HistoryMatch, Wave, fit_emulator, history_match, run_table
 from stancal.problem.data import CalibrationData
 from stancal.problem.vector_data import VectorCalibrationData
 from stancal.stan.registry import DESIGN, commands_taking
@@ -69,40 +70,76 @@ def propose_runs(match: HistoryMatch, runs: int, *, criterion: str = "nroy", see
     NROY x the inputs' range (``nroy``), or where the emulator's variance
     weighted by theta's posterior falls most (``posterior``; theta's draws
     ``posterior`` (original units), else from a modular fit with ``sampler``'s
-    options). See stancal.designing.proposals."""
+    options). See stancal.designing.proposals.
+
+    The posterior criterion's variance is that of the emulator the
+    calibration uses, the one theta's posterior came from: the fit's stage 1
+    (every run; stage_one_emulator) when the fit is made here, else one
+    fitted to every run as stage 1 fits it; not the wave's own, which is
+    refocused on NROY's runs."""
     if criterion not in CRITERIA:
         raise ValueError(f"criterion must be one of {', '.join(CRITERIA)}; got {criterion!r}")
     if runs < 1:
         raise ValueError(f"--runs must be at least 1; got {runs}")
     box, inputs = match.box, len(match.box.inputs)
-    existing, _ = run_table(match.data, box)
+    existing, outputs = run_table(match.data, box)
     notes: dict = {}
     fit = None
     if criterion == "nroy":
-        unit, distances = nroy_runs(match.nroy.theta_unit, existing, inputs, runs, seed)
+        theta = box.run_theta(match.nroy.theta_unit, np.random.default_rng(seed))
+        unit, distances = nroy_runs(theta, existing, inputs, runs, seed)
         notes["maximin_distance"] = float(distances.min())
     else:
+        if box.per_experiment:
+            raise ValueError("--criterion posterior does not take [simulator.theta_per_experiment] yet; "
+                             "use --criterion nroy")
+        emulator = None
         if posterior is None:
             draws, fit = posterior_theta(match, seed, **sampler)
             notes["posterior_method"] = fit.method
             notes["posterior_diagnostics"] = fit.diagnostics.summary() if fit.diagnostics else None
+            emulator = stage_one_emulator(match.data, box, fit.emulator)
         else:
             draws = box.theta_to_unit(posterior[box.theta].to_numpy(float))
-        last = match.cuts[-1]
-        unit, gains = posterior_runs(last.emulator.parts(last.targets.groups), draws, match.targets.x_unit, runs, seed)
+        notes["posterior_emulator"] = ("the posterior fit's stage 1" if emulator is not None
+                                       else "fitted to every run, as stage 1")
+        emulator = emulator or fit_emulator(match.data, existing, outputs, seed)
+        unit, gains = posterior_runs(emulator.parts(match.targets.groups), draws, match.targets.x_unit, runs, seed)
         notes["variance_reduction"] = gains
     frame = pd.DataFrame(box.to_original(unit), columns=box.columns)
     return Design(match, frame, criterion, notes=notes, posterior_fit=fit)
 
 
-def propose_experiments(match: HistoryMatch, count: int, seed: int = 1) -> pd.DataFrame:
+def discrepancy_length(match: HistoryMatch, fit=None) -> tuple[np.ndarray | float, str]:
+    """The discrepancy's length scales for the experiments criterion, on its
+    positions' unit cube (the inputs', then a vector output's index), and
+    where they came from: the posterior median of ``fit``'s (a calibration
+    of this problem) when it has a discrepancy, else DISCREPANCY_LENGTH."""
+    posterior = None if fit is None else fit.idata["posterior"]
+    if posterior is None or "delta_length_scale" not in posterior:
+        return DISCREPANCY_LENGTH, f"{DISCREPANCY_LENGTH:g} of each range (no fit with a discrepancy)"
+    draws = posterior["delta_length_scale"]  # original units, one per discrepancy input
+    median = draws.median(dim=("chain", "draw"))
+    names = [*match.box.inputs, *getattr(match.data, "output_index", [])]
+    widths = np.concatenate([match.box.width[:len(match.box.inputs)], index_range(match.targets)[1]])
+    return median.sel(delta_input=names).to_numpy() / widths, "the posterior median of the fit's"
+
+
+def propose_experiments(match: HistoryMatch, count: int, seed: int = 1, fit=None) -> pd.DataFrame:
     """``count`` physical input settings to measure next (next_experiments.csv;
-    stancal.designing.experiments)."""
+    stancal.designing.experiments); the discrepancy's length scales from
+    ``fit`` (a calibration of the problem) when given (discrepancy_length)."""
     if count < 1:
         raise ValueError(f"--experiments must be at least 1; got {count}")
-    unit, criterion = next_experiments(match.cuts[-1], match.nroy.theta_unit, count, seed)
+    if match.box.per_experiment:
+        raise ValueError("--experiments does not take [simulator.theta_per_experiment] yet (a new experiment "
+                         "brings its own theta)")
+    length, source = discrepancy_length(match, fit)
+    unit, criterion = next_experiments(match.cuts[-1], match.nroy.theta_unit, count, seed, length)
     frame = pd.DataFrame(match.box.inputs_to_original(unit), columns=match.box.inputs)
     frame.attrs["theta_variance_trace"] = criterion
+    frame.attrs["discrepancy_length"] = np.atleast_1d(length).tolist()  # the positions' unit cube
+    frame.attrs["discrepancy_length_source"] = source
     return frame
 
 
@@ -112,8 +149,9 @@ def design(data, runs: int, *, criterion: str = "nroy", experiments: int = 0, se
     match = history_match(data, waves=waves, settings=settings, seed=seed)
     result = propose_runs(match, runs, criterion=criterion, seed=seed, **sampler)
     if experiments:
-        result.next_experiments = propose_experiments(match, experiments, seed)
-        result.notes["theta_variance_trace"] = result.next_experiments.attrs["theta_variance_trace"]
+        result.next_experiments = propose_experiments(match, experiments, seed, result.posterior_fit)
+        for key in ("theta_variance_trace", "discrepancy_length", "discrepancy_length_source"):
+            result.notes[key] = result.next_experiments.attrs[key]
     return result
 
 

@@ -84,12 +84,19 @@ class HistoryMatch:
         return self.cuts[-1].cutoff
 
     def nroy_frame(self) -> pd.DataFrame:
-        """The NROY sample, theta in original units (nroy.csv)."""
-        return pd.DataFrame(self.box.theta_to_original(self.nroy.theta_unit), columns=self.box.theta)
+        """The NROY sample, theta in original units (nroy.csv; with
+        per-experiment theta, each experiment's own as ``name[experiment]``)."""
+        return pd.DataFrame(self.box.theta_to_original(self.nroy.theta_unit), columns=self.box.nroy_names)
 
     def implausibility(self, theta: pd.DataFrame) -> np.ndarray:
-        """Every wave's cut at theta (original units), as one implausibility."""
-        return combined(self.cuts, self.box.theta_to_unit(theta[self.box.theta].to_numpy(float)))
+        """Every wave's cut at theta (original units, nroy.csv's columns), as one implausibility."""
+        return combined(self.cuts, self.box.theta_to_unit(theta[self.box.nroy_names].to_numpy(float)))
+
+    def implausibility_at_runs(self, runs: pd.DataFrame) -> np.ndarray:
+        """Every wave's cut at runs' theta (Cut.at_runs): the same as
+        ``implausibility`` without per-experiment theta."""
+        D = len(self.box.inputs)
+        return combined(self.cuts, self.box.to_unit(runs)[:, D:], at_runs=True)
 
     def to_json(self) -> dict:
         return {"nroy_fraction": self.nroy_fraction, "nroy_fraction_cv": self.nroy.fraction_cv,
@@ -105,10 +112,12 @@ def run_count(data) -> int:
 
 
 def run_table(data, box: UnitBox) -> tuple[np.ndarray, np.ndarray]:
-    """Every run's (x, theta) on the unit cube and its output (runs,) or (runs, K)."""
+    """Every run's (x, theta) on the unit cube and its output (runs,) or
+    (runs, K): a scalar output's on its likelihood's link scale, where the
+    emulator works (the latent programs' stage 1 does so too)."""
     if isinstance(data, VectorCalibrationData):
         return box.to_unit(data.run_settings), data.run_outputs
-    return box.to_unit(data.runs), data.runs[data.output].to_numpy(float)
+    return box.to_unit(data.runs), data.runs_on_link_scale()
 
 
 def fit_emulator(data, xt: np.ndarray, outputs: np.ndarray, seed: int) -> ScalarEmulator | BasisEmulator:
@@ -120,17 +129,17 @@ def fit_emulator(data, xt: np.ndarray, outputs: np.ndarray, seed: int) -> Scalar
 def least_squares_variance(emulator, targets: Targets, dimensions: int, seed: int) -> float:
     """n / (n - Q) times the mean squared residual of the emulator mean at
     theta's least-squares fit: the best of a uniform sample of theta,
-    polished by L-BFGS within the box."""
+    polished by L-BFGS within the box. A censored value's residual is its
+    mean's distance beyond its bounds; n counts the observed values."""
     from scipy import optimize
 
     def squares(theta: np.ndarray) -> np.ndarray:
-        mean, _ = emulator.at(targets.x_unit, np.atleast_2d(theta), targets.groups)
-        return np.sum((targets.z - mean) ** 2, axis=1)
+        return np.sum(targets.distance(targets.emulate(emulator, theta)[0]) ** 2, axis=1)
 
     start = np.random.default_rng(seed).uniform(size=(2000, dimensions))
     best = start[np.argmin(squares(start))]
     found = optimize.minimize(lambda t: float(squares(t)[0]), best, method="L-BFGS-B", bounds=[(0, 1)] * dimensions)
-    return float(found.fun) / max(targets.count - dimensions, 1)
+    return float(found.fun) / max(int(targets.observed.sum()) - dimensions, 1)
 
 
 def history_match(data, *, waves: list[Wave] | None = None, settings: DesignSettings | None = None,
@@ -150,7 +159,7 @@ def history_match(data, *, waves: list[Wave] | None = None, settings: DesignSett
     used, refocused = np.arange(total), False
     if earlier:
         previous = [w.cut(targets) for w in earlier]
-        inside = np.flatnonzero(combined(previous, xt[:, len(box.inputs):]) <= previous[-1].cutoff)
+        inside = np.flatnonzero(combined(previous, xt[:, len(box.inputs):], at_runs=True) <= previous[-1].cutoff)
         refocused = len(inside) >= RUNS_PER_DIMENSION * xt.shape[1]
         used = inside if refocused else used
         if not refocused:
@@ -159,12 +168,12 @@ def history_match(data, *, waves: list[Wave] | None = None, settings: DesignSett
                            len(earlier) + 1, total)
     emulator = fit_emulator(data, xt[used], outputs[used], seed)
     if targets.noise_estimated:
-        targets = targets.noise_bounded_by(least_squares_variance(emulator, targets, len(box.theta), seed))
+        targets = targets.noise_bounded_by(least_squares_variance(emulator, targets, len(box.nroy_names), seed))
     nth = settings.nth_maximum or nth_maximum_for(targets.count, settings.cutoff)
     wave = Wave(len(earlier) + 1, total, len(used), refocused, emulator.to_dict(), targets.discrepancy_variance,
                 targets.noise_variance.tolist(), nth, settings.cutoff)
     cuts = [*(w.cut(targets) for w in earlier), wave.cut(targets)]
-    nroy = sample_nroy(lambda t: combined(cuts, t), len(box.theta), settings.cutoff, settings.nroy_points, seed)
+    nroy = sample_nroy(lambda t: combined(cuts, t), len(box.nroy_names), settings.cutoff, settings.nroy_points, seed)
     wave.nroy_fraction, wave.nroy_fraction_cv, wave.levels = nroy.fraction, nroy.fraction_cv, nroy.levels
     logger.info("design: wave %d, emulator on %d of %d runs; NROY %.3g of theta's box", wave.number,
                 len(used), total, nroy.fraction)
@@ -182,8 +191,9 @@ def load_waves(folder, data) -> list[Wave]:
         return []
     stored = json.loads(path.read_text())
     box, now = stored["box"], UnitBox.of(data)
-    same = (box["inputs"] == now.inputs and box["theta"] == now.theta
-            and np.allclose(box["low"], now.low) and np.allclose(box["width"], now.width))
+    same = (box["inputs"] == now.inputs and box["theta"] == now.theta and len(box["low"]) == len(now.low)
+            and np.allclose(box["low"], now.low) and np.allclose(box["width"], now.width)
+            and box.get("experiments", []) == now.experiments)
     if not same:
         raise DataError(f"{path} holds the waves of another problem (its theta, their bounds or the physical "
                         f"inputs' range differ from the config's); use a new --out folder")

@@ -28,8 +28,9 @@ def saturated_share(tree, max_treedepth: int) -> float:
 
 
 def other_parametrization(options: ModelOptions) -> ModelOptions:
-    """The same options with the discrepancy's latent GP the other way."""
-    other = "non_centred" if options.discrepancy_parametrization == "centred" else "centred"
+    """The same options with the discrepancy's latent GP the other way:
+    non-centred after centred or partially non-centred, centred after non-centred."""
+    other = "centred" if options.discrepancy_parametrization == "non_centred" else "non_centred"
     return replace(options, discrepancy_parametrization=other)
 
 

@@ -196,16 +196,18 @@ def _latent_version(base: Program, reason: str | None, options: ModelOptions) ->
 
 
 def _latent_parametrization(data: CalibrationData, chosen: Program, options: ModelOptions) -> ModelOptions:
-    """The latent programs' discrepancy GP centred or non-centred, decided
-    once: the user's choice, or the data's (stancal.numerics.parametrization,
-    Papaspiliopoulos, Roberts & Sköld 2007), said in one line."""
+    """The latent programs' discrepancy GP centred, non-centred or partially
+    non-centred, decided once: the user's choice, or the data's
+    (stancal.numerics.parametrization, Papaspiliopoulos, Roberts & Sköld 2007;
+    Christensen, Roberts & Sköld 2006), said in one line."""
     if not (chosen.latent and options.has_discrepancy) or options.discrepancy_parametrization_reason:
         return options
     if options.discrepancy_parametrization != "auto":
         return replace(options, discrepancy_parametrization_reason=(
             f"{options.discrepancy_parametrization} (set by the user: model.discrepancy_parametrization)"))
     x_delta = data.scaling.to_unit(data.physical, data.discrepancy_inputs)
-    choice = choose_parametrization(data.observations, x_delta, len(data.inputs), options.kernel_id)
+    choice = choose_parametrization(data.observations, x_delta, len(data.inputs), options.kernel_id,
+                                    partial=chosen.partial_centring)
     logger.info("the discrepancy's latent GP is sampled %s", choice.reason)
     return replace(options, discrepancy_parametrization=choice.parametrization,
                    discrepancy_parametrization_reason=choice.reason)
@@ -277,3 +279,8 @@ def _check_options(chosen: Program, options: ModelOptions | VectorOptions) -> No
                          f"got kernel '{options.kernel}'")
     if getattr(options, "estimate_rho", False) and not chosen.estimate_rho:
         raise ValueError(f"estimate_rho: {chosen.stan_file} has no rho")
+    if getattr(options, "discrepancy_parametrization", "auto") == "partial" and not chosen.partial_centring:
+        # any program: a Gaussian one integrates its GP out, so 'partial' would be silently ignored
+        offered = [p.name for p in PROGRAMS.values() if p.partial_centring]
+        raise ValueError(f"discrepancy_parametrization 'partial' is offered by {', '.join(offered)}, not by "
+                         f"{chosen.name}; choose centred, non_centred or auto")

@@ -1,5 +1,6 @@
-"""Centred or non-centred: how the latent programs (koh_latent*.stan) sample
-their discrepancy GP, chosen from the data before anything compiles.
+"""Centred, non-centred or partially non-centred: how the latent programs
+(koh_latent*.stan) sample their discrepancy GP, chosen from the data before
+anything compiles.
 
 Papaspiliopoulos, Roberts & Sköld (2007, "A general framework for the
 parametrization of hierarchical models") show that the centred form (sample
@@ -9,10 +10,14 @@ a long ridge where the other is not. Betancourt & Girolami (2015,
 "Hamiltonian Monte Carlo for hierarchical models") show the same for HMC: the
 wrong form shows as transitions at the maximum tree depth or divergences.
 
-The rule: at each point, the likelihood's curvature on the model (link) scale
-(the observed information about delta_i) is set against the GP prior's
-precision at that point given the other points, 1 / v_i with
-v_i = 1 / (K^-1)_ii, the kernel K (with the programs' jitter) at the
+The rule: where the program offers the partially non-centred form
+(Christensen, Roberts & Sköld 2006; koh_latent.stan's latent_partial.stan),
+it is chosen when the data dominate the prior's marginal variance,
+information * sigma^2 >= DOMINANCE (sigma = DISCREPANCY_PRIOR_SD), at more
+than half the points. Otherwise, at each point, the likelihood's curvature
+on the model (link) scale (the observed information about delta_i) is set
+against the GP prior's precision at that point given the other points,
+1 / v_i with v_i = 1 / (K^-1)_ii, the kernel K (with the programs' jitter) at the
 hyperparameters' prior medians: sd DISCREPANCY_PRIOR_SD, length scales
 INPUT_LENGTH_SCALE (simulator inputs) and COVARIATE_LENGTH_SCALE (priors.stan).
 For points far apart against the length scale, v_i = sigma^2 and the
@@ -38,8 +43,8 @@ and the non-centred one none (mean depth 6). DOMINANCE = 10 leaves a margin
 on the side of non-centred, because the two mistakes are not alike:
 non-centred where centred was due costs tree depth (slow), centred where
 non-centred was due is a funnel (divergences, bias). A fit that saturates
-the tree depth anyway is refitted once the other way
-(stancal.fitting.parametrization_fallback)."""
+the tree depth anyway is refitted once the other way, non-centred after
+partial (stancal.fitting.parametrization_fallback)."""
 
 from __future__ import annotations
 
@@ -72,6 +77,13 @@ class Choice:
     reason: str
 
 
+def _binomial_p(observations: Observations) -> np.ndarray:
+    """The success probability at each point, (y + 1/2) / (n + 1): kept off
+    0 and 1, so its logit and n p (1 - p) stay finite."""
+    y = np.nan_to_num(np.asarray(observations.value, dtype=float))
+    return (y + 0.5) / (np.asarray(observations.trials, dtype=float) + 1)
+
+
 def information_per_point(observations: Observations) -> np.ndarray:
     """The likelihood's curvature about the discrepancy at each point, on the
     model scale (the module's docstring: one formula per likelihood)."""
@@ -82,11 +94,26 @@ def information_per_point(observations: Observations) -> np.ndarray:
     if kind is Likelihood.NEGBINOMIAL:
         return y * PHI_PRIOR_MEDIAN / (y + PHI_PRIOR_MEDIAN)
     if kind is Likelihood.BINOMIAL:
-        n = np.asarray(observations.trials, dtype=float)
-        p = (y + 0.5) / (n + 1)
-        return n * p * (1 - p)
+        p = _binomial_p(observations)
+        return np.asarray(observations.trials, dtype=float) * p * (1 - p)
     exact = np.asarray(observations.censoring) == Censoring.OBSERVED
     return np.where(exact, 1 / NOISE_PRIOR_MEDIAN**2, 0.0)
+
+
+def model_scale_values(observations: Observations, gaussian: np.ndarray) -> np.ndarray:
+    """The data's value at each point on the model (link) scale, where the
+    likelihood's normal approximation is centred: log(y + 1/2) for counts,
+    the empirical logit log((y + 1/2) / (n - y + 1/2)) for binomial successes;
+    for a Gaussian output ``gaussian`` as given, the standardised values with
+    0 where censored (the programs' y_real: the information is 0 there,
+    information_per_point)."""
+    kind = observations.likelihood
+    if kind in (Likelihood.POISSON, Likelihood.NEGBINOMIAL):
+        return np.log(np.nan_to_num(np.asarray(observations.value, dtype=float)) + 0.5)
+    if kind is Likelihood.BINOMIAL:
+        p = _binomial_p(observations)
+        return np.log(p / (1 - p))  # the empirical logit: 1 - p = (n - y + 1/2) / (n + 1)
+    return np.asarray(gaussian, dtype=float)
 
 
 def prior_conditional_variance(x_delta: np.ndarray, inputs: int, kernel_id: int) -> np.ndarray:
@@ -102,10 +129,23 @@ def prior_conditional_variance(x_delta: np.ndarray, inputs: int, kernel_id: int)
 
 
 def choose_parametrization(observations: Observations, x_delta: np.ndarray, inputs: int,
-                           kernel_id: int) -> Choice:
-    """Centred when the data dominate the prior (information times the prior's
-    conditional variance >= DOMINANCE) at more than half the points, else non-centred."""
-    ratio = information_per_point(observations) * prior_conditional_variance(x_delta, inputs, kernel_id)
+                           kernel_id: int, partial: bool = False) -> Choice:
+    """Where the program offers it (``partial``), partially non-centred when
+    the data dominate the prior's marginal variance (information times
+    DISCREPANCY_PRIOR_SD^2 >= DOMINANCE) at more than half the points; else
+    centred when they dominate its conditional variance at more than half the
+    points, else non-centred."""
+    information = information_per_point(observations)
+    if partial:
+        marginal = information * DISCREPANCY_PRIOR_SD**2
+        share = float(np.mean(marginal >= DOMINANCE))
+        if share > 0.5:
+            return Choice("partial", (
+                f"partial (partially non-centred with the data's information, chosen from the data): the "
+                f"data's information per point is at least {DOMINANCE:g} times the discrepancy prior's "
+                f"precision 1 / sd^2 at {100 * share:.0f} % of the points (median {np.median(marginal):.3g} "
+                f"times), so they pin the discrepancy along its smooth directions but not along the rough ones"))
+    ratio = information * prior_conditional_variance(x_delta, inputs, kernel_id)
     dominated = float(np.mean(ratio >= DOMINANCE))
     chosen = "centred" if dominated > 0.5 else "non_centred"
     return Choice(chosen, (

@@ -32,5 +32,9 @@ class Censoring(IntEnum):
     INTERVAL = 3  # lower <= y <= upper
 
 
+# ``delta_centred`` in the latent programs: how the discrepancy GP is sampled (functions/latent_gp.stan;
+# 2, partially non-centred, only in koh_latent.stan: functions/latent_partial.stan)
+DISCREPANCY_PARAMETRIZATION_CODES = {"non_centred": 0, "centred": 1, "partial": 2}
+
 # ``noise_mode`` in the vector programs (functions/vector_noise.stan)
 NOISE_MODES = {"known": 0, "one": 1, "per_experiment": 2}

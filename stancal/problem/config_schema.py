@@ -143,9 +143,11 @@ TABLES: tuple[Table, ...] = (
             "pin theta(x)) or non_centred", SCALAR,
             choices=FUNCTIONAL_PARAMETRIZATIONS),
         Key("discrepancy_parametrization", "string", '"auto"', "the latent programs' discrepancy GP (counts, "
-            "binomial, censored outputs, functional theta): centred, non_centred, or auto (centred when the "
-            "data's information per point dominates the prior at most points; refitted the other way once if "
-            "more than 5 % of transitions hit the maximum tree depth)", SCALAR, choices=PARAMETRIZATIONS),
+            "binomial, censored outputs, functional theta): centred, non_centred, partial (partially non-centred "
+            "with the data's information per point; koh_latent), or auto (partial where offered and the data "
+            "dominate the prior's variance at most points, else centred when they dominate its conditional "
+            "variance at most points; refitted non-centred once if more than 5 % of transitions hit the "
+            "maximum tree depth)", SCALAR, choices=PARAMETRIZATIONS),
         Key("approximation", "string", '"auto"', "exact (dense GPs), hsgp (Hilbert-space, scalable) or auto "
             f"(hsgp above {EXACT_SIZE_LIMIT:,} points plus runs)", SCALAR,
             choices=APPROXIMATIONS),
@@ -178,12 +180,13 @@ TABLES: tuple[Table, ...] = (
           "baseline's theta, which keep their bounds)", entries="[lower, upper]"),
     Table("design", "History matching and the next runs for `stancal design` (docs/design.md)", keys=(
         Key("discrepancy_sd", "number", "discrepancy_fraction x the observations' sd", "the model discrepancy's sd "
-            "in implausibility, output units"),
+            "in implausibility, output units (counts: on the link scale, log or logit)"),
         Key("discrepancy_fraction", "number", "0.1", "the discrepancy sd as a share of the observations' sd over "
             "the physical points, when discrepancy_sd is not given"),
         Key("noise_sd", "number", "the known noise_sd column, else estimated", "the measurement noise sd in "
             "implausibility, output units (estimated: the smaller of Rice's difference estimate and the "
-            "emulator's least-squares residual sd)"),
+            "emulator's least-squares residual sd); for counts, an sd on the link scale added to the count "
+            "model's (a negative binomial's 1 / sqrt(phi), else estimated)"),
         Key("nth_maximum", "integer", "by the number of observations", "combine the observations' "
             "implausibilities by their 1st, 2nd or 3rd largest (Vernon et al. 2010); by default the smallest "
             "whose chance of ruling out the true theta is at most 5 %"),

@@ -36,8 +36,9 @@ class ModelOptions:
     # the mean terms centred over the physical points without a constant term: a theta carries
     # the level (stancal.fitting.confounding dropped the constant it would trade with)
     mean_centred: bool = False
-    # the latent programs' discrepancy GP: centred, non_centred, or auto (the plan chooses from the
-    # data's information per point: stancal.numerics.parametrization); the reason says who chose and why
+    # the latent programs' discrepancy GP: centred, non_centred, partial (partially non-centred with the
+    # data's information, where the program offers it), or auto (the plan chooses from the data's
+    # information per point: stancal.numerics.parametrization); the reason says who chose and why
     discrepancy_parametrization: str = "auto"
     discrepancy_parametrization_reason: str = field(default="", metadata={"set_by": "stancal"})  # not a user's key
 
@@ -78,7 +79,7 @@ class ModelOptions:
 
 FUNCTIONAL_PARAMETRIZATIONS = ("centred", "non_centred")
 # the latent discrepancy: auto = chosen by the plan (stancal.numerics.parametrization)
-PARAMETRIZATIONS = ("auto", "centred", "non_centred")
+PARAMETRIZATIONS = ("auto", "centred", "non_centred", "partial")
 
 # approximation = "auto" switches to the scalable programs when the dense
 # matrix factorised at every gradient would be larger than this: N physical

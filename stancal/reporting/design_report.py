@@ -1,10 +1,13 @@
 """The design folder of `stancal design`: next_runs.csv, nroy.csv,
 design.json, waves.json (every wave's cut, read by the next wave),
-next_experiments.csv with --experiments, figures and report.md. The files
-are written to a temporary folder beside the target and then moved into
-it one by one (os.replace), so that a failure while they are made (the
-fits, the figures) leaves the folder as it was; the moves themselves are
-not one atomic step."""
+next_experiments.csv with --experiments, figures and report.md. The whole
+folder is made as a temporary folder beside the target (with any files of
+the user's the target held, hard-linked) and then renamed onto it: the
+target is renamed aside, the new folder renamed in, and the old one
+removed (put back should the rename in fail). A failure while the files
+are made (the fits, the figures) or moved leaves the folder as it was,
+never half-written; only a crash between the two renames, a moment, leaves
+the old folder beside it under a hidden name, whole."""
 
 from __future__ import annotations
 
@@ -12,6 +15,7 @@ import json
 import os
 import shutil
 import tempfile
+import uuid
 from pathlib import Path
 
 import numpy as np
@@ -37,15 +41,15 @@ def pairs_grid(design: Design, seed: int = 0) -> dict:
     fraction x P(bin | NROY) / P(bin), from the NROY sample (so it stays
     resolved when NROY is a tiny part of the box)."""
     match = design.match
-    Q = len(match.box.theta)
+    Q = len(match.box.nroy_names)
     uniform = np.random.default_rng(seed).uniform(size=(UNIFORM_POINTS, Q))
     points = np.vstack([uniform, match.nroy.theta_unit])
     value = np.concatenate([combined(match.cuts, uniform), match.nroy.implausibility])
     cells = np.minimum((points * BINS).astype(int), BINS - 1)
     nroy_cells = cells[UNIFORM_POINTS:]
     minimum, depth = {}, {}
-    for i in range(Q):
-        for j in range(Q):
+    for i in range(min(Q, MAX_PAIRS_COLUMNS)):
+        for j in range(min(Q, MAX_PAIRS_COLUMNS)):
             if i == j:
                 continue
             grid = np.full((BINS, BINS), np.nan)
@@ -62,14 +66,14 @@ def plot_nroy_pairs(design: Design, path: Path | None = None, units: dict[str, s
     """Lower triangle: minimum implausibility (the cutoff marked in the
     colour bar); upper: optical depth; diagonal: theta's NROY histogram."""
     match = design.match
-    if len(match.box.theta) == 1:
+    if len(match.box.nroy_names) == 1:
         return plot_nroy_line(design, path, units)
     plt = pyplot()
     from matplotlib.colors import LinearSegmentedColormap, LogNorm
 
-    names, Q = match.box.theta, len(match.box.theta)
-    D = len(match.box.inputs)
-    low, width = match.box.low[D:], match.box.width[D:]
+    names = match.box.nroy_names[:MAX_PAIRS_COLUMNS]  # the first theta (shared, then the first experiments')
+    Q = len(names)
+    low, width = (bound[:Q] for bound in match.box.nroy_bounds())
     grids = pairs_grid(design)
     cutoff = match.cutoff
     top = max(2 * cutoff, float(np.nanmax([np.nanmax(g) for g in grids["minimum"].values()] or [cutoff])))
@@ -124,7 +128,7 @@ def plot_nroy_line(design: Design, path: Path | None = None, units: dict[str, st
     ax.fill_between(theta, 0, 1, where=value <= match.cutoff, transform=ax.get_xaxis_transform(),
                     color="tab:green", alpha=0.2, label="NROY")
     ax.set_ylim(0, min(float(value.max()) * 1.05, 5 * match.cutoff))
-    ax.set_xlabel(axis_label(match.box.theta[0], units))
+    ax.set_xlabel(axis_label(match.box.nroy_names[0], units))
     ax.set_ylabel("implausibility (sd)")
     ax.legend(fontsize=8)
     ax.set_title(f"NROY after wave {len(match.waves)}: {match.nroy_fraction:.3g} of theta's range", fontsize=10)
@@ -163,7 +167,8 @@ def plot_proposed_runs(design: Design, path: Path | None = None, units: dict[str
     existing = box.to_original(run_table(design.match.data, box)[0])
     proposed = design.next_runs[box.columns].to_numpy(float)
     nroy = design.match.nroy.theta_unit[:BACKGROUND_POINTS]  # a uniform sample: its first rows are one too
-    spread = np.column_stack([np.random.default_rng(0).uniform(size=(len(nroy), len(box.inputs))), nroy])
+    rng = np.random.default_rng(0)
+    spread = np.column_stack([rng.uniform(size=(len(nroy), len(box.inputs))), box.run_theta(nroy, rng)])
     background = box.to_original(spread)
     C = len(columns)
     panel = 2.4 if C <= 4 else 1.7  # inches: many columns make small panels
@@ -222,31 +227,73 @@ def _ordinal(n: int) -> str:
     return {1: "1st", 2: "2nd", 3: "3rd"}[n]
 
 
+DESIGN_FILES = frozenset({"next_runs.csv", "nroy.csv", "next_experiments.csv", "design.json", "waves.json",
+                          "nroy_pairs.png", "nroy_by_wave.png", "proposed_runs.png", "report.md", "report.html"})
+
+
 def write_design(design: Design, folder: str | Path, units: dict[str, str] | None = None) -> dict:
-    """Every file of a design folder, staged and then moved in file by file (see the module)."""
+    """Every file of a design folder, made in a folder beside it and renamed onto it (see the module)."""
     folder = Path(folder)
     folder.parent.mkdir(parents=True, exist_ok=True)
     summary = design.to_json()
-    staging = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", dir=folder.parent))
+    staging = folder.parent / f".{folder.name}.{uuid.uuid4().hex}"
+    staging.mkdir()  # not mkdtemp: a new folder's default mode, not a private one
     try:
-        design.next_runs.to_csv(staging / "next_runs.csv", index=False)
-        design.match.nroy_frame().to_csv(staging / "nroy.csv", index=False)
-        if design.next_experiments is not None:
-            design.next_experiments.to_csv(staging / "next_experiments.csv", index=False)
-        (staging / "design.json").write_text(json.dumps(summary, indent=2))
-        (staging / "waves.json").write_text(json.dumps({"box": design.match.box.to_dict(),
-                                                        "waves": [w.to_dict() for w in design.match.waves]}))
-        figures = [staging / "nroy_pairs.png", staging / "nroy_by_wave.png", staging / "proposed_runs.png"]
-        plot_nroy_pairs(design, figures[0], units)
-        plot_fraction_by_wave(design, figures[1])
-        plot_proposed_runs(design, figures[2], units)
-        (staging / "report.md").write_text(report_markdown(summary, figures))
-        write_html(staging / "report.md")
-        folder.mkdir(exist_ok=True)
-        for path in staging.iterdir():
-            os.replace(path, folder / path.name)
-        if design.next_experiments is None:  # an earlier wave's settings would read as this wave's
-            (folder / "next_experiments.csv").unlink(missing_ok=True)
+        keep_users_files(folder, staging)
+        write_files(design, summary, staging, units)
+        swap_in(staging, folder)
     finally:
         shutil.rmtree(staging, ignore_errors=True)
     return summary
+
+
+def keep_users_files(folder: Path, staging: Path) -> None:
+    """``staging`` with the mode of ``folder``, if there is one, and,
+    hard-linked, the files in it that are not the design's (an earlier
+    wave's design files are replaced, or dropped: its next_experiments.csv
+    would read as this wave's)."""
+    if not folder.is_dir():
+        return
+    shutil.copymode(folder, staging)
+    for path in folder.iterdir():
+        if path.name in DESIGN_FILES:
+            continue
+        if path.is_dir():
+            shutil.copytree(path, staging / path.name, copy_function=os.link)
+        else:
+            os.link(path, staging / path.name)
+
+
+def swap_in(staging: Path, folder: Path) -> None:
+    """``staging`` renamed onto ``folder``: the old folder renamed aside
+    first (put back if the rename in fails), then removed."""
+    if not folder.exists():
+        os.rename(staging, folder)
+        return
+    aside = Path(tempfile.mkdtemp(prefix=f".{folder.name}.old.", dir=folder.parent))
+    os.rename(folder, aside / folder.name)
+    try:
+        os.rename(staging, folder)
+    except BaseException:
+        os.rename(aside / folder.name, folder)
+        raise
+    finally:
+        if folder.exists():
+            shutil.rmtree(aside, ignore_errors=True)
+
+
+def write_files(design: Design, summary: dict, staging: Path, units: dict[str, str] | None) -> None:
+    """The design's files in ``staging``."""
+    design.next_runs.to_csv(staging / "next_runs.csv", index=False)
+    design.match.nroy_frame().to_csv(staging / "nroy.csv", index=False)
+    if design.next_experiments is not None:
+        design.next_experiments.to_csv(staging / "next_experiments.csv", index=False)
+    (staging / "design.json").write_text(json.dumps(summary, indent=2))
+    (staging / "waves.json").write_text(json.dumps({"box": design.match.box.to_dict(),
+                                                    "waves": [w.to_dict() for w in design.match.waves]}))
+    figures = [staging / "nroy_pairs.png", staging / "nroy_by_wave.png", staging / "proposed_runs.png"]
+    plot_nroy_pairs(design, figures[0], units)
+    plot_fraction_by_wave(design, figures[1])
+    plot_proposed_runs(design, figures[2], units)
+    (staging / "report.md").write_text(report_markdown(summary, figures))
+    write_html(staging / "report.md")

@@ -58,6 +58,12 @@ class Program:
     helper: bool = False  # a stage-1 program, not a calibration
 
     @property
+    def partial_centring(self) -> bool:
+        """Its latent discrepancy can be sampled partially non-centred
+        (delta_centred 2): its Stan data carry the data's information per point."""
+        return sd.partial_centring in self.data
+
+    @property
     def path(self) -> Path:
         """The program's file: shipped, or a user's copy given by its absolute path."""
         path = Path(self.stan_file)
@@ -84,7 +90,8 @@ PROGRAMS: dict[str, Program] = {program.name: program for program in (
             commands=_SCALAR | {L2, DESIGN}),
     Program("koh_latent", "koh_latent.stan",
             "KOH with latent GPs: counts, binomial, censored outputs, functional theta", simulator=True,
-            latent=True, estimate_rho=False, data=(*_LATENT, sd.simulator_points), commands=_SCALAR),
+            latent=True, estimate_rho=False, data=(*_LATENT, sd.simulator_points, sd.partial_centring),
+            commands=_SCALAR),
     Program("koh_latent_emulator", "koh_latent_emulator.stan",
             "koh_latent from simulator runs: stage-1 emulator on the link scale, latent at the data", runs=True,
             stage_one=STAGE_ONE_GP, latent=True, estimate_rho=False,

@@ -10,8 +10,10 @@ import numpy as np
 import pandas as pd
 
 from stancal.numerics.hsgp import HALF_RANGE, HSGPBasis, first_basis
+from stancal.numerics.parametrization import information_per_point, model_scale_values
 from stancal.numerics.quadrature import input_box_quadrature
 from stancal.numerics.scalable_emulator import ScalableEmulator
+from stancal.problem.codes import DISCREPANCY_PARAMETRIZATION_CODES
 from stancal.problem.data import CalibrationData
 from stancal.problem.functional import functional_grid
 from stancal.problem.mean_terms import MeanTerms, build_mean_terms
@@ -117,6 +119,14 @@ def latent_outputs(inputs: StanInputs) -> dict[str, Any]:
     return latent_data(inputs.data, inputs.options, inputs.points, inputs.data.trials_at(inputs.raw_points))
 
 
+def partial_centring(inputs: StanInputs) -> dict[str, Any]:
+    """The data's value and information per point on the model scale, for
+    koh_latent.stan's partially non-centred discrepancy (functions/latent_partial.stan)."""
+    data = inputs.data
+    return {"delta_pseudo": model_scale_values(data.observations, _gaussian_values(data)),
+            "delta_information": information_per_point(data.observations)}
+
+
 def simulator_points(inputs: StanInputs) -> dict[str, Any]:
     """The raw inputs where a program's Stan simulator runs."""
     data = inputs.data
@@ -177,11 +187,17 @@ def scalable_emulator(inputs: StanInputs) -> dict[str, Any]:
     return scalable_emulator_data(inputs.data, inputs.emulator, inputs.points)
 
 
+def _gaussian_values(data: CalibrationData) -> np.ndarray:
+    """koh_latent*.stan's y_real: a Gaussian output standardised where it is
+    observed exactly, 0 where it is censored or not Gaussian."""
+    obs = data.observations
+    return np.where(obs.observed & obs.is_gaussian, data.scaling.standardise(np.nan_to_num(obs.value)), 0.0)
+
+
 def latent_data(data: CalibrationData, options: ModelOptions, new_points: pd.DataFrame,
                 trials_new: np.ndarray) -> dict[str, Any]:
     """The observation model and functional theta of koh_latent*.stan."""
     obs = data.observations
-    observed = obs.observed & obs.is_gaussian
     grid = functional_grid(data, options.functional_inputs)
     slots = [options.functional.index(name) + 1 if name in options.functional else 0
              for name in data.theta_names]
@@ -191,7 +207,7 @@ def latent_data(data: CalibrationData, options: ModelOptions, new_points: pd.Dat
                                     return_inverse=True)
     return {
         "likelihood_id": int(obs.likelihood),
-        "y_real": np.where(observed, data.scaling.standardise(np.nan_to_num(obs.value)), 0.0),
+        "y_real": _gaussian_values(data),
         "y_int": np.where(obs.is_gaussian, 0, np.nan_to_num(obs.value)).astype(int),
         "trials": obs.trials,
         "censoring": obs.censoring,
@@ -205,7 +221,7 @@ def latent_data(data: CalibrationData, options: ModelOptions, new_points: pd.Dat
         "x_fun": distinct if fun_inputs else np.zeros((0, 0)),
         "fun_point": (fun_point.ravel() + 1) if fun_inputs else np.zeros(0, dtype=int),
         "functional_centred": int(options.functional_parametrization == "centred"),
-        "delta_centred": int(options.discrepancy_parametrization == "centred"),
+        "delta_centred": DISCREPANCY_PARAMETRIZATION_CODES.get(options.discrepancy_parametrization, 0),
         "G": len(grid),
         "x_fun_grid": data.scaling.to_unit(grid, fun_inputs).reshape(len(grid), len(fun_inputs)),
         "x_fun_new": data.scaling.to_unit(new_points, fun_inputs),
