@@ -12,6 +12,7 @@ import pandas as pd
 from stancal.problem import config_schema
 from stancal.problem.candidates import Candidate, CandidateError
 from stancal.problem.data import CalibrationData
+from stancal.problem.noise import check_noise, check_noise_name
 from stancal.problem.validation import DataError, read_table
 from stancal.problem.vector_data import VectorCalibrationData
 
@@ -114,11 +115,23 @@ def _problem(raw: dict[str, Any], base: Path) -> Problem:
         theta={k: tuple(v) if isinstance(v, list) else v for k, v in theta.items()},
         covariates=physical.get("covariates", []),
         runs=runs,
+        noise_sd=physical.get("noise_sd"),
+        source=physical.get("source"),
         **observation,
     )
+    _check_noise(model.get("noise", "iid"), data)
     candidates = _candidates(raw.get("candidates", {}), base)
     return Problem(data=data, simulator=stan, model=model, candidates=candidates, units=dict(raw.get("units", {})),
                    design=dict(raw.get("design", {})))
+
+
+def _check_noise(noise: str, data: CalibrationData) -> None:
+    """[model] noise against [physical] noise_sd and source, before anything compiles."""
+    try:
+        check_noise_name(noise)
+    except ValueError as err:
+        raise ConfigError(f"[model] {err}") from None
+    check_noise(noise, data.noise)  # a DataError naming the key and the column
 
 
 def _vector_problem(physical: dict, simulator: dict, theta: dict, runs: pd.DataFrame | None, stan: Path | None,
