@@ -41,7 +41,7 @@ vector noise_variance(array[] real noise_sd, array[] int source, vector known_sd
  * @return its log prior density
  */
 real noise_dof_lpdf(array[] real nu) {
-  return gamma_lpdf(nu | 2, 0.1);
+  return gamma_lupdf(nu | 2, 0.1);
 }
 
 /**
@@ -54,7 +54,7 @@ real noise_dof_lpdf(array[] real nu) {
  */
 real noise_weight_lpdf(vector weight, array[] real nu) {
   if (rows(weight) == 0) return 0;
-  return gamma_lpdf(weight | 0.5 * nu[1], 0.5 * nu[1]);
+  return gamma_lupdf(weight | 0.5 * nu[1], 0.5 * nu[1]);
 }
 
 /**
@@ -76,11 +76,11 @@ vector weighted_noise_variance(vector variance, vector weight) {
  * @param resid observed minus mean, one per row
  * @param variance s_i^2 per row (noise_variance)
  * @param nu the degrees of freedom (an empty array: normal)
- * @return log p(resid)
+ * @return log p(resid) (without constants where called by ~, as Stan's own densities)
  */
 real independent_noise_lpdf(vector resid, vector variance, array[] real nu) {
-  if (size(nu) == 0) return normal_lpdf(resid | 0, sqrt(variance));
-  return student_t_lpdf(resid | nu[1], 0, sqrt(variance));
+  if (size(nu) == 0) return normal_lupdf(resid | 0, sqrt(variance));
+  return student_t_lupdf(resid | nu[1], 0, sqrt(variance));
 }
 
 /**

@@ -22,9 +22,11 @@ from stancal.problem.validation import DataError, numeric_values, row_labels
 NOISES = tuple(code.name.lower() for code in Noise)  # iid, per_source, student_t
 # noise models of issue 33 not built yet: refused by name, never silently replaced
 NOT_BUILT = ("heteroscedastic",)
-# a row whose posterior mean Student-t weight is below this counts at most half
-# as much as a typical row (prior mean weight 1): the report lists it as an outlier
-OUTLIER_WEIGHT = 0.5
+# a row whose posterior mean Student-t weight is below this counts at most a
+# quarter as much as a row of the prior mean weight, 1: the report lists it as an
+# outlier. Without a GP that is a residual beyond sqrt(3 nu + 4) scales: 3.6 at
+# nu = 3, 8 at nu = 20 (E(w | resid), Lange, Little & Taylor 1989)
+OUTLIER_WEIGHT = 0.25
 
 
 @dataclass(frozen=True)
