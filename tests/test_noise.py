@@ -264,7 +264,8 @@ def test_a_known_sd_on_counts_is_refused():
     ('source = "operater"', 'noise = "per_source"', r"no column 'operater' \(the source column, \[physical\] source\)"),
     ("", 'noise = "per_source"', "needs each row's measurement source"),
     ("", 'noise = "heteroscedastic"', "the heteroscedastic noise model is not built yet"),
-    ("", 'noise = "one"', r"\[model\] noise must be one of iid, per_source, student_t; got 'one'"),
+    ("", 'noise = "one"', r"\[model\] noise applies to a vector output only as 'one'"),
+    ("", 'noise = "cauchy"', r"\[model\] noise must be one of iid, per_source, student_t, heteroscedastic"),
     ('noise_sd = "humidity"', 'noise = "student_t"', None),
 ])
 def test_the_config_declares_the_noise_keys_and_names_file_key_and_column(tmp_path, physical, model, message):

@@ -12,7 +12,8 @@ import pandas as pd
 from stancal.problem import config_schema
 from stancal.problem.candidates import Candidate, CandidateError
 from stancal.problem.data import CalibrationData
-from stancal.problem.noise import check_noise, check_noise_name
+from stancal.problem.codes import NOISE_MODES
+from stancal.problem.noise import NOISES, check_noise, check_noise_name
 from stancal.problem.validation import DataError, read_table
 from stancal.problem.vector_data import VectorCalibrationData
 
@@ -127,6 +128,9 @@ def _problem(raw: dict[str, Any], base: Path) -> Problem:
 
 def _check_noise(noise: str, data: CalibrationData) -> None:
     """[model] noise against [physical] noise_sd and source, before anything compiles."""
+    if noise in NOISE_MODES:
+        raise ConfigError(f"[model] noise applies to a vector output only as {noise!r} (a [physical] output_index); "
+                          f"a scalar output's noise is one of {', '.join(NOISES)}")
     try:
         check_noise_name(noise)
     except ValueError as err:
@@ -140,6 +144,9 @@ def _vector_problem(physical: dict, simulator: dict, theta: dict, runs: pd.DataF
     if "program" in model:
         model["program"] = base / model["program"]
     basis = {k: model.pop(k) for k in ("variance_share", "components") if k in model}
+    if model.get("noise", "one") not in NOISE_MODES:
+        raise ConfigError(f"[model] noise {model['noise']!r} does not apply to a vector output ([physical] "
+                          f"output_index); its noise is one of {', '.join(NOISE_MODES)}")
     data = VectorCalibrationData(
         _read_csv(base / _require(physical, "csv", "physical"), "physical.csv"),
         experiment=_require(physical, "experiment", "physical"),
