@@ -24,6 +24,7 @@ from scipy import optimize, stats
 import stancal
 from stancal.problem.config import ConfigError, load_config
 from stancal.problem.validation import DataError
+from stancal.reporting.report import noise_lines
 
 SIMULATOR = COOLING / "simulator.stan"
 THETA = {"k": (0.01, 0.2)}
@@ -211,6 +212,8 @@ def test_student_t_noise_matches_quadrature_and_names_the_outlier():
     assert outliers.row.tolist()[0] == OUTLIER_ROW  # the lowest weight
     noise = result.to_summary_json()["noise"]
     assert noise["outliers"][0]["row"] == OUTLIER_ROW and "weight < 0.25" in noise["outlier_rule"]
+    report = "\n".join(noise_lines(noise, result.summary()))  # report.md's measurement noise section
+    assert f"row {OUTLIER_ROW} (weight" in report and "- nu: " in report and "- noise_sd: " in report
     # held-out densities (stancal gap's scores) are Student-t: the outlier costs less than under a normal
     zeta = np.asarray(result.idata["at_observations"]["y_loo_mean"]).reshape(-1, len(frame))
     t_density = data.heldout_log_density(np.array([OUTLIER_ROW]), zeta[:, [OUTLIER_ROW]], posterior)
@@ -313,3 +316,22 @@ def test_per_source_noise_on_the_emulator_programs():
     for source, truth in (("camera", 1.0), ("probe", 0.15)):
         draws = np.asarray(noise.sel(source=source))
         assert np.quantile(draws, 0.05) < truth < np.quantile(draws, 0.95), source
+
+
+def test_subsets_keep_the_sources_and_candidates_keep_the_noise_model(tmp_path):
+    from stancal.diagnosing.gap import variant_data
+    from stancal.fitting.plan import make_plan
+    from stancal.problem.candidates import Candidate
+
+    data = stancal.CalibrationData(two_instruments(), ["t", "T0"], "temperature", THETA, source="instrument")
+    # a K-fold training set without the probe keeps both sds, in the same order as the full data
+    camera_only = data.subset(np.flatnonzero(data.noise.source_index == 0))
+    assert camera_only.noise.sources == ("camera", "probe")
+    assert stancal.CalibrationData.from_dict(camera_only.to_dict()).noise.sources == ("camera", "probe")
+    # `stancal gap`: a simulator variant is fitted with the baseline's noise model and the data's sources
+    variant = tmp_path / "variant.stan"
+    variant.write_text(SIMULATOR.read_text())
+    candidate = Candidate("copy", stan=variant, inputs=("t", "T0"), theta={})
+    plan = make_plan(data, SIMULATOR, noise="per_source")
+    assert plan.with_simulator(variant).options.noise == "per_source"
+    assert variant_data(data, candidate).noise.sources == ("camera", "probe")

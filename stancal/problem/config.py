@@ -11,8 +11,8 @@ import pandas as pd
 
 from stancal.problem import config_schema
 from stancal.problem.candidates import Candidate, CandidateError
-from stancal.problem.data import CalibrationData
 from stancal.problem.codes import NOISE_MODES
+from stancal.problem.data import CalibrationData
 from stancal.problem.noise import NOISES, check_noise, check_noise_name
 from stancal.problem.validation import DataError, read_table
 from stancal.problem.vector_data import VectorCalibrationData

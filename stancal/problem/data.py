@@ -167,6 +167,8 @@ class CalibrationData:
         added in quadrature to the estimated noise (stancal.problem.noise).
     source : a column naming each row's measurement source (instrument),
         for one noise sd per source (noise = "per_source").
+    sources : the sources, when they must not be taken from ``physical`` (a
+        subset, a K-fold training set, that lacks one keeps its sd's index).
     """
 
     def __init__(
@@ -184,6 +186,7 @@ class CalibrationData:
         upper: str | None = None,
         noise_sd: str | None = None,
         source: str | None = None,
+        sources: Sequence[str] | None = None,
     ) -> None:
         self.inputs = list(inputs)
         self.output = output
@@ -196,7 +199,7 @@ class CalibrationData:
         numeric = [c for c in self.covariates if c not in self.levels]
         require_columns(physical, [output], what)
         self.observations = read_observations(physical, output, likelihood, trials, lower, upper, what)
-        self.noise: MeasurementNoise = read_measurement_noise(physical, noise_sd, source, what)
+        self.noise: MeasurementNoise = read_measurement_noise(physical, noise_sd, source, what, sources)
         self.observation_columns = {"likelihood": likelihood, "trials": trials, "lower": lower, "upper": upper,
                                     "noise_sd": noise_sd, "source": source}
         if noise_sd and not self.observations.is_gaussian:
@@ -258,7 +261,8 @@ class CalibrationData:
         return CalibrationData(source, self.inputs if inputs is None else inputs, self.output,
                                bounds_of(self.parameters) if theta is None else theta,
                                self.covariates if covariates is None else covariates,
-                               runs, levels=self.levels, **self.observation_columns)
+                               runs, levels=self.levels, sources=self.noise.sources if self.noise.source_column
+                               else None, **self.observation_columns)
 
     def subset(self, rows: Sequence[int]) -> CalibrationData:
         """The same problem on some physical rows (positions), same categories."""
@@ -430,6 +434,7 @@ class CalibrationData:
             "theta": {p.name: [p.lower, p.upper] for p in self.parameters},
             "runs": None if self.runs is None else self.runs.to_dict(orient="list"),
             "levels": self.levels,
+            "sources": list(self.noise.sources) if self.noise.source_column else None,
             **self.observation_columns,
         }
 
@@ -438,6 +443,6 @@ class CalibrationData:
         runs = None if d["runs"] is None else pd.DataFrame(d["runs"])
         return cls(pd.DataFrame(d["physical"]), d["inputs"], d["output"],
                    {k: tuple(v) for k, v in d["theta"].items()}, d["covariates"], runs,
-                   levels=d.get("levels"), likelihood=d.get("likelihood", "gaussian"),
+                   levels=d.get("levels"), sources=d.get("sources"), likelihood=d.get("likelihood", "gaussian"),
                    trials=d.get("trials"), lower=d.get("lower"), upper=d.get("upper"),
                    noise_sd=d.get("noise_sd"), source=d.get("source"))

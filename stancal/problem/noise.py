@@ -75,9 +75,11 @@ def source_names(frame: pd.DataFrame, column: str, what: str) -> list[str]:
     return [str(v) for v in values]
 
 
-def read_measurement_noise(frame: pd.DataFrame, noise_sd: str | None, source: str | None,
-                           what: str) -> MeasurementNoise:
-    """The rows' known sds and sources from the physical data, checked."""
+def read_measurement_noise(frame: pd.DataFrame, noise_sd: str | None, source: str | None, what: str,
+                           sources: Sequence[str] | None = None) -> MeasurementNoise:
+    """The rows' known sds and sources from the physical data, checked;
+    ``sources``: the distinct sources when a subset of rows must keep its
+    parent's (each source's sd keeps its index)."""
     for key, column in (("noise_sd", noise_sd), ("source", source)):
         if column and column not in frame.columns:
             raise DataError(f"{what}: no column '{column}' (the {key} column, [physical] {key}); "
@@ -86,7 +88,10 @@ def read_measurement_noise(frame: pd.DataFrame, noise_sd: str | None, source: st
     if not source:
         return MeasurementNoise(noise_sd, None, known, ("all",), np.zeros(len(frame), dtype=int))
     names = source_names(frame, source, what)
-    sources = tuple(sorted(set(names)))
+    sources = tuple(sources) if sources is not None else tuple(sorted(set(names)))
+    unknown = sorted(set(names) - set(sources))
+    if unknown:
+        raise DataError(f"{what}: column '{source}' names source(s) {unknown} beyond the given {list(sources)}")
     return MeasurementNoise(noise_sd, source, known, sources, np.array([sources.index(n) for n in names]))
 
 
