@@ -172,7 +172,7 @@ generated quantities {
     }
     row_weight = outlier_weight(resid, noise_var, nu, noise_weight);
     log_lik -= log(y_scale);
-    y_rep = y_center + y_scale * noise_rng(rho * f + mean_terms + delta_obs, noise_var, nu);
+    y_rep = y_center + y_scale * noise_rng(rho * f + mean_terms + delta_obs, noise_var, nu, noise_weight);
     y_loo_mean = y_center + y_scale * (y - resid + resid_loo_mean);
     delta_gp = y_scale * delta_obs;
     delta_gp_mean = y_scale * delta_obs_mean;

@@ -126,7 +126,7 @@ generated quantities {
                                  h_new, normals_new, prior_only, kernel_id, emulator_mean, emulator_sd,
                                  emulator_length_scale, emulator_nugget, rho, delta_sd,
                                  delta_length_scale, weighted_noise_variance(noise_var, noise_weight),
-                                 noise_var, nu, y_center, y_scale);
+                                 y_center, y_scale);
     log_lik = q.1;
     y_loo_mean = q.2;
     y_rep = q.3;

@@ -15,7 +15,6 @@
 functions {
 #include gp_kernels.stan
 #include gp_conditional.stan
-#include noise.stan
 #include koh_joint.stan
 #include loo.stan
 #include latent_gp.stan

@@ -159,9 +159,8 @@ matrix koh_joint_draw(vector resid, matrix L_joint, int prior_only,
  * @param rho the Kennedy-O'Hagan scale on the simulator
  * @param delta_sd the discrepancy GP's marginal sd (an empty array: no discrepancy)
  * @param delta_length_scale the discrepancy GP's length scales, one per discrepancy input
- * @param noise_var each point's noise variance given the mixture weights (noise.stan), standardised units
- * @param rep_var each point's noise variance s_i^2 for a replicate (noise.stan's noise_variance)
- * @param nu Student-t degrees of freedom (an empty array: normal noise)
+ * @param noise_var each point's noise variance, given the Student-t mixture weights where there are
+ *        some (noise.stan's weighted_noise_variance), standardised units
  * @param y_center original-scale y = y_center + y_scale * y: the centre
  * @param y_scale original-scale y = y_center + y_scale * y: the scale
  * @return (log_lik, y_loo_mean, y_rep, delta_gp, delta_gp_mean at the physical
@@ -173,7 +172,7 @@ tuple(vector, vector, vector, vector, vector, vector, vector, vector) koh_joint_
     array[] vector x_delta_new, matrix h_new, matrix normals_new, int prior_only,
     int kernel_id, real emulator_mean, real emulator_sd, array[] real emulator_length_scale,
     real emulator_nugget, real rho, array[] real delta_sd, array[] real delta_length_scale,
-    vector noise_var, vector rep_var, array[] real nu, real y_center, real y_scale) {
+    vector noise_var, real y_center, real y_scale) {
   int m = size(xt_sim);
   int n = size(x);
   int p = size(x_new);
@@ -204,7 +203,7 @@ tuple(vector, vector, vector, vector, vector, vector, vector, vector) koh_joint_
   }
   return (loo.1[(m + 1):(m + n)] - log(y_scale),
           y_center + y_scale * (y - resid[(m + 1):(m + n)] + loo.2[(m + 1):(m + n)]),
-          y_center + y_scale * noise_rng(zeta_obs, rep_var, nu),
+          y_center + y_scale * to_vector(normal_rng(zeta_obs, sqrt(noise_var))),
           y_scale * f_delta_obs[:, 2],
           y_scale * delta_gp_mean,
           y_center + y_scale * f_new,

@@ -102,15 +102,19 @@ vector noise_log_lik(vector resid, vector variance, array[] real nu) {
 }
 
 /**
- * Observations drawn about their means with the rows' noise, normal or
- * Student-t (a fresh mixture weight per draw: a replicate measurement).
+ * Observations drawn about their means with the rows' noise: given the
+ * mixture weights where they are sampled (each row keeps its weight, so that
+ * the prior's draws of y follow the joint model, as simulation-based
+ * calibration needs), else normal or Student-t.
  *
  * @param mean each row's mean
  * @param variance s_i^2 per row (noise_variance)
  * @param nu the degrees of freedom (an empty array: normal)
+ * @param weight the sampled mixture weights (an empty vector: none)
  * @return one observation per row
  */
-vector noise_rng(vector mean, vector variance, array[] real nu) {
+vector noise_rng(vector mean, vector variance, array[] real nu, vector weight) {
+  if (rows(weight) > 0) return to_vector(normal_rng(mean, sqrt(variance ./ weight)));
   if (size(nu) == 0) return to_vector(normal_rng(mean, sqrt(variance)));
   return to_vector(student_t_rng(nu[1], mean, sqrt(variance)));
 }
