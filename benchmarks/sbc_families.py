@@ -87,6 +87,7 @@ NOISE = {
     "modular_student_t": ("cooling", {"method": "modular", "discrepancy": "gp", "noise": "student_t"}),
     "koh_emulator_known_sd": ("known_sd", {"method": "koh_emulator", "discrepancy": "gp"}),
 }
+DESIGNED = LATENT | NOISE  # families on a design of their own; the rest run on "cooling"
 FAMILIES = {
     "koh": {"simulator": SIMULATOR, "method": "koh", "discrepancy": "gp"},
     "koh_none": {"simulator": SIMULATOR, "method": "koh", "discrepancy": "none"},
@@ -94,7 +95,7 @@ FAMILIES = {
     "koh_scaled": {"simulator": SIMULATOR, "method": "koh", "discrepancy": "scaled"},
     "modular": {"method": "modular", "discrepancy": "gp"},
     "koh_emulator": {"method": "koh_emulator", "discrepancy": "gp"},
-    **{name: options for name, (_, options) in (LATENT | NOISE).items()},
+    **{name: options for name, (_, options) in DESIGNED.items()},
 }
 
 
@@ -111,8 +112,7 @@ def main() -> None:
         started = time.perf_counter()
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            designed = LATENT | NOISE
-            data = DESIGNS[designed[family][0]]() if family in designed else cooling_data(seed=7)
+            data = DESIGNS[DESIGNED[family][0] if family in DESIGNED else "cooling"]()
             result = simulation_based_calibration(data, simulations=args.sims, scheduler=args.scheduler,
                                                   draws_per_fit=args.draws_per_fit, seed=1, warmup=300,
                                                   **FAMILIES[family])
