@@ -12,6 +12,10 @@ their test designs: Poisson counts (the detector, 35 points), binomial
 successes (the decay survival, 16 points), censored concentrations (the
 detection-limit lab, every third of its 90 points, censored by the lab's
 two limits) and a functional theta(x) (the beam's E(temperature), 45 points).
+The noise families (docs/noise.md) run on the cooling design with two
+instruments alternating over its rows (one noise sd each), with a known sd
+per row rising from 0.1 to 1 degC, or with Student-t noise (its mixture
+weights sampled beside a GP, its density used as it is without one).
 """
 
 from __future__ import annotations
@@ -50,8 +54,19 @@ def censored_design() -> stancal.CalibrationData:
     return censored_data(pd.read_csv(CENSORED / "physical.csv").iloc[::3].reset_index(drop=True))
 
 
+def noise_design(**columns) -> stancal.CalibrationData:
+    """The cooling design, with runs, and the noise columns: instrument (two
+    sources, alternating) and sd (a known sd per row, 0.1 to 1 degC)."""
+    base = cooling_data(seed=7)
+    physical = base.source.assign(instrument=np.where(np.arange(len(base.source)) % 2, "camera", "probe"),
+                                  sd=np.linspace(0.1, 1.0, len(base.source)))
+    return stancal.CalibrationData(physical, base.inputs, base.output, {"k": (0.01, 0.2)}, runs=base.runs, **columns)
+
+
 DESIGNS = {"counts": lambda: exact_counts("poisson", seed=1), "binomial": binomial_design,
-           "censored": censored_design, "beam": beam_data}
+           "censored": censored_design, "beam": beam_data,
+           "two_sources": lambda: noise_design(source="instrument"), "known_sd": lambda: noise_design(noise_sd="sd"),
+           "cooling": lambda: cooling_data(seed=7)}
 LATENT = {
     "koh_latent_poisson": ("counts", {"simulator": COUNTS / "simulator.stan", "method": "koh", "discrepancy": "gp"}),
     "koh_latent_binomial": ("binomial", {"simulator": CENSORED / "simulator.stan", "method": "koh",
@@ -61,6 +76,18 @@ LATENT = {
     "koh_latent_functional": ("beam", {"simulator": BEAM / "simulator.stan", "method": "koh", "discrepancy": "none",
                                            "functional": ["E"], "functional_inputs": ["temperature"]}),
 }
+NOISE = {
+    "koh_per_source": ("two_sources", {"simulator": SIMULATOR, "method": "koh", "discrepancy": "gp",
+                                       "noise": "per_source"}),
+    "koh_known_sd": ("known_sd", {"simulator": SIMULATOR, "method": "koh", "discrepancy": "gp"}),
+    "koh_student_t": ("cooling", {"simulator": SIMULATOR, "method": "koh", "discrepancy": "gp", "noise": "student_t"}),
+    "koh_none_student_t": ("cooling", {"simulator": SIMULATOR, "method": "koh", "discrepancy": "none",
+                                       "noise": "student_t"}),
+    "modular_per_source": ("two_sources", {"method": "modular", "discrepancy": "gp", "noise": "per_source"}),
+    "modular_student_t": ("cooling", {"method": "modular", "discrepancy": "gp", "noise": "student_t"}),
+    "koh_emulator_known_sd": ("known_sd", {"method": "koh_emulator", "discrepancy": "gp"}),
+}
+DESIGNED = LATENT | NOISE  # families on a design of their own; the rest run on "cooling"
 FAMILIES = {
     "koh": {"simulator": SIMULATOR, "method": "koh", "discrepancy": "gp"},
     "koh_none": {"simulator": SIMULATOR, "method": "koh", "discrepancy": "none"},
@@ -68,7 +95,7 @@ FAMILIES = {
     "koh_scaled": {"simulator": SIMULATOR, "method": "koh", "discrepancy": "scaled"},
     "modular": {"method": "modular", "discrepancy": "gp"},
     "koh_emulator": {"method": "koh_emulator", "discrepancy": "gp"},
-    **{name: options for name, (_, options) in LATENT.items()},
+    **{name: options for name, (_, options) in DESIGNED.items()},
 }
 
 
@@ -85,7 +112,7 @@ def main() -> None:
         started = time.perf_counter()
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            data = DESIGNS[LATENT[family][0]]() if family in LATENT else cooling_data(seed=7)
+            data = DESIGNS[DESIGNED[family][0] if family in DESIGNED else "cooling"]()
             result = simulation_based_calibration(data, simulations=args.sims, scheduler=args.scheduler,
                                                   draws_per_fit=args.draws_per_fit, seed=1, warmup=300,
                                                   **FAMILIES[family])

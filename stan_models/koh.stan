@@ -1,7 +1,9 @@
 // Kennedy-O'Hagan calibration with a cheap simulator written in Stan
 // (review section 4.1, eq. 6):
 //   y_i = rho * f(x_i, theta) + delta(x_i, z_i) + eps_i,
-//   delta = h(x_i, z_i)' beta + GP(0, ARD kernel), eps_i ~ N(0, noise_sd^2).
+//   delta = h(x_i, z_i)' beta + GP(0, ARD kernel), eps_i the measurement noise:
+//   normal, one sd or one per source, plus any known sd, or Student-t
+//   (functions/noise.stan).
 // The GP may be restricted for an identifiable theta (section 6.3): orthogonal
 // to df/dtheta (Plumlee 2017) or scaled (S-GaSP, Gu & Wang 2018); see
 // functions/restricted_gp.stan.
@@ -18,6 +20,7 @@ functions {
 #include scaling.stan
 #include restricted_gp.stan
 #include given_normals.stan
+#include noise.stan
 }
 data {
   int<lower=1> N;                       // number of physical observations
@@ -44,6 +47,10 @@ data {
   int<lower=1, upper=2> kernel_id;      // discrepancy kernel: 1 = squared exponential, 2 = Matern 5/2
   int<lower=0, upper=1> estimate_rho;   // 1 = estimate the KOH scale rho, 0 = rho fixed at 1
   int<lower=0, upper=1> prior_only;     // 1 = ignore y: draws from the prior
+  int<lower=1, upper=3> noise_id;       // noise model: 1 = iid, 2 = per_source, 3 = student_t (functions/noise.stan)
+  int<lower=1> S;                       // number of estimated noise sds: the sources with per_source, else 1
+  array[N] int<lower=1, upper=S> source;  // each row's noise sd: its source (all 1 unless per_source)
+  vector<lower=0>[N] known_sd;          // each row's known measurement sd, standardised (0 = none)
   int<lower=0> P;                       // number of prediction points
   matrix[P, D] X_new;                   // simulator inputs of the prediction points, original units
   array[P] vector[D_delta] x_delta_new; // discrepancy inputs of the prediction points, scaled to [0, 1]
@@ -60,10 +67,14 @@ transformed data {
   array[U] vector[D_delta] x_U = scaled ? x_delta : x_quad;
   array[0] vector[D_delta] no_points = rep_array(rep_vector(0, D_delta), 0);  // the model block's prediction points
   check_given_normals(P_normals, P);
+  // Student-t noise: the weights of its scale mixture are sampled where the GP is integrated out
+  int n_weight = noise_id == 3 && use_discrepancy ? N : 0;
 }
 parameters {
   vector<lower=0, upper=1>[Q] theta_unit;                // theta rescaled to [0, 1]
-  real<lower=0> noise_sd;                                // standardised units
+  array[S] real<lower=0> noise_sd;                       // standardised units, one per source (S = 1 unless per_source)
+  array[noise_id == 3] real<lower=0> nu;                 // Student-t degrees of freedom
+  vector<lower=0>[n_weight] noise_weight;                // Student-t scale-mixture weight of each row
   array[use_discrepancy] real<lower=0> delta_sd;         // standardised units
   array[use_discrepancy ? D : 0] real<lower=0> delta_input_length_scale;  // simulator inputs: fraction of input range
   array[use_discrepancy ? D_delta - D : 0] real<lower=0> delta_relevance;  // covariates: inverse length scale
@@ -80,6 +91,8 @@ transformed parameters {
 model {
   // theta_unit is uniform on [0, 1]: the bounds are the prior support.
   noise_sd ~ observation_noise_sd();                 // half-normal(0, 1)
+  nu ~ noise_dof();                                  // gamma(2, 0.1)
+  noise_weight ~ noise_weight(nu);                   // gamma(nu / 2, nu / 2)
   delta_sd ~ discrepancy_sd();                       // half-normal(0, 0.5)
   delta_input_length_scale ~ discrepancy_length_scale();  // inverse gamma(3, 1)
   delta_relevance ~ covariate_relevance();           // half-normal(0, 2)
@@ -87,6 +100,7 @@ model {
   beta ~ normal(0, beta_prior_sd);
   if (!prior_only) {
     vector[N] resid = y - rho * standardized_simulator(X, theta, y_center, y_scale) - h * beta;
+    vector[N] noise_var = noise_variance(noise_sd, source, known_sd);
     if (use_discrepancy) {
       // the restriction's map A (no rows: unrestricted) and ridge (restricted_gp.stan)
       matrix[U, n_functionals] A = U > 0 ? restriction_map(orthogonal, X_quad, w_quad, theta, theta_lower,
@@ -97,15 +111,16 @@ model {
       matrix[N, N] K = restricted_gp_cov(x_delta, no_points, x_U, A, kernel_id,
                                          delta_sd[1], delta_length_scale, ridge).1;
       resid ~ multi_normal_cholesky(rep_vector(0, N), cholesky_decompose(
-        add_jitter(add_diag(K, square(noise_sd)), square(delta_sd[1]))));
+        add_jitter(add_diag(K, weighted_noise_variance(noise_var, noise_weight)), square(delta_sd[1]))));
     } else {
-      resid ~ normal(0, noise_sd);
+      resid ~ independent_noise(noise_var, nu);
     }
   }
 }
 generated quantities {
-  real noise_sd_original = noise_sd * y_scale;
+  array[S] real noise_sd_original = to_array_1d(to_vector(noise_sd) * y_scale);
   array[use_discrepancy] real delta_sd_original;
+  vector[noise_id == 3 ? N : 0] row_weight;  // Student-t: each row's weight in the fit (small: an outlier)
   vector[N] log_lik;      // log p(y_i | y_-i, parameters), original units
   vector[N] y_rep;        // replicated data, original units
   vector[N] y_loo_mean;   // E(y_i | y_-i, parameters), original units
@@ -118,6 +133,7 @@ generated quantities {
     vector[N] f = standardized_simulator(X, theta, y_center, y_scale);
     vector[N] mean_terms = h * beta;
     vector[N] resid = y - rho * f - mean_terms;
+    vector[N] noise_var = noise_variance(noise_sd, source, known_sd);
     vector[N] resid_loo_mean = rep_vector(0, N);
     vector[P] f_new_std = standardized_simulator(X_new, theta, y_center, y_scale);
     vector[N] delta_obs = rep_vector(0, N);
@@ -137,7 +153,8 @@ generated quantities {
       matrix[N, N] K_delta = K_all.1;
       matrix[P, N] K_cross = K_all.2;
       matrix[P, P] K_new = K_all.3;
-      matrix[N, N] L = cholesky_decompose(add_jitter(add_diag(K_delta, square(noise_sd)), square(delta_sd[1])));
+      matrix[N, N] L = cholesky_decompose(add_jitter(
+        add_diag(K_delta, weighted_noise_variance(noise_var, noise_weight)), square(delta_sd[1])));
       tuple(vector[N], vector[N]) loo = mvn_loo(resid, L);
       log_lik = loo.1;
       resid_loo_mean = loo.2;
@@ -151,10 +168,11 @@ generated quantities {
         if (P > 0) delta_new_std = gp_conditional_draw(resid, L, K_cross, K_new, z_new);
       }
     } else {
-      for (i in 1:N) log_lik[i] = normal_lpdf(resid[i] | 0, noise_sd);
+      log_lik = noise_log_lik(resid, noise_var, nu);
     }
+    row_weight = outlier_weight(resid, noise_var, nu, noise_weight);
     log_lik -= log(y_scale);
-    y_rep = y_center + y_scale * to_vector(normal_rng(rho * f + mean_terms + delta_obs, noise_sd));
+    y_rep = y_center + y_scale * noise_rng(rho * f + mean_terms + delta_obs, noise_var, nu, noise_weight);
     y_loo_mean = y_center + y_scale * (y - resid + resid_loo_mean);
     delta_gp = y_scale * delta_obs;
     delta_gp_mean = y_scale * delta_obs_mean;

@@ -3,13 +3,14 @@
 // joint GP likelihood, and theta, the emulator and the discrepancy
 // hyperparameters are sampled together.
 //   y_sim_j = f(x_sim_j, theta_sim_j) + nugget_j
-//   y_i     = rho * f(x_i, theta) + delta(x_i, z_i) + eps_i
+//   y_i     = rho * f(x_i, theta) + delta(x_i, z_i) + eps_i (functions/noise.stan)
 //   f ~ GP(emulator_mean, ARD kernel over (x, theta)),
 //   delta = h(x_i, z_i)' beta + GP(0, ARD kernel) (H = 0 mean terms by default)
 // Inputs and theta are scaled to [0, 1]; outputs are standardised.
 functions {
 #include gp_kernels.stan
 #include gp_conditional.stan
+#include noise.stan
 #include koh_joint.stan
 #include loo.stan
 #include priors.stan
@@ -38,6 +39,10 @@ data {
   int<lower=0, upper=1> use_discrepancy;     // 1 = GP discrepancy, 0 = none
   int<lower=1, upper=2> kernel_id;      // kernel of both GPs: 1 = squared exponential, 2 = Matern 5/2
   int<lower=0, upper=1> estimate_rho;   // 1 = estimate the KOH scale rho, 0 = rho fixed at 1
+  int<lower=1, upper=3> noise_id;       // noise model: 1 = iid, 2 = per_source, 3 = student_t (functions/noise.stan)
+  int<lower=1> S;                       // number of estimated noise sds: the sources with per_source, else 1
+  array[N] int<lower=1, upper=S> source;  // each row's noise sd: its source (all 1 unless per_source)
+  vector<lower=0>[N] known_sd;          // each row's known measurement sd, standardised (0 = none)
   int<lower=0, upper=1> prior_only;     // 1 = ignore y (the runs still train the emulator)
   int<lower=0> P;                       // number of prediction points
   array[P] vector[D] x_new;             // simulator inputs of the prediction points, scaled to [0, 1]
@@ -53,7 +58,10 @@ transformed data {
 }
 parameters {
   vector<lower=0, upper=1>[Q] theta_unit;                // theta rescaled to [0, 1]
-  real<lower=0> noise_sd;                                // standardised units
+  array[S] real<lower=0> noise_sd;                       // standardised units, one per source (S = 1 unless per_source)
+  array[noise_id == 3] real<lower=0> nu;                 // Student-t degrees of freedom
+  // Student-t scale-mixture weight of each row (the emulator's GP is integrated out)
+  vector<lower=0>[noise_id == 3 ? N : 0] noise_weight;
   array[use_discrepancy] real<lower=0> delta_sd;         // standardised units
   array[use_discrepancy ? D : 0] real<lower=0> delta_input_length_scale;  // simulator inputs: fraction of input range
   array[use_discrepancy ? D_delta - D : 0] real<lower=0> delta_relevance;  // covariates: inverse length scale
@@ -73,6 +81,8 @@ transformed parameters {
 }
 model {
   noise_sd ~ observation_noise_sd();                 // half-normal(0, 1)
+  nu ~ noise_dof();                                  // gamma(2, 0.1)
+  noise_weight ~ noise_weight(nu);                   // gamma(nu / 2, nu / 2)
   delta_sd ~ discrepancy_sd();                       // half-normal(0, 0.5)
   delta_input_length_scale ~ discrepancy_length_scale();  // inverse gamma(3, 1)
   delta_relevance ~ covariate_relevance();           // half-normal(0, 2)
@@ -89,14 +99,17 @@ model {
   } else {
     matrix[M + N, M + N] K = koh_joint_cov(xt_sim, append_theta(x, theta_unit), x_delta, kernel_id,
                                            emulator_sd, emulator_length_scale, emulator_nugget,
-                                           rho, delta_sd, delta_length_scale, noise_sd);
+                                           rho, delta_sd, delta_length_scale,
+                                           weighted_noise_variance(noise_variance(noise_sd, source, known_sd),
+                                                                   noise_weight));
     vector[M + N] mu = append_row(rep_vector(emulator_mean, M), rho * emulator_mean + h * beta);
     y_joint ~ multi_normal_cholesky(mu, cholesky_decompose(K));
   }
 }
 generated quantities {
-  real noise_sd_original = noise_sd * y_scale;
+  array[S] real noise_sd_original = to_array_1d(to_vector(noise_sd) * y_scale);
   array[use_discrepancy] real delta_sd_original;
+  vector[noise_id == 3 ? N : 0] row_weight = noise_weight;  // Student-t: each row's weight in the fit (small: an outlier)
   vector[N] log_lik;      // log p(y_i | y_-i, runs, parameters), original units
   vector[N] y_rep;        // replicated data, original units
   vector[N] y_loo_mean;   // E(y_i | y_-i, runs, parameters), original units
@@ -107,11 +120,13 @@ generated quantities {
   vector[P] zeta_new;     // true process rho * f + delta at the prediction points
   if (use_discrepancy) delta_sd_original[1] = delta_sd[1] * y_scale;
   {
+    vector[N] noise_var = noise_variance(noise_sd, source, known_sd);
     tuple(vector[N], vector[N], vector[N], vector[N], vector[N], vector[P], vector[P], vector[P]) q
       = koh_joint_quantities_rng(y_sim, y, xt_sim, x, theta_unit, x_delta, h, beta, x_new, x_delta_new,
                                  h_new, normals_new, prior_only, kernel_id, emulator_mean, emulator_sd,
                                  emulator_length_scale, emulator_nugget, rho, delta_sd,
-                                 delta_length_scale, noise_sd, y_center, y_scale);
+                                 delta_length_scale, weighted_noise_variance(noise_var, noise_weight),
+                                 y_center, y_scale);
     log_lik = q.1;
     y_loo_mean = q.2;
     y_rep = q.3;

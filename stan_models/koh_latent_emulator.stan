@@ -196,7 +196,7 @@ generated quantities {
       vector[M + N] resid = append_row(y_sim, f_std) - emulator_mean;
       matrix[M + N, M + N] L = cholesky_decompose(koh_joint_cov(
         xt_sim, xt_obs, x_delta, kernel_id, emulator_sd, emulator_length_scale, emulator_nugget,
-        1.0, no_discrepancy, no_discrepancy, 0));
+        1.0, no_discrepancy, no_discrepancy, rep_vector(0, N)));
       // the delta half of the draw is empty here (no discrepancy): its normals are zeros
       f_std_new += koh_joint_predict(resid, L, xt_sim, xt_obs, x_delta, xt_new, x_delta_new,
                                      kernel_id, emulator_sd, emulator_length_scale, 1.0,

@@ -4,11 +4,13 @@
 // feedback from the physical data into the emulator. Given the runs, the
 // emulator at (x_i, theta) is normal with mean m(theta) and covariance
 // V(theta); V is carried into the likelihood:
-//   y ~ N(rho * m(theta) + h' beta, rho^2 V(theta) + K_delta + noise_sd^2 I),
+//   y ~ N(rho * m(theta) + h' beta, rho^2 V(theta) + K_delta + diag(noise variances)),
+// with the measurement noise of functions/noise.stan (Student-t: given its mixture weights),
 // with optional discrepancy mean terms h (a candidate unmodelled effect).
 functions {
 #include gp_kernels.stan
 #include gp_conditional.stan
+#include noise.stan
 #include koh_joint.stan
 #include loo.stan
 #include priors.stan
@@ -37,6 +39,10 @@ data {
   int<lower=0, upper=1> use_discrepancy;     // 1 = GP discrepancy, 0 = none
   int<lower=1, upper=2> kernel_id;      // kernel of both GPs: 1 = squared exponential, 2 = Matern 5/2
   int<lower=0, upper=1> estimate_rho;   // 1 = estimate the KOH scale rho, 0 = rho fixed at 1
+  int<lower=1, upper=3> noise_id;       // noise model: 1 = iid, 2 = per_source, 3 = student_t (functions/noise.stan)
+  int<lower=1> S;                       // number of estimated noise sds: the sources with per_source, else 1
+  array[N] int<lower=1, upper=S> source;  // each row's noise sd: its source (all 1 unless per_source)
+  vector<lower=0>[N] known_sd;          // each row's known measurement sd, standardised (0 = none)
   int<lower=0, upper=1> prior_only;     // 1 = ignore y (the runs still inform the emulator)
   real emulator_mean;                   // stage-1 emulator hyperparameters, standardised units
   real<lower=0> emulator_sd;            // see emulator_mean
@@ -64,7 +70,10 @@ transformed data {
 }
 parameters {
   vector<lower=0, upper=1>[Q] theta_unit;                // theta rescaled to [0, 1]
-  real<lower=0> noise_sd;                                // standardised units
+  array[S] real<lower=0> noise_sd;                       // standardised units, one per source (S = 1 unless per_source)
+  array[noise_id == 3] real<lower=0> nu;                 // Student-t degrees of freedom
+  // Student-t scale-mixture weight of each row (the emulator's GP is integrated out)
+  vector<lower=0>[noise_id == 3 ? N : 0] noise_weight;
   array[use_discrepancy] real<lower=0> delta_sd;         // standardised units
   array[use_discrepancy ? D : 0] real<lower=0> delta_input_length_scale;  // simulator inputs: fraction of input range
   array[use_discrepancy ? D_delta - D : 0] real<lower=0> delta_relevance;  // covariates: inverse length scale
@@ -80,6 +89,8 @@ transformed parameters {
 }
 model {
   noise_sd ~ observation_noise_sd();                 // half-normal(0, 1)
+  nu ~ noise_dof();                                  // gamma(2, 0.1)
+  noise_weight ~ noise_weight(nu);                   // gamma(nu / 2, nu / 2)
   delta_sd ~ discrepancy_sd();                       // half-normal(0, 0.5)
   delta_input_length_scale ~ discrepancy_length_scale();  // inverse gamma(3, 1)
   delta_relevance ~ covariate_relevance();           // half-normal(0, 2)
@@ -97,14 +108,16 @@ model {
     if (use_discrepancy) {
       K += ard_cov(x_delta, kernel_id, delta_sd[1], delta_length_scale);
     }
+    vector[N] noise_var = weighted_noise_variance(noise_variance(noise_sd, source, known_sd), noise_weight);
     y ~ multi_normal_cholesky(rho * emulator_mean_obs + h * beta,
-                              cholesky_decompose(add_jitter(add_diag(K, square(noise_sd)),
+                              cholesky_decompose(add_jitter(add_diag(K, noise_var),
                                                             square(rho * emulator_sd))));
   }
 }
 generated quantities {
-  real noise_sd_original = noise_sd * y_scale;
+  array[S] real noise_sd_original = to_array_1d(to_vector(noise_sd) * y_scale);
   array[use_discrepancy] real delta_sd_original;
+  vector[noise_id == 3 ? N : 0] row_weight = noise_weight;  // Student-t: each row's weight in the fit (small: an outlier)
   vector[N] log_lik;      // log p(y_i | y_-i, runs, parameters), original units
   vector[N] y_rep;        // replicated data, original units
   vector[N] y_loo_mean;   // E(y_i | y_-i, runs, parameters), original units
@@ -115,11 +128,13 @@ generated quantities {
   vector[P] zeta_new;     // true process rho * f + delta at the prediction points
   if (use_discrepancy) delta_sd_original[1] = delta_sd[1] * y_scale;
   {
+    vector[N] noise_var = noise_variance(noise_sd, source, known_sd);
     tuple(vector[N], vector[N], vector[N], vector[N], vector[N], vector[P], vector[P], vector[P]) q
       = koh_joint_quantities_rng(y_sim, y, xt_sim, x, theta_unit, x_delta, h, beta, x_new, x_delta_new,
                                  h_new, normals_new, prior_only, kernel_id, emulator_mean, emulator_sd,
                                  emulator_length_scale, emulator_nugget, rho, delta_sd,
-                                 delta_length_scale, noise_sd, y_center, y_scale);
+                                 delta_length_scale, weighted_noise_variance(noise_var, noise_weight),
+                                 y_center, y_scale);
     log_lik = q.1;
     y_loo_mean = q.2;
     y_rep = q.3;

@@ -79,7 +79,9 @@ def test_sbc_passes_koh_and_flags_a_likelihood_with_the_wrong_noise_scale(tmp_pa
     assert not any(t.rejected for t in good.tests.values()) and not good.failed
     wrong = tmp_path / "koh_wrong_noise.stan"
     source = (shipped_models_dir() / "koh.stan").read_text()
-    wrong.write_text(source.replace("resid ~ normal(0, noise_sd);", "resid ~ normal(0, 2 * noise_sd);"))
+    right = "resid ~ independent_noise(noise_var, nu);"  # the noise sd doubled: its variance times 4
+    assert source.count(right) == 1
+    wrong.write_text(source.replace(right, "resid ~ independent_noise(4 * noise_var, nu);"))
     bad = simulation_based_calibration(data, program=wrong, **settings)
     print({n: round(t.p_value, 4) for n, t in bad.tests.items()})
     assert bad.tests["noise_sd"].rejected and bad.tests["log_likelihood"].rejected

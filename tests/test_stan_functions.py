@@ -25,6 +25,13 @@ OBSERVATIONS = {"eta": [0.3, -1.2, 2.0, 0.1], "y_real": [0.5, 0, 0, 0], "y_int":
 X_SIM = rng.uniform(0.5, 2.0, size=(3, 2))
 THETA_SIM, THETA_LO, THETA_HI = np.array([0.7, 1.3]), np.array([0.1, -1.0]), np.array([2.0, 3.0])
 Z_DRAW = rng.standard_normal(4)
+# noise.stan: two sources' sds, each point's source and known sd, mixture weights and nu
+NOISE = {"source_sd": [0.3, 1.1], "source": [1, 2, 2, 1, 2, 1], "known_sd": [0.0, 0.5, 0.0, 0.2, 0.0, 0.7],
+         "mix_weight": [1.2, 0.3, 0.9, 1.0, 0.05, 2.0], "nu": [4.5]}
+# each point's noise variance, noise.stan's noise_variance of NOISE: the sds added in quadrature
+# (Hogg, Bovy & Lang 2010)
+NOISE_VAR = (np.array(NOISE["source_sd"])[np.array(NOISE["source"]) - 1] ** 2
+             + np.array(NOISE["known_sd"]) ** 2)
 JITTER = 1e-6  # of the prior variance: gp_kernels.stan's add_jitter
 
 
@@ -52,7 +59,7 @@ def gq():
                 resid=RESID.tolist(), unit=[0, 0.5, 1], lo=[-1, 0, 10], hi=[1, 2, 20],
                 A_restrict=A_RESTRICT.tolist(), ridge=RIDGE, X_sim=X_SIM.tolist(),
                 theta_sim=THETA_SIM.tolist(), theta_lo=THETA_LO.tolist(), theta_hi=THETA_HI.tolist(),
-                z_draw=Z_DRAW.tolist(), given_count=2, needed_count=2, **OBSERVATIONS)
+                z_draw=Z_DRAW.tolist(), given_count=2, needed_count=2, **OBSERVATIONS, **NOISE)
     harness = flatten(HARNESS)
     compile_programs([harness])  # stancal's build: no debug information, and no 5-minute HTTP timeout
     model = stan.build(harness.code, data=data, random_seed=1)
@@ -131,12 +138,12 @@ def test_theta_from_unit(gq):
 
 
 def test_koh_joint_covariance(gq):
-    rho, nugget, delta_sd, delta_ls, noise = 1.3, 0.01, 0.7, np.array([0.4, 0.6]), 0.2
+    rho, nugget, delta_sd, delta_ls = 1.3, 0.01, 0.7, np.array([0.4, 0.6])
     xt_obs = np.column_stack([X1[:, 0], np.full(6, 0.3)])
     K_ss = se(X2, X2) + nugget**2 * np.eye(4)
     K_so = rho * se(X2, xt_obs)
     d2 = (((X1[:, None, :] - X1[None, :, :]) / delta_ls) ** 2).sum(-1)
-    K_oo = rho**2 * se(xt_obs, xt_obs) + delta_sd**2 * np.exp(-0.5 * d2) + noise**2 * np.eye(6)
+    K_oo = rho**2 * se(xt_obs, xt_obs) + delta_sd**2 * np.exp(-0.5 * d2) + np.diag(NOISE_VAR)
     expected = np.block([[K_ss, K_so], [K_so.T, K_oo]]) + JITTER * SD**2 * np.eye(10)
     np.testing.assert_allclose(gq["joint"], expected, rtol=1e-10)
 
@@ -441,3 +448,21 @@ def test_given_normals_are_checked(gq):
     for given in (0, 3):  # none given, or one per value needed
         model = stan.build(harness.code, data={**gq["_data"], "given_count": given, "needed_count": 3},
                            random_seed=1)
+
+
+def test_noise_variances_densities_and_weights(gq):
+    variance = NOISE_VAR
+    weight, nu = np.array(NOISE["mix_weight"]), NOISE["nu"][0]
+    np.testing.assert_allclose(gq["noise_var"], variance, rtol=1e-12)
+    np.testing.assert_allclose(gq["noise_var_weighted"], variance / weight, rtol=1e-12)
+    scale = np.sqrt(variance)
+    np.testing.assert_allclose(gq["noise_ll_normal"], stats.norm.logpdf(RESID, 0, scale), rtol=1e-10)
+    np.testing.assert_allclose(gq["noise_ll_t"], stats.t.logpdf(RESID, nu, 0, scale), rtol=1e-10)
+    np.testing.assert_allclose(gq["noise_total_normal"], stats.norm.logpdf(RESID, 0, scale).sum(), rtol=1e-10)
+    np.testing.assert_allclose(gq["noise_total_t"], stats.t.logpdf(RESID, nu, 0, scale).sum(), rtol=1e-10)
+    # E(w | resid) of the scale mixture (Lange, Little & Taylor 1989), and the sampled weights as they are
+    np.testing.assert_allclose(gq["noise_row_weight"], (nu + 1) / (nu + RESID**2 / variance), rtol=1e-10)
+    np.testing.assert_allclose(gq["noise_row_weight_sampled"], weight, rtol=1e-12)
+    np.testing.assert_allclose(gq["noise_weight_density"],
+                               stats.gamma.logpdf(weight, nu / 2, scale=2 / nu).sum(), rtol=1e-10)
+    np.testing.assert_allclose(gq["noise_dof_density"], stats.gamma.logpdf(nu, 2, scale=10), rtol=1e-10)

@@ -52,7 +52,7 @@ def test_circular_include(tmp_path):
 # Every integer code the Python side passes to Stan: its data name, the
 # Python codes, and the name the data line's comment gives each code.
 def integer_codes():
-    from stancal.problem.codes import NOISE_MODES, Censoring, Kernel, Likelihood
+    from stancal.problem.codes import NOISE_MODES, Censoring, Kernel, Likelihood, Noise
     from stancal.problem.options import DISCREPANCIES
 
     discrepancy_forms = {code: name for name, code in DISCREPANCIES.items() if name != "none"}
@@ -62,6 +62,7 @@ def integer_codes():
         "censoring": {k.value: k.name for k in Censoring},
         "discrepancy_form": discrepancy_forms,
         "noise_mode": {code: name for name, code in NOISE_MODES.items()},
+        "noise_id": {k.value: k.name for k in Noise},
     }
 
 
@@ -71,6 +72,7 @@ COMMENT_NAMES = {
     "NEGBINOMIAL": "negbinomial", "BINOMIAL": "binomial", "OBSERVED": "observed", "LEFT": "left",
     "RIGHT": "right", "INTERVAL": "interval", "gp": "GP", "orthogonal": "orthogonal GP",
     "scaled": "scaled GP", "known": "known per value", "one": "one sd", "per_experiment": "one per experiment",
+    "IID": "iid", "PER_SOURCE": "per_source", "STUDENT_T": "student_t",
 }
 _DECLARATION = re.compile(
     r"^\s*(?:array\[[^\]]*\]\s*)?int<lower=(-?\d+),\s*upper=(-?\d+)>\s+(\w+);\s*//(.*)$")
@@ -112,7 +114,7 @@ def test_integer_code_declarations_agree_with_python(tmp_path):
                     f"{program}: {name} declared without both bounds")
     # kernel_id in every program but modular_vector (squared exponential only), the others where used
     assert declared == {"kernel_id": 9, "likelihood_id": 2, "censoring": 2, "discrepancy_form": 1,
-                        "noise_mode": 2}
+                        "noise_mode": 2, "noise_id": 3}
 
 
 def test_integer_code_comparisons_use_python_codes(tmp_path):
@@ -128,7 +130,7 @@ def test_integer_code_comparisons_use_python_codes(tmp_path):
                     compared[name].add(int(value))
     # the functions branch on each code they handle
     assert {Kernel.MATERN52.value} <= compared["kernel_id"]
-    for name in ("likelihood_id", "censoring", "discrepancy_form", "noise_mode"):
+    for name in ("likelihood_id", "censoring", "discrepancy_form", "noise_mode", "noise_id"):
         assert compared[name], name
 
 

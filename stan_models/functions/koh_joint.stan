@@ -15,14 +15,14 @@
  * @param delta_sd discrepancy GP hyperparameters
  * @param delta_length_scale discrepancy GP hyperparameters
  *        (empty arrays for no discrepancy)
- * @param noise_sd measurement noise standard deviation
+ * @param noise_var each physical point's noise variance (noise.stan's weighted_noise_variance)
  * @return covariance matrix of size M + N, with the jitter (add_jitter) of the emulator's variance
  */
 matrix koh_joint_cov(array[] vector xt_sim, array[] vector xt_obs,
                      array[] vector x_delta, int kernel_id,
                      real emulator_sd, array[] real emulator_length_scale,
                      real emulator_nugget, real rho, array[] real delta_sd,
-                     array[] real delta_length_scale, real noise_sd) {
+                     array[] real delta_length_scale, vector noise_var) {
   int m = size(xt_sim);
   int n = size(xt_obs);
   matrix[m + n, m + n] K;
@@ -36,7 +36,7 @@ matrix koh_joint_cov(array[] vector xt_sim, array[] vector xt_obs,
   if (size(delta_sd) > 0) {
     K_obs += ard_cov(x_delta, kernel_id, delta_sd[1], delta_length_scale);
   }
-  K[(m + 1):(m + n), (m + 1):(m + n)] = add_diag(K_obs, square(noise_sd));
+  K[(m + 1):(m + n), (m + 1):(m + n)] = add_diag(K_obs, noise_var);
   return add_jitter(K, square(emulator_sd));
 }
 
@@ -159,7 +159,8 @@ matrix koh_joint_draw(vector resid, matrix L_joint, int prior_only,
  * @param rho the Kennedy-O'Hagan scale on the simulator
  * @param delta_sd the discrepancy GP's marginal sd (an empty array: no discrepancy)
  * @param delta_length_scale the discrepancy GP's length scales, one per discrepancy input
- * @param noise_sd observation noise sd, standardised units
+ * @param noise_var each point's noise variance, given the Student-t mixture weights where there are
+ *        some (noise.stan's weighted_noise_variance), standardised units
  * @param y_center original-scale y = y_center + y_scale * y: the centre
  * @param y_scale original-scale y = y_center + y_scale * y: the scale
  * @return (log_lik, y_loo_mean, y_rep, delta_gp, delta_gp_mean at the physical
@@ -171,14 +172,14 @@ tuple(vector, vector, vector, vector, vector, vector, vector, vector) koh_joint_
     array[] vector x_delta_new, matrix h_new, matrix normals_new, int prior_only,
     int kernel_id, real emulator_mean, real emulator_sd, array[] real emulator_length_scale,
     real emulator_nugget, real rho, array[] real delta_sd, array[] real delta_length_scale,
-    real noise_sd, real y_center, real y_scale) {
+    vector noise_var, real y_center, real y_scale) {
   int m = size(xt_sim);
   int n = size(x);
   int p = size(x_new);
   array[n] vector[num_elements(xt_sim[1])] xt_obs = append_theta(x, theta_unit);
   matrix[m + n, m + n] L = cholesky_decompose(
     koh_joint_cov(xt_sim, xt_obs, x_delta, kernel_id, emulator_sd, emulator_length_scale,
-                  emulator_nugget, rho, delta_sd, delta_length_scale, noise_sd));
+                  emulator_nugget, rho, delta_sd, delta_length_scale, noise_var));
   vector[m + n] resid = append_row(y_sim, y) - append_row(rep_vector(emulator_mean, m),
                                                           rho * emulator_mean + h * beta);
   tuple(vector[m + n], vector[m + n]) loo = mvn_loo(resid, L);
@@ -202,7 +203,7 @@ tuple(vector, vector, vector, vector, vector, vector, vector, vector) koh_joint_
   }
   return (loo.1[(m + 1):(m + n)] - log(y_scale),
           y_center + y_scale * (y - resid[(m + 1):(m + n)] + loo.2[(m + 1):(m + n)]),
-          y_center + y_scale * to_vector(normal_rng(zeta_obs, noise_sd)),
+          y_center + y_scale * to_vector(normal_rng(zeta_obs, sqrt(noise_var))),
           y_scale * f_delta_obs[:, 2],
           y_scale * delta_gp_mean,
           y_center + y_scale * f_new,

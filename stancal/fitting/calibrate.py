@@ -34,7 +34,7 @@ from stancal.stan.standata import EMULATOR_HYPERPARAMETERS, build_stan_data, def
 
 logger = logging.getLogger("stancal")
 
-_DIAGNOSED = ["theta", "noise_sd", "delta_sd", "delta_length_scale", "delta_relevance", "rho", "beta", "phi",
+_DIAGNOSED = ["theta", "noise_sd", "nu", "delta_sd", "delta_length_scale", "delta_relevance", "rho", "beta", "phi",
               "theta_function_sd", *EMULATOR_HYPERPARAMETERS]
 
 
@@ -142,6 +142,7 @@ def calibrate(
     basis_functions: tuple[int, ...] | list[int] = (),
     boundary_factor: tuple[float, ...] | list[float] = (),
     discrepancy_parametrization: str = "auto",
+    noise: str = "iid",
     new_points: pd.DataFrame | None = None,
     chains: int = 4,
     warmup: int = 1000,
@@ -180,6 +181,10 @@ def calibrate(
     with more than 5 % of its transitions at the maximum tree depth is
     refitted once the other way and the better kept. The summary says which
     ran and why (options.discrepancy_parametrization_reason).
+    ``noise``: the measurement noise (docs/noise.md): iid (one sd), per_source
+    (one sd per the data's ``source``) or student_t (robust, its degrees of
+    freedom estimated; Lange, Little & Taylor 1989), on koh, koh_emulator and
+    modular; the data's known ``noise_sd`` adds in quadrature to each.
     Non-Gaussian (``CalibrationData(likelihood=...)``) or censored outputs and
     functional theta run on the latent-GP programs koh_latent (simulator) and
     koh_latent_emulator (runs).
@@ -212,7 +217,7 @@ def calibrate(
     options = model_options(discrepancy, kernel, estimate_rho, mean_formula, mean_intercept, scaled_lambda,
                             functional, functional_inputs, functional_parametrization, approximation,
                             basis_functions, boundary_factor, mean_centred,
-                            discrepancy_parametrization)
+                            discrepancy_parametrization, noise)
     if plan is None:
         plan = plan_scalar(data, simulator, method, options, program)
     else:

@@ -12,6 +12,7 @@ from stancal.numerics.hsgp import first_basis
 from stancal.numerics.parametrization import choose_parametrization
 from stancal.problem.data import CalibrationData
 from stancal.problem.functional import check_functional
+from stancal.problem.noise import check_noise
 from stancal.problem.options import EXACT_SIZE_LIMIT, RESTRICTED_DISCREPANCIES, ModelOptions, VectorOptions
 from stancal.problem.vector_data import VectorCalibrationData
 from stancal.stan.registry import L2, PROGRAMS, STAGE_ONE_PROGRAM, Program, default_program, for_method
@@ -64,7 +65,7 @@ def model_options(discrepancy: str | None = None, kernel: str = "se", estimate_r
                   scaled_lambda: float | None = None, functional=(), functional_inputs=(),
                   functional_parametrization: str = "centred", approximation: str = "auto",
                   basis_functions=(), boundary_factor=(), mean_centred: bool = False,
-                  discrepancy_parametrization: str = "auto") -> ModelOptions:
+                  discrepancy_parametrization: str = "auto", noise: str = "iid") -> ModelOptions:
     """calibrate()'s model keywords as ModelOptions; the discrepancy defaults
     to gp, or none with functional theta (flexible enough without one,
     review section 8.2)."""
@@ -72,7 +73,7 @@ def model_options(discrepancy: str | None = None, kernel: str = "se", estimate_r
                         estimate_rho, mean_formula, mean_intercept, scaled_lambda, tuple(functional),
                         tuple(functional_inputs), functional_parametrization, approximation,
                         tuple(basis_functions), tuple(boundary_factor), mean_centred,
-                        discrepancy_parametrization)
+                        discrepancy_parametrization, noise=noise)
 
 
 def make_plan(data: CalibrationData | VectorCalibrationData, simulator: str | Path | None = None,
@@ -118,6 +119,7 @@ def plan_scalar(data: CalibrationData, simulator: str | Path | None = None, meth
     base = _requested(data, simulator, None if l2 else method, "scalar")
     chosen = _latent_version(base, latent_reason(data, options), options) or _scalable_version(data, base, options)
     _check_options(chosen, options)
+    _check_noise(chosen, options, data)
     if (l2 or options.discrepancy in RESTRICTED_DISCREPANCIES) and data.covariates:
         # both integrate over the box of the simulator's inputs (stancal.numerics.quadrature)
         raise ValueError(f"{'method l2' if l2 else f'discrepancy {options.discrepancy!r}'} integrates over the "
@@ -235,6 +237,20 @@ def _scalable_version(data: CalibrationData, base: Program, options: ModelOption
     logger.info("%d points%s: above %d, so %s runs (%s); approximation = 'exact' keeps the dense GP",
                 len(data.physical), runs, EXACT_SIZE_LIMIT, scalable.name, scalable.description)
     return scalable
+
+
+def _check_noise(chosen: Program, options: ModelOptions, data: CalibrationData) -> None:
+    """The noise model against the data's columns and the chosen program
+    (the registry's ``noises``), before anything compiles."""
+    check_noise(options.noise, data.noise)
+    if options.noise not in chosen.noises:
+        taking = [p.name for p in PROGRAMS.values() if options.noise in p.noises and p.output == "scalar"]
+        raise ValueError(f"noise {options.noise!r} runs on the programs {', '.join(taking)}; this problem "
+                         f"runs {chosen.name} ({chosen.description}), which has one iid noise sd")
+    if data.noise.noise_sd_column and not chosen.known_noise_sd:
+        taking = [p.name for p in PROGRAMS.values() if p.known_noise_sd]
+        raise ValueError(f"a known noise sd (column '{data.noise.noise_sd_column}') runs on the programs "
+                         f"{', '.join(taking)}; this problem runs {chosen.name} ({chosen.description})")
 
 
 def _check_options(chosen: Program, options: ModelOptions | VectorOptions) -> None:

@@ -38,3 +38,12 @@ DISCREPANCY_PARAMETRIZATION_CODES = {"non_centred": 0, "centred": 1, "partial": 
 
 # ``noise_mode`` in the vector programs (functions/vector_noise.stan)
 NOISE_MODES = {"known": 0, "one": 1, "per_experiment": 2}
+
+
+class Noise(IntEnum):
+    """``noise_id`` in the exact Gaussian programs (functions/noise.stan):
+    the measurement noise model of a scalar output ([model] noise)."""
+
+    IID = 1
+    PER_SOURCE = 2
+    STUDENT_T = 3

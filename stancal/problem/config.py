@@ -11,7 +11,9 @@ import pandas as pd
 
 from stancal.problem import config_schema
 from stancal.problem.candidates import Candidate, CandidateError
+from stancal.problem.codes import NOISE_MODES
 from stancal.problem.data import CalibrationData
+from stancal.problem.noise import NOISES, check_noise, check_noise_name
 from stancal.problem.validation import DataError, read_table
 from stancal.problem.vector_data import VectorCalibrationData
 
@@ -114,11 +116,26 @@ def _problem(raw: dict[str, Any], base: Path) -> Problem:
         theta={k: tuple(v) if isinstance(v, list) else v for k, v in theta.items()},
         covariates=physical.get("covariates", []),
         runs=runs,
+        noise_sd=physical.get("noise_sd"),
+        source=physical.get("source"),
         **observation,
     )
+    _check_noise(model.get("noise", "iid"), data)
     candidates = _candidates(raw.get("candidates", {}), base)
     return Problem(data=data, simulator=stan, model=model, candidates=candidates, units=dict(raw.get("units", {})),
                    design=dict(raw.get("design", {})))
+
+
+def _check_noise(noise: str, data: CalibrationData) -> None:
+    """[model] noise against [physical] noise_sd and source, before anything compiles."""
+    if noise in NOISE_MODES:
+        raise ConfigError(f"[model] noise applies to a vector output only as {noise!r} (a [physical] output_index); "
+                          f"a scalar output's noise is one of {', '.join(NOISES)}")
+    try:
+        check_noise_name(noise)
+    except ValueError as err:
+        raise ConfigError(f"[model] {err}") from None
+    check_noise(noise, data.noise)  # a DataError naming the key and the column
 
 
 def _vector_problem(physical: dict, simulator: dict, theta: dict, runs: pd.DataFrame | None, stan: Path | None,
@@ -127,6 +144,9 @@ def _vector_problem(physical: dict, simulator: dict, theta: dict, runs: pd.DataF
     if "program" in model:
         model["program"] = base / model["program"]
     basis = {k: model.pop(k) for k in ("variance_share", "components") if k in model}
+    if model.get("noise", "one") not in NOISE_MODES:
+        raise ConfigError(f"[model] noise {model['noise']!r} does not apply to a vector output ([physical] "
+                          f"output_index); its noise is one of {', '.join(NOISE_MODES)}")
     data = VectorCalibrationData(
         _read_csv(base / _require(physical, "csv", "physical"), "physical.csv"),
         experiment=_require(physical, "experiment", "physical"),

@@ -11,6 +11,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from stancal.problem.codes import NOISE_MODES
+from stancal.problem.noise import NOISES, NOT_BUILT
 from stancal.problem.observations import LIKELIHOODS
 from stancal.problem.options import (
     APPROXIMATIONS,
@@ -99,7 +100,9 @@ TABLES: tuple[Table, ...] = (
         Key("output_index", "list of names (or one name)", "none (a scalar output)", "where a reading sits along "
             "a vector output (time, position); giving it makes the output a vector", VECTOR),
         Key("noise_sd", "string", "none (the noise sd is estimated)", "a column of each reading's known "
-            "measurement sd", VECTOR),
+            "measurement sd (a scalar output: added in quadrature to the estimated sd, docs/noise.md)"),
+        Key("source", "string", "none (one source)", "a column naming each reading's measurement source "
+            "(instrument), for [model] noise = \"per_source\"", SCALAR),
     )),
     Table("simulator", "The computer model: a Stan function, runs of it, or both", required=True, keys=(
         Key("stan", "path", "none", "a Stan file defining vector simulator(matrix X, vector theta), one value "
@@ -155,8 +158,10 @@ TABLES: tuple[Table, ...] = (
         Key("lower", "string", "none", "gaussian only: a column of censoring lower bounds (a row with an empty "
             "output is censored)", SCALAR),
         Key("upper", "string", "none", "gaussian only: a column of censoring upper bounds", SCALAR),
-        Key("noise", "string", '"one" ("known" with noise_sd)', "the vector output's noise: "
-            + ", ".join(sorted(NOISE_MODES)), VECTOR, choices=tuple(NOISE_MODES)),
+        Key("noise", "string", '"iid" (scalar); "one", or "known" with noise_sd (vector)', "the measurement "
+            "noise (docs/noise.md). A scalar output: " + ", ".join(NOISES) + " (" + ", ".join(NOT_BUILT)
+            + " not built yet); a vector output: " + ", ".join(sorted(NOISE_MODES)),
+            choices=(*NOISES, *NOT_BUILT, *NOISE_MODES)),
         Key("variance_share", "number", str(DEFAULT_VARIANCE_SHARE), "the share of the runs' variance the "
             "output basis keeps", VECTOR),
         Key("components", "integer", "by variance_share", "the output basis's number of components (overrides "
@@ -319,7 +324,7 @@ def named_quantities(raw: dict[str, Any]) -> list[str]:
     """Every column and parameter a config names: what [units] may give a unit to."""
     physical, simulator = raw.get("physical", {}), raw.get("simulator", {})
     names = []
-    for key in ("inputs", "output", "covariates", "output_index", "experiment", "noise_sd"):
+    for key in ("inputs", "output", "covariates", "output_index", "experiment", "noise_sd", "source"):
         value = physical.get(key, [])
         names += [value] if isinstance(value, str) else list(value)
     names += [*simulator.get("theta", {}), *simulator.get("theta_per_experiment", {})]

@@ -11,6 +11,7 @@ import numpy as np
 import pandas as pd
 
 from stancal.problem.categories import covariate_columns, covariate_levels, one_hot
+from stancal.problem.noise import MeasurementNoise, read_measurement_noise, row_noise_sd
 from stancal.problem.observations import LINKS, read_observations
 from stancal.problem.validation import DataError, described, numeric_values, require_whole, source_file
 from stancal.problem.validation import row_labels as _rows
@@ -162,6 +163,12 @@ class CalibrationData:
     lower, upper : gaussian only: columns of censoring bounds. A row whose
         output is empty is censored to [lower, upper] (an empty lower is
         -inf, an empty upper +inf); rows with an output are exact.
+    noise_sd : gaussian only: a column of each row's known measurement sd,
+        added in quadrature to the estimated noise (stancal.problem.noise).
+    source : a column naming each row's measurement source (instrument),
+        for one noise sd per source (noise = "per_source").
+    sources : the sources, when they must not be taken from ``physical`` (a
+        subset, a K-fold training set, that lacks one keeps its sd's index).
     """
 
     def __init__(
@@ -177,6 +184,9 @@ class CalibrationData:
         trials: str | None = None,
         lower: str | None = None,
         upper: str | None = None,
+        noise_sd: str | None = None,
+        source: str | None = None,
+        sources: Sequence[str] | None = None,
     ) -> None:
         self.inputs = list(inputs)
         self.output = output
@@ -189,7 +199,12 @@ class CalibrationData:
         numeric = [c for c in self.covariates if c not in self.levels]
         require_columns(physical, [output], what)
         self.observations = read_observations(physical, output, likelihood, trials, lower, upper, what)
-        self.observation_columns = {"likelihood": likelihood, "trials": trials, "lower": lower, "upper": upper}
+        self.noise: MeasurementNoise = read_measurement_noise(physical, noise_sd, source, what, sources)
+        self.observation_columns = {"likelihood": likelihood, "trials": trials, "lower": lower, "upper": upper,
+                                    "noise_sd": noise_sd, "source": source}
+        if noise_sd and not self.observations.is_gaussian:
+            raise DataError(f"{what}: a known noise sd (column '{noise_sd}') applies to a gaussian output only; "
+                            f"this one's likelihood is '{likelihood}'")
         self.physical = pd.concat([
             numeric_columns(physical, [*self.inputs, *numeric], what),
             pd.DataFrame({output: self.observations.value}, index=physical.index),
@@ -246,7 +261,7 @@ class CalibrationData:
         return CalibrationData(source, self.inputs if inputs is None else inputs, self.output,
                                bounds_of(self.parameters) if theta is None else theta,
                                self.covariates if covariates is None else covariates,
-                               runs, levels=self.levels, **self.observation_columns)
+                               runs, levels=self.levels, sources=self.noise.given_sources, **self.observation_columns)
 
     def subset(self, rows: Sequence[int]) -> CalibrationData:
         """The same problem on some physical rows (positions), same categories."""
@@ -308,10 +323,16 @@ class CalibrationData:
         return LINKS[self.observations.likelihood].scale
 
     def heldout_log_density(self, rows: np.ndarray, zeta: np.ndarray, posterior) -> np.ndarray:
-        """log p(y_row | zeta, the fit's noise or dispersion) per draw (draws, rows)."""
-        noise, phi = (np.asarray(posterior[v]).reshape(-1, 1) if v in posterior else None
-                      for v in ("noise_sd", "phi"))
-        return self.observations.log_density(rows, zeta, noise, phi)
+        """log p(y_row | zeta, the fit's noise or dispersion) per draw (draws, rows):
+        each row's noise scale from its source and known sd, Student-t where
+        the fit has degrees of freedom nu (stancal.problem.noise)."""
+        phi = np.asarray(posterior["phi"]).reshape(-1, 1) if "phi" in posterior else None
+        nu = np.asarray(posterior["nu"]).reshape(-1, 1) if "nu" in posterior else None
+        noise = None
+        if "noise_sd" in posterior:
+            sigma = np.asarray(posterior["noise_sd"]).reshape(len(zeta), -1)
+            noise = row_noise_sd(sigma, self.noise.source_index[rows], self.noise.known_sd[rows])
+        return self.observations.log_density(rows, zeta, noise, phi, nu)
 
     @property
     def discrepancy_units(self) -> float:
@@ -408,6 +429,7 @@ class CalibrationData:
             "theta": {p.name: [p.lower, p.upper] for p in self.parameters},
             "runs": None if self.runs is None else self.runs.to_dict(orient="list"),
             "levels": self.levels,
+            "sources": self.noise.given_sources,
             **self.observation_columns,
         }
 
@@ -416,5 +438,6 @@ class CalibrationData:
         runs = None if d["runs"] is None else pd.DataFrame(d["runs"])
         return cls(pd.DataFrame(d["physical"]), d["inputs"], d["output"],
                    {k: tuple(v) for k, v in d["theta"].items()}, d["covariates"], runs,
-                   levels=d.get("levels"), likelihood=d.get("likelihood", "gaussian"),
-                   trials=d.get("trials"), lower=d.get("lower"), upper=d.get("upper"))
+                   levels=d.get("levels"), sources=d.get("sources"), likelihood=d.get("likelihood", "gaussian"),
+                   trials=d.get("trials"), lower=d.get("lower"), upper=d.get("upper"),
+                   noise_sd=d.get("noise_sd"), source=d.get("source"))

@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from stancal.problem.codes import NOISE_MODES, Kernel
+from stancal.problem.noise import check_noise_name
 
 APPROXIMATIONS = ("auto", "exact", "hsgp")
 KERNELS = ("se", "matern52")
@@ -41,6 +42,8 @@ class ModelOptions:
     # information per point: stancal.numerics.parametrization); the reason says who chose and why
     discrepancy_parametrization: str = "auto"
     discrepancy_parametrization_reason: str = field(default="", metadata={"set_by": "stancal"})  # not a user's key
+    # the measurement noise: iid, per_source or student_t (stancal.problem.noise, functions/noise.stan)
+    noise: str = "iid"
 
     def __post_init__(self) -> None:
         # lists from a config or a saved result
@@ -65,6 +68,7 @@ class ModelOptions:
                              f"got {self.discrepancy_parametrization!r}")
         if self.kernel not in KERNELS:
             raise ValueError(f"kernel must be 'se' or 'matern52'; got {self.kernel!r}")
+        check_noise_name(self.noise)
         if self.scaled_lambda is not None and not (np.isfinite(self.scaled_lambda) and self.scaled_lambda > 0):
             raise ValueError(f"scaled_lambda must be a positive number; got {self.scaled_lambda!r}")
 

@@ -76,6 +76,25 @@ def parametrization_line(summary: dict) -> list[str]:
     return [f"- the discrepancy's latent GP was sampled {reason}"] if reason else []
 
 
+def noise_lines(noise: dict, table) -> list[str]:
+    """The noise model, each source's sd and nu (docs/noise.md), and the rows
+    a Student-t fit treats as outliers, by its stated rule."""
+    lines = [f"- model: {noise['model']}" + (f"; known sd per row from column '{noise['known_sd_column']}', "
+                                             "added in quadrature" if noise["known_sd_column"] else "")]
+    table = table[~table.index.duplicated()]  # several theta modes: the noise rows of the first
+    sds = [p for p in table.index if str(p).startswith("noise_sd") or p == "nu"]
+    lines += [f"- {p}: {table.loc[p, 'mean']:.4g} [{table.loc[p, 'q05']:.4g}, {table.loc[p, 'q95']:.4g}]"
+              for p in sds]
+    if noise["model"] == "per_source":
+        lines.append("- rows per source (column '{}'): {}".format(
+            noise["source_column"], ", ".join(f"{k} {v}" for k, v in noise["rows_per_source"].items())))
+    if noise["model"] == "student_t":
+        rows = noise["outliers"]
+        lines.append(f"- outliers ({noise['outlier_rule']}): " + (", ".join(
+            f"row {r['row']} (weight {r['weight']:.2f})" for r in rows) if rows else "none"))
+    return lines
+
+
 def _report(summary: dict, table, plots: list[Path]) -> str:
     lines = [
         (f"# Calibration report ({summary['method']}, {summary['backend']}, "
@@ -85,6 +104,8 @@ def _report(summary: dict, table, plots: list[Path]) -> str:
     if summary.get("confounding"):  # found before sampling (stancal.fitting.confounding)
         lines += ["", "## Before sampling: theta against the model's own terms", "",
                   *(f"- {c['message']}" for c in summary["confounding"])]
+    if "noise" in summary:
+        lines += ["", "## Measurement noise", "", *noise_lines(summary["noise"], table)]
     if "censoring" in summary:
         counts = summary["censoring"]
         lines += ["", "## Censored observations", "",

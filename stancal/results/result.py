@@ -14,6 +14,7 @@ import xarray as xr
 
 from stancal.problem.data import CalibrationData
 from stancal.problem.functional import functional_grid
+from stancal.problem.noise import OUTLIER_WEIGHT, outlier_rows
 from stancal.problem.options import ModelOptions
 from stancal.results.diagnostics import Diagnostics
 from stancal.results.modes import Mode
@@ -30,9 +31,13 @@ _REPORTED = {
     "delta_sd_original": "delta_sd",
     "rho": "rho",
     "phi": "phi",
+    "nu": "nu",
 }
-# the latent programs declare these as arrays of size 0 or 1 (present or not)
-_OPTIONAL_SCALARS = ("noise_sd", "delta_sd", "phi")
+# some programs declare these as arrays: of size 0 or 1 (present or not; delta_sd,
+# phi, nu), or noise_sd of size S (koh, koh_emulator, modular: one per measurement
+# source with noise = "per_source", kept per source then; size 1 becomes a scalar)
+_OPTIONAL_SCALARS = ("noise_sd", "delta_sd", "phi", "nu")
+ROW_WEIGHT = "row_weight"  # Student-t noise: each row's weight in the fit (functions/noise.stan)
 PREDICTED = ("f_new", "delta_new", "zeta_new")
 NEW_OBSERVATION = "y_new"  # latent programs: a new observation from the likelihood
 # per physical point: the GP part of delta (a draw, and its mean given the
@@ -42,7 +47,7 @@ AT_OBSERVATIONS = ("delta_gp", "delta_gp_mean", "y_loo_mean")
 # form (original units, or not at all: latent standard normals); any other
 # parameter of a program goes into the posterior group as it is
 _REEXPRESSED = {"theta_unit", "noise_sd", "delta_sd", "delta_input_length_scale", "delta_relevance",
-                "rho_free", "beta",
+                "rho_free", "beta", "noise_weight",
                 "inv_sqrt_phi", "delta_raw", "emulator_z", "theta_function_sd",
                 "theta_function_length_scale", "theta_function_logit", "theta_function_raw"}
 
@@ -66,13 +71,16 @@ def build_datatree(sample: SampleOutput, data: CalibrationData,
         "predictions": {k: d[k] for k in (*PREDICTED, NEW_OBSERVATION) if k in d},
         "at_observations": {k: d[k] for k in AT_OBSERVATIONS if k in d},
     }
+    if ROW_WEIGHT in d and d[ROW_WEIGHT].shape[-1]:  # Student-t noise
+        sampled["at_observations"][ROW_WEIGHT] = d[ROW_WEIGHT]
     if options.functional:
         sampled["theta_functions"] = {"theta_function": d["theta_function_grid"]}
     if "delta_basis_weights" in d and d["delta_basis_weights"].shape[-1]:  # the Hilbert-space discrepancy's
         sampled["discrepancy_basis"] = {"weights": d["delta_basis_weights"]}
     grid = functional_grid(data, options.functional_inputs)
     coords = _coords(data, new_points, options, terms, grid)
-    tree = ab.from_dict(sampled, dims=_DIMS, coords=coords, pred_dims=_DIMS, pred_coords=coords)
+    dims = {**_DIMS, "noise_sd": ["source"]} if np.ndim(sampled["posterior"].get("noise_sd")) == 3 else _DIMS
+    tree = ab.from_dict(sampled, dims=dims, coords=coords, pred_dims=dims, pred_coords=coords)
     if options.functional:  # the grid's input values, for plotting theta(x)
         tree["theta_functions"] = xr.DataTree(tree["theta_functions"].to_dataset().assign_coords(
             {c: ("grid_point", grid[c].to_numpy()) for c in grid.columns}))
@@ -89,7 +97,7 @@ def _posterior(d: Draws, data: CalibrationData, parameter_names: list[str], opti
     any parameter of a user's program as the program has it."""
     posterior: Draws = {out: d[stan] for stan, out in _REPORTED.items() if stan in d}
     for name in _OPTIONAL_SCALARS:
-        if name in posterior and posterior[name].ndim == 3:
+        if name in posterior and posterior[name].ndim == 3 and posterior[name].shape[-1] <= 1:
             if posterior[name].shape[-1] == 0:
                 del posterior[name]
             else:
@@ -125,7 +133,7 @@ _DIMS = {
     "theta_function_sd": ["functional_theta"],
     "theta_function_length_scale": ["functional_theta", "functional_input"],
     "theta_function": ["grid_point", "functional_theta"],
-    "weights": ["basis_function"],
+    "weights": ["basis_function"], ROW_WEIGHT: ["obs"],
 }
 
 
@@ -138,7 +146,7 @@ def _coords(data: CalibrationData, new_points: pd.DataFrame, options: ModelOptio
         "obs": np.arange(len(data.physical)), "new_point": np.arange(len(new_points)),
         "mean_term": terms.names if terms else [],
         "functional_theta": list(options.functional), "functional_input": list(options.functional_inputs),
-        "grid_point": np.arange(len(grid)),
+        "grid_point": np.arange(len(grid)), "source": list(data.noise.sources),
     }
 
 
@@ -212,6 +220,27 @@ class CalibrationResult:
         is the worst within a mode, ESS the smallest)."""
         return theta_summary(self.idata["posterior"].to_dataset(), self.modes, self.data.theta_names)
 
+    def outliers(self) -> pd.DataFrame:
+        """The rows a Student-t fit discounts: posterior mean weight below
+        stancal.problem.noise.OUTLIER_WEIGHT (West 1984), lowest first, with
+        their inputs and output; empty for normal noise."""
+        group = self.idata["at_observations"]
+        if ROW_WEIGHT not in group:
+            return pd.DataFrame(columns=["row", "weight"])
+        table = outlier_rows(np.asarray(group[ROW_WEIGHT]))
+        physical = self.data.physical.reset_index(drop=True)
+        return table.join(physical[[*self.data.inputs, self.data.output]], on="row")
+
+    def noise_summary(self) -> dict[str, Any]:
+        """The noise model: its name, each source's rows, the known-sd column
+        and (Student-t) the outliers, for summary.json and the report."""
+        noise = self.data.noise
+        return {"model": self.options.noise, "known_sd_column": noise.noise_sd_column,
+                "source_column": noise.source_column,
+                "rows_per_source": dict(zip(noise.sources, noise.rows_per_source.tolist(), strict=True)),
+                "outlier_rule": f"posterior mean Student-t weight < {OUTLIER_WEIGHT}",
+                "outliers": json.loads(self.outliers().to_json(orient="records"))}
+
     def theta_draws(self) -> pd.DataFrame:
         theta = self.idata["posterior"]["theta"]
         flat = np.asarray(theta).reshape(-1, theta.shape[-1])
@@ -278,6 +307,8 @@ class CalibrationResult:
             **({"l2": self.l2} if self.l2 else {}),
             **({"confounding": self.confounding} if self.confounding else {}),
             "likelihood": self.data.observations.likelihood.name.lower(),
+            **({"noise": self.noise_summary()} if self.options.noise != "iid" or self.data.noise.noise_sd_column
+               else {}),
             **({"censoring": self.data.observations.counts_by_kind()}
                if self.data.observations.any_censored else {}),
             **({"theta_functions": self.theta_functions()} if self.options.functional else {}),

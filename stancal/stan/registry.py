@@ -16,6 +16,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from stancal.problem.noise import NOISES
 from stancal.problem.options import RESTRICTED_DISCREPANCIES
 from stancal.stan import standata as sd
 from stancal.stan import vector_standata as vd
@@ -46,6 +47,8 @@ class Program:
     latent: bool = False  # latent GPs at the data: counts, binomial, censored, functional theta
     approximation: str = "exact"  # exact | hsgp
     discrepancies: tuple[str, ...] = ("gp", "none")
+    noises: tuple[str, ...] = ("iid",)  # measurement noise models (stancal.problem.noise); vector: unused
+    known_noise_sd: bool = False  # takes each row's known noise sd (functions/noise.stan)
     kernels: tuple[str, ...] = ("se", "matern52")
     estimate_rho: bool = True  # can scale the simulator by rho
     latent_version: str | None = None  # takes over for latent problems
@@ -70,21 +73,24 @@ class Program:
 
 _SCALAR = frozenset({GAP, COMPARE, SBC})
 _GAUSSIAN = (sd.common_data, sd.gaussian_outputs)
+_NOISY = {"noises": NOISES, "known_noise_sd": True}  # the exact Gaussian programs: functions/noise.stan
 _LATENT = (sd.common_data, sd.latent_outputs)
 
 PROGRAMS: dict[str, Program] = {program.name: program for program in (
     Program("koh", "koh.stan", "KOH with a cheap simulator written in Stan", simulator=True,
             discrepancies=("gp", "none", *RESTRICTED_DISCREPANCIES), latent_version="koh_latent",
-            scalable_version="koh_hsgp", data=(*_GAUSSIAN, sd.simulator_points, sd.restricted_discrepancy),
-            commands=_SCALAR | {L2}),
+            scalable_version="koh_hsgp", data=(*_GAUSSIAN, sd.noise_model, sd.simulator_points,
+                                               sd.restricted_discrepancy), commands=_SCALAR | {L2}, **_NOISY),
     Program("koh_emulator", "koh_emulator.stan", "full KOH: emulator and calibration in one joint GP",
             runs=True, latent_version="koh_latent_emulator", scalable_version="modular_hsgp",
-            data=(*_GAUSSIAN, sd.emulator_inputs), samples_emulator=True, commands=_SCALAR | {L2}),
+            data=(*_GAUSSIAN, sd.noise_model, sd.emulator_inputs), samples_emulator=True, commands=_SCALAR | {L2},
+            **_NOISY),
     Program("emulator", "emulator.stan", "GP emulator of simulator runs (stage 1 of modular)", runs=True,
             helper=True),
     Program("modular", "modular.stan", "modular KOH: stage 2 with the stage-1 emulator fixed", runs=True,
             stage_one=STAGE_ONE_GP, latent_version="koh_latent_emulator", scalable_version="modular_hsgp",
-            data=(*_GAUSSIAN, sd.emulator_inputs, sd.fixed_emulator), commands=_SCALAR | {L2, DESIGN}),
+            data=(*_GAUSSIAN, sd.noise_model, sd.emulator_inputs, sd.fixed_emulator),
+            commands=_SCALAR | {L2, DESIGN}, **_NOISY),
     Program("koh_latent", "koh_latent.stan",
             "KOH with latent GPs: counts, binomial, censored outputs, functional theta", simulator=True,
             latent=True, estimate_rho=False, data=(*_LATENT, sd.simulator_points, sd.partial_centring),

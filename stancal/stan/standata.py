@@ -17,6 +17,7 @@ from stancal.problem.codes import DISCREPANCY_PARAMETRIZATION_CODES
 from stancal.problem.data import CalibrationData
 from stancal.problem.functional import functional_grid
 from stancal.problem.mean_terms import MeanTerms, build_mean_terms
+from stancal.problem.noise import stan_noise_data
 from stancal.problem.options import DISCREPANCIES, ModelOptions
 
 EMULATOR_HYPERPARAMETERS = ("emulator_mean", "emulator_sd", "emulator_length_scale", "emulator_nugget")
@@ -112,6 +113,11 @@ def gaussian_outputs(inputs: StanInputs) -> dict[str, Any]:
     """The standardised outputs of the Gaussian programs."""
     data = inputs.data
     return {"y": data.scaling.standardise(data.physical[data.output].to_numpy())}
+
+
+def noise_model(inputs: StanInputs) -> dict[str, Any]:
+    """The measurement noise of the exact Gaussian programs (functions/noise.stan)."""
+    return stan_noise_data(inputs.options.noise, inputs.data.noise, inputs.data.scaling.y_scale)
 
 
 def latent_outputs(inputs: StanInputs) -> dict[str, Any]:

@@ -7,6 +7,7 @@ vector simulator(matrix X, vector theta) {
 #include simulator_output.stan
 #include gp_kernels.stan
 #include gp_conditional.stan
+#include noise.stan
 #include koh_joint.stan
 #include loo.stan
 #include scaling.stan
@@ -63,6 +64,11 @@ data {
   vector[n2] z_draw;                    // standard normals for a conditional draw
   int<lower=0> given_count;             // check_given_normals(given_count, needed_count)
   int<lower=0> needed_count;
+  array[2] real<lower=0> source_sd;     // noise.stan: an estimated noise sd per source
+  array[n1] int<lower=1, upper=2> source;  // each point's source
+  vector<lower=0>[n1] known_sd;         // each point's known noise sd
+  vector<lower=0>[n1] mix_weight;       // Student-t scale-mixture weights
+  array[1] real<lower=0> nu;            // Student-t degrees of freedom
 }
 transformed data {
   check_given_normals(given_count, needed_count);
@@ -70,6 +76,17 @@ transformed data {
   vector[2] hs_boundary = [1.5, 1.8]';
 }
 generated quantities {
+  // noise.stan
+  vector[n1] noise_var = noise_variance(source_sd, source, known_sd);
+  vector[n1] noise_var_weighted = weighted_noise_variance(noise_var, mix_weight);
+  vector[n1] noise_ll_normal = noise_log_lik(resid, noise_var, rep_array(0.0, 0));
+  vector[n1] noise_ll_t = noise_log_lik(resid, noise_var, nu);
+  real noise_total_normal = independent_noise_lpdf(resid | noise_var, rep_array(0.0, 0));
+  real noise_total_t = independent_noise_lpdf(resid | noise_var, nu);
+  vector[n1] noise_row_weight = outlier_weight(resid, noise_var, nu, rep_vector(0, 0));
+  vector[n1] noise_row_weight_sampled = outlier_weight(resid, noise_var, nu, mix_weight);
+  real noise_weight_density = noise_weight_lpdf(mix_weight | nu);
+  real noise_dof_density = noise_dof_lpdf(nu);
   matrix[n1, n2] se_cross = ard_cross_cov(x1, x2, 1, sd_, ls);
   matrix[n1, n2] m52_cross = ard_cross_cov(x1, x2, 2, sd_, ls);
   matrix[n1, n1] se_sym = ard_cov(x1, 1, sd_, ls);
@@ -118,7 +135,7 @@ generated quantities {
   matrix[2, 2] theta_rows = theta_rows_original(theta_unit_rows([0.25, 0.5]', {0, 1}, [[0.0], [2.0]]),
                                                 [0, 10]', [1, 20]');
   matrix[n2 + n1, n2 + n1] joint = koh_joint_cov(
-    x2, append_theta(coordinate(x1, 1), [0.3]'), x1, 1, sd_, ls, 0.01, 1.3, {0.7}, {0.4, 0.6}, 0.2);
+    x2, append_theta(coordinate(x1, 1), [0.3]'), x1, 1, sd_, ls, 0.01, 1.3, {0.7}, {0.4, 0.6}, noise_var);
   // latent LOO of the four observations with delta = resid[1:4] at x2 (nugget 0.01), for each
   // observation model (row k: likelihood_id k), y_center 0.2 and y_scale 1.5
   matrix[4, 4] latent_loo_lik;

@@ -1,0 +1,137 @@
+/**
+ * The measurement noise of the exact Gaussian programs (koh, koh_emulator,
+ * modular; docs/noise.md). Row i's noise has the scale s_i, with
+ *   s_i^2 = sigma[source_i]^2 + known_sd_i^2:
+ * sigma is estimated, one per measurement source (noise_id 2) or one for all
+ * rows, and known_sd is the row's stated measurement sd (0 where none is
+ * given), added in quadrature: the stated error plus an estimated excess,
+ * the "intrinsic scatter" of Hogg, Bovy & Lang (2010, section 7). Where the
+ * stated sd is right, sigma goes to 0 and the fit is that of a known noise.
+ *
+ * Student-t noise (noise_id 3, Lange, Little & Taylor 1989) with nu degrees
+ * of freedom and scale s_i is the scale mixture of normals
+ *   eps_i | w_i ~ N(0, s_i^2 / w_i),  w_i ~ gamma(nu / 2, nu / 2)
+ * (Geweke 1993). Where a GP is integrated out (a multivariate normal over the
+ * points) the weights w are sampled with theta and the GP stays marginalised
+ * given them, as Neal (1997) did for GP regression with t noise; without a
+ * GP the t density is used as it is. A row whose weight is small is one the
+ * fit discounts: an outlier (West 1984).
+ * noise_id: 1 = iid, 2 = per_source, 3 = student_t (stancal.problem.codes.Noise).
+ */
+
+/**
+ * Each row's noise variance s_i^2 under the normal model (Student-t: the
+ * square of its scale).
+ *
+ * @param noise_sd estimated noise sd per source (one for all: size 1), standardised units
+ * @param source each row's source, 1..size(noise_sd)
+ * @param known_sd each row's stated measurement sd, standardised units (0 = none)
+ * @return s_i^2, one per row
+ */
+vector noise_variance(array[] real noise_sd, array[] int source, vector known_sd) {
+  return square(to_vector(noise_sd)[source]) + square(known_sd);
+}
+
+/**
+ * Prior of the Student-t degrees of freedom: gamma(2, 0.1), mean 20, which
+ * keeps both heavy tails and the near-normal limit plausible (Juarez & Steel
+ * 2010; the Stan prior-choice recommendations).
+ *
+ * @param nu the degrees of freedom (an empty array: normal noise)
+ * @return its log prior density
+ */
+real noise_dof_lpdf(array[] real nu) {
+  return gamma_lupdf(nu | 2, 0.1);
+}
+
+/**
+ * Prior of the scale-mixture weights: w_i ~ gamma(nu / 2, nu / 2), so that
+ * the noise given nothing but nu is Student-t (Geweke 1993).
+ *
+ * @param weight one weight per row (an empty vector: no mixture)
+ * @param nu the degrees of freedom (size 1 when there are weights)
+ * @return their log prior density
+ */
+real noise_weight_lpdf(vector weight, array[] real nu) {
+  if (rows(weight) == 0) return 0;
+  return gamma_lupdf(weight | 0.5 * nu[1], 0.5 * nu[1]);
+}
+
+/**
+ * The rows' noise variances given the mixture weights: s_i^2 / w_i (the
+ * variances unchanged without weights). The diagonal a GP's covariance adds.
+ *
+ * @param variance s_i^2 per row (noise_variance)
+ * @param weight the mixture weights (an empty vector: none)
+ * @return each row's noise variance given its weight
+ */
+vector weighted_noise_variance(vector variance, vector weight) {
+  if (rows(weight) == 0) return variance;
+  return variance ./ weight;
+}
+
+/**
+ * Log density of independent residuals (no GP), normal or Student-t.
+ *
+ * @param resid observed minus mean, one per row
+ * @param variance s_i^2 per row (noise_variance)
+ * @param nu the degrees of freedom (an empty array: normal)
+ * @return log p(resid) (without constants where called by ~, as Stan's own densities)
+ */
+real independent_noise_lpdf(vector resid, vector variance, array[] real nu) {
+  if (size(nu) == 0) return normal_lupdf(resid | 0, sqrt(variance));
+  return student_t_lupdf(resid | nu[1], 0, sqrt(variance));
+}
+
+/**
+ * Pointwise log density of independent residuals, normal or Student-t.
+ *
+ * @param resid observed minus mean, one per row
+ * @param variance s_i^2 per row (noise_variance)
+ * @param nu the degrees of freedom (an empty array: normal)
+ * @return log p(resid_i), one per row
+ */
+vector noise_log_lik(vector resid, vector variance, array[] real nu) {
+  int n = rows(resid);
+  vector[n] out;
+  for (i in 1:n) {
+    out[i] = size(nu) == 0 ? normal_lpdf(resid[i] | 0, sqrt(variance[i]))
+                           : student_t_lpdf(resid[i] | nu[1], 0, sqrt(variance[i]));
+  }
+  return out;
+}
+
+/**
+ * Observations drawn about their means with the rows' noise: given the
+ * mixture weights where they are sampled (each row keeps its weight, so that
+ * the prior's draws of y follow the joint model, as simulation-based
+ * calibration needs), else normal or Student-t.
+ *
+ * @param mean each row's mean
+ * @param variance s_i^2 per row (noise_variance)
+ * @param nu the degrees of freedom (an empty array: normal)
+ * @param weight the sampled mixture weights (an empty vector: none)
+ * @return one observation per row
+ */
+vector noise_rng(vector mean, vector variance, array[] real nu, vector weight) {
+  if (rows(weight) > 0) return to_vector(normal_rng(mean, sqrt(variance ./ weight)));
+  if (size(nu) == 0) return to_vector(normal_rng(mean, sqrt(variance)));
+  return to_vector(student_t_rng(nu[1], mean, sqrt(variance)));
+}
+
+/**
+ * Each row's weight in the fit: the sampled mixture weight, or without a GP
+ * its mean given the residual, E(w_i | resid_i) = (nu + 1) / (nu + resid_i^2 / s_i^2)
+ * (Lange, Little & Taylor 1989, eq. 5). Small: the fit treats the row as an outlier.
+ *
+ * @param resid observed minus mean, one per row
+ * @param variance s_i^2 per row (noise_variance)
+ * @param nu the degrees of freedom (an empty array: normal noise, no weights)
+ * @param weight the sampled mixture weights (an empty vector: none)
+ * @return one weight per row (none for normal noise)
+ */
+vector outlier_weight(vector resid, vector variance, array[] real nu, vector weight) {
+  if (size(nu) == 0) return rep_vector(0, 0);
+  if (rows(weight) > 0) return weight;
+  return (nu[1] + 1) ./ (nu[1] + square(resid) ./ variance);
+}
