@@ -92,6 +92,7 @@ NOISE = {
     "koh_emulator_known_sd": ("known_sd", {"method": "koh_emulator", "discrepancy": "gp"}),
 }
 FIDELITY = {"modular_multifidelity": ("cooling_fidelity", {"method": "modular", "discrepancy": "none"})}
+DESIGNED = LATENT | NOISE | FIDELITY  # families on a design of their own; the rest run on "cooling"
 FAMILIES = {
     "koh": {"simulator": SIMULATOR, "method": "koh", "discrepancy": "gp"},
     "koh_none": {"simulator": SIMULATOR, "method": "koh", "discrepancy": "none"},
@@ -99,7 +100,7 @@ FAMILIES = {
     "koh_scaled": {"simulator": SIMULATOR, "method": "koh", "discrepancy": "scaled"},
     "modular": {"method": "modular", "discrepancy": "gp"},
     "koh_emulator": {"method": "koh_emulator", "discrepancy": "gp"},
-    **{name: options for name, (_, options) in (LATENT | NOISE | FIDELITY).items()},
+    **{name: options for name, (_, options) in DESIGNED.items()},
 }
 
 
@@ -116,8 +117,7 @@ def main() -> None:
         started = time.perf_counter()
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            designed = LATENT | NOISE | FIDELITY
-            data = DESIGNS[designed[family][0]]() if family in designed else cooling_data(seed=7)
+            data = DESIGNS[DESIGNED[family][0] if family in DESIGNED else "cooling"]()
             result = simulation_based_calibration(data, simulations=args.sims, scheduler=args.scheduler,
                                                   draws_per_fit=args.draws_per_fit, seed=1, warmup=300,
                                                   **FAMILIES[family])

@@ -256,6 +256,36 @@ def test_noise_models_the_data_or_program_cannot_take_are_refused(columns, keywo
         stancal.calibrate(data, simulator=SIMULATOR, **calibrate)
 
 
+def test_new_points_read_their_noise_columns_as_the_physical_data_do():
+    """MeasurementNoise.at reads new points with the physical data's reader
+    and sources; rows_per_source and given_sources serve predictions and
+    rebuilt problems."""
+    frame = frame_with(lab=["b", "a", "b"] * 4, sd=0.2)
+    noise = stancal.CalibrationData(frame, ["t", "T0"], "temperature", THETA, source="lab", noise_sd="sd").noise
+    assert noise.rows_per_source.tolist() == [4, 8] and noise.given_sources == ["a", "b"]
+    source, known = noise.at(pd.DataFrame({"lab": ["b", "a"], "sd": [0.5, 0.1]}))
+    assert source.tolist() == [1, 0] and known.tolist() == [0.5, 0.1]
+    source, known = noise.at(pd.DataFrame({"t": [1.0]}))  # neither column: any source, no known sd
+    assert source is None and known.tolist() == [0.0]
+    with pytest.raises(DataError, match=r"column 'lab' names source\(s\) \['c'\] that the physical data lack"):
+        noise.at(pd.DataFrame({"lab": ["c"]}))
+    with pytest.raises(DataError, match=r"prediction points: column 'sd' \(known noise sd\) must be positive"):
+        noise.at(pd.DataFrame({"sd": [-1.0]}))
+    plain = stancal.CalibrationData(frame, ["t", "T0"], "temperature", THETA).noise
+    assert plain.given_sources is None and plain.rows_per_source.tolist() == [12]
+
+
+def test_held_out_student_t_density_of_exact_rows():
+    """Observations.log_density with nu: Student-t at exact rows (scipy), the
+    noise sd per draw and row."""
+    frame = frame_with()
+    observations = stancal.CalibrationData(frame, ["t", "T0"], "temperature", THETA).observations
+    rows, mean = np.array([0, 3, 7]), np.array([[20.0, 30.0, 40.0], [25.0, 35.0, 45.0]])
+    sd, nu = np.array([[0.5, 1.0, 2.0], [0.3, 0.3, 0.3]]), np.array([[3.0], [30.0]])
+    np.testing.assert_allclose(observations.log_density(rows, mean, sd, nu=nu),
+                               stats.t.logpdf(frame.temperature.to_numpy()[rows], nu, mean, sd), rtol=1e-12)
+
+
 def test_a_known_sd_on_counts_is_refused():
     frame = frame_with(sd=0.2).assign(temperature=lambda f: np.round(f.temperature).astype(int))
     with pytest.raises(DataError, match="a known noise sd .column 'sd'. applies to a gaussian output only"):

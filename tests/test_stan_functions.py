@@ -30,6 +30,10 @@ Z_DRAW = rng.standard_normal(4)
 # noise.stan: two sources' sds, each point's source and known sd, mixture weights and nu
 NOISE = {"source_sd": [0.3, 1.1], "source": [1, 2, 2, 1, 2, 1], "known_sd": [0.0, 0.5, 0.0, 0.2, 0.0, 0.7],
          "mix_weight": [1.2, 0.3, 0.9, 1.0, 0.05, 2.0], "nu": [4.5]}
+# each point's noise variance, noise.stan's noise_variance of NOISE: the sds added in quadrature
+# (Hogg, Bovy & Lang 2010)
+NOISE_VAR = (np.array(NOISE["source_sd"])[np.array(NOISE["source"]) - 1] ** 2
+             + np.array(NOISE["known_sd"]) ** 2)
 JITTER = 1e-6  # of the prior variance: gp_kernels.stan's add_jitter
 
 
@@ -137,13 +141,11 @@ def test_theta_from_unit(gq):
 
 def test_koh_joint_covariance(gq):
     rho, nugget, delta_sd, delta_ls = 1.3, 0.01, 0.7, np.array([0.4, 0.6])
-    # each point's noise variance (noise.stan's noise_variance of NOISE)
-    noise_var = np.array(NOISE["source_sd"])[np.array(NOISE["source"]) - 1] ** 2 + np.array(NOISE["known_sd"]) ** 2
     xt_obs = np.column_stack([X1[:, 0], np.full(6, 0.3)])
     K_ss = se(X2, X2) + nugget**2 * np.eye(4)
     K_so = rho * se(X2, xt_obs)
     d2 = (((X1[:, None, :] - X1[None, :, :]) / delta_ls) ** 2).sum(-1)
-    K_oo = rho**2 * se(xt_obs, xt_obs) + delta_sd**2 * np.exp(-0.5 * d2) + np.diag(noise_var)
+    K_oo = rho**2 * se(xt_obs, xt_obs) + delta_sd**2 * np.exp(-0.5 * d2) + np.diag(NOISE_VAR)
     expected = np.block([[K_ss, K_so], [K_so.T, K_oo]]) + JITTER * SD**2 * np.eye(10)
     np.testing.assert_allclose(gq["joint"], expected, rtol=1e-10)
 
@@ -462,8 +464,7 @@ def test_given_normals_are_checked(gq):
 
 
 def test_noise_variances_densities_and_weights(gq):
-    sd = np.array(NOISE["source_sd"])[np.array(NOISE["source"]) - 1]
-    variance = sd**2 + np.array(NOISE["known_sd"]) ** 2  # added in quadrature (Hogg, Bovy & Lang 2010)
+    variance = NOISE_VAR
     weight, nu = np.array(NOISE["mix_weight"]), NOISE["nu"][0]
     np.testing.assert_allclose(gq["noise_var"], variance, rtol=1e-12)
     np.testing.assert_allclose(gq["noise_var_weighted"], variance / weight, rtol=1e-12)

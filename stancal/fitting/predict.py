@@ -74,6 +74,6 @@ def _noise(result, posterior, points: pd.DataFrame, rng: np.random.Generator, dr
     source drawn in the physical rows' shares; Student-t with each draw's nu."""
     noise = result.data.noise
     source, known = noise.at(points)
-    shares = np.bincount(noise.source_index, minlength=len(noise.sources)) / len(noise.source_index)
+    shares = noise.rows_per_source / len(noise.source_index)
     scale = row_noise_sd(np.asarray(posterior["noise_sd"]).reshape(draws, -1), source, known, shares, rng)
     return draw_noise(rng, scale, np.asarray(posterior["nu"]).ravel() if "nu" in posterior else None)

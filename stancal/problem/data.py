@@ -277,8 +277,7 @@ class CalibrationData:
         return CalibrationData(source, self.inputs if inputs is None else inputs, self.output,
                                bounds_of(self.parameters) if theta is None else theta,
                                self.covariates if covariates is None else covariates,
-                               runs, levels=self.levels, sources=self.noise.sources if self.noise.source_column
-                               else None, **self.observation_columns,
+                               runs, levels=self.levels, sources=self.noise.given_sources, **self.observation_columns,
                                low_fidelity_runs=self.low_fidelity_runs if runs is not None else ())
 
     def subset(self, rows: Sequence[int]) -> CalibrationData:
@@ -344,17 +343,13 @@ class CalibrationData:
         """log p(y_row | zeta, the fit's noise or dispersion) per draw (draws, rows):
         each row's noise scale from its source and known sd, Student-t where
         the fit has degrees of freedom nu (stancal.problem.noise)."""
-        from scipy import stats
-
         phi = np.asarray(posterior["phi"]).reshape(-1, 1) if "phi" in posterior else None
+        nu = np.asarray(posterior["nu"]).reshape(-1, 1) if "nu" in posterior else None
         noise = None
         if "noise_sd" in posterior:
             sigma = np.asarray(posterior["noise_sd"]).reshape(len(zeta), -1)
             noise = row_noise_sd(sigma, self.noise.source_index[rows], self.noise.known_sd[rows])
-        if "nu" in posterior:  # Student-t rows are exact: censoring takes the normal programs
-            nu = np.asarray(posterior["nu"]).reshape(-1, 1)
-            return stats.t.logpdf(self.observations.value[rows], nu, zeta, noise)
-        return self.observations.log_density(rows, zeta, noise, phi)
+        return self.observations.log_density(rows, zeta, noise, phi, nu)
 
     @property
     def discrepancy_units(self) -> float:
@@ -471,7 +466,7 @@ class CalibrationData:
             "runs": None if self.runs is None else self.runs.to_dict(orient="list"),
             "low_fidelity_runs": [runs.to_dict(orient="list") for runs in self.low_fidelity_runs],
             "levels": self.levels,
-            "sources": list(self.noise.sources) if self.noise.source_column else None,
+            "sources": self.noise.given_sources,
             **self.observation_columns,
         }
 

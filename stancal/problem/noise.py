@@ -39,20 +39,26 @@ class MeasurementNoise:
     sources: tuple[str, ...]  # the distinct sources, sorted (one named "all" without a column)
     source_index: np.ndarray  # per row, 0-based into sources
 
+    @property
+    def rows_per_source(self) -> np.ndarray:
+        """How many physical rows each source has (in the order of ``sources``)."""
+        return np.bincount(self.source_index, minlength=len(self.sources))
+
+    @property
+    def given_sources(self) -> list[str] | None:
+        """The sources as a rebuilt or reloaded problem must keep them (None
+        without a source column: there is no column to read them from)."""
+        return list(self.sources) if self.source_column else None
+
     def at(self, points: pd.DataFrame, what: str = "prediction points") -> tuple[np.ndarray | None, np.ndarray]:
         """The sources (None where the points have no source column) and known
-        sds (0 where they have no noise_sd column) of new points."""
-        known = np.zeros(len(points))
-        if self.noise_sd_column and self.noise_sd_column in points:
-            known = positive_sd(points, self.noise_sd_column, what)
-        if not (self.source_column and self.source_column in points):
-            return None, known
-        names = source_names(points, self.source_column, what)
-        unknown = sorted(set(names) - set(self.sources))
-        if unknown:
-            raise DataError(f"{what}: column '{self.source_column}' names source(s) {unknown} that the "
-                            f"physical data lack; known: {list(self.sources)}")
-        return np.array([self.sources.index(n) for n in names]), known
+        sds (0 where they have no noise_sd column) of new points, read as the
+        physical data are, against the physical data's sources."""
+        sd_column = self.noise_sd_column if self.noise_sd_column and self.noise_sd_column in points else None
+        source_column = self.source_column if self.source_column and self.source_column in points else None
+        read = read_measurement_noise(points, sd_column, source_column, what,
+                                      self.sources if source_column else None)
+        return (read.source_index if source_column else None), read.known_sd
 
 
 def positive_sd(frame: pd.DataFrame, column: str, what: str) -> np.ndarray:
@@ -91,7 +97,8 @@ def read_measurement_noise(frame: pd.DataFrame, noise_sd: str | None, source: st
     sources = tuple(sources) if sources is not None else tuple(sorted(set(names)))
     unknown = sorted(set(names) - set(sources))
     if unknown:
-        raise DataError(f"{what}: column '{source}' names source(s) {unknown} beyond the given {list(sources)}")
+        raise DataError(f"{what}: column '{source}' names source(s) {unknown} that the physical data lack; "
+                        f"known: {list(sources)}")
     return MeasurementNoise(noise_sd, source, known, sources, np.array([sources.index(n) for n in names]))
 
 
@@ -106,8 +113,8 @@ def check_noise_name(noise: str) -> None:
 
 def check_noise(noise: str, measurement: MeasurementNoise) -> None:
     """The noise model against the data's columns, before anything compiles;
-    the message names the key to change."""
-    check_noise_name(noise)
+    the message names the key to change. The name itself is checked where
+    it is read (ModelOptions, the config), so it is a name stancal has."""
     column = measurement.source_column
     if noise == "per_source" and column is None:
         raise DataError(f"{config_key('model', 'noise', noise)} needs each row's measurement source: name its "

@@ -79,11 +79,13 @@ class Observations:
         return not self.observed.all()
 
     def log_density(self, rows: np.ndarray, mean: np.ndarray, noise_sd: np.ndarray | None = None,
-                    phi: np.ndarray | None = None) -> np.ndarray:
+                    phi: np.ndarray | None = None, nu: np.ndarray | None = None) -> np.ndarray:
         """log p(y_row | mean response) for draws (draws, rows) of the mean at
         the given rows, in original units: the likelihood of the Stan
         programs (observation_model.stan), for held-out scores. ``noise_sd``
-        (gaussian) and ``phi`` (negbinomial) are draws shaped (draws, 1)."""
+        (gaussian) is shaped (draws, 1) or (draws, rows), ``phi``
+        (negbinomial) and ``nu`` (gaussian, Student-t noise: exact rows take
+        a Student-t density, functions/noise.stan) (draws, 1)."""
         from scipy import stats
 
         y = self.value[rows]
@@ -94,11 +96,13 @@ class Observations:
         if self.likelihood is Likelihood.BINOMIAL:
             return stats.binom.logpmf(y, self.trials[rows], mean)
         code, lower, upper = self.censoring[rows], self.lower[rows], self.upper[rows]
+        exact = (stats.norm.logpdf(np.nan_to_num(y), mean, noise_sd) if nu is None
+                 else stats.t.logpdf(np.nan_to_num(y), nu, mean, noise_sd))
         below = stats.norm.logcdf(upper, mean, noise_sd)
         above = stats.norm.logsf(lower, mean, noise_sd)
         return np.select(
             [code == Censoring.OBSERVED, code == Censoring.LEFT, code == Censoring.RIGHT],
-            [stats.norm.logpdf(np.nan_to_num(y), mean, noise_sd), below, above],
+            [exact, below, above],
             # interval: log(Phi(upper) - Phi(lower))
             below + np.log1p(-np.exp(np.minimum(stats.norm.logcdf(lower, mean, noise_sd) - below, 0))))
 

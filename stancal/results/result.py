@@ -33,8 +33,9 @@ _REPORTED = {
     "phi": "phi",
     "nu": "nu",
 }
-# the latent programs declare these as arrays of size 0 or 1 (present or not)
-# (noise_sd: one per measurement source with noise = "per_source", kept per source then)
+# some programs declare these as arrays: of size 0 or 1 (present or not; delta_sd,
+# phi, nu), or noise_sd of size S (koh, koh_emulator, modular: one per measurement
+# source with noise = "per_source", kept per source then; size 1 becomes a scalar)
 _OPTIONAL_SCALARS = ("noise_sd", "delta_sd", "phi", "nu")
 ROW_WEIGHT = "row_weight"  # Student-t noise: each row's weight in the fit (functions/noise.stan)
 PREDICTED = ("f_new", "delta_new", "zeta_new")
@@ -46,7 +47,7 @@ AT_OBSERVATIONS = ("delta_gp", "delta_gp_mean", "y_loo_mean")
 # form (original units, or not at all: latent standard normals); any other
 # parameter of a program goes into the posterior group as it is
 _REEXPRESSED = {"theta_unit", "noise_sd", "delta_sd", "delta_input_length_scale", "delta_relevance",
-                "rho_free", "beta", "nu", "noise_weight",
+                "rho_free", "beta", "noise_weight",
                 "inv_sqrt_phi", "delta_raw", "emulator_z", "theta_function_sd",
                 "theta_function_length_scale", "theta_function_logit", "theta_function_raw"}
 
@@ -234,10 +235,9 @@ class CalibrationResult:
         """The noise model: its name, each source's rows, the known-sd column
         and (Student-t) the outliers, for summary.json and the report."""
         noise = self.data.noise
-        counts = np.bincount(noise.source_index, minlength=len(noise.sources))
         return {"model": self.options.noise, "known_sd_column": noise.noise_sd_column,
                 "source_column": noise.source_column,
-                "rows_per_source": dict(zip(noise.sources, counts.tolist(), strict=True)),
+                "rows_per_source": dict(zip(noise.sources, noise.rows_per_source.tolist(), strict=True)),
                 "outlier_rule": f"posterior mean Student-t weight < {OUTLIER_WEIGHT}",
                 "outliers": json.loads(self.outliers().to_json(orient="records"))}
 
