@@ -11,7 +11,9 @@ discrepancy; modular; koh_emulator. The latent families (koh_latent) run on
 their test designs: Poisson counts (the detector, 35 points), binomial
 successes (the decay survival, 16 points), censored concentrations (the
 detection-limit lab, every third of its 90 points, censored by the lab's
-two limits) and a functional theta(x) (the beam's E(temperature), 45 points).
+two limits) and a functional theta(x) (the beam's E(temperature), 45 points);
+modular with two fidelities runs on case_studies/cooling_fidelity (28
+points, 150 cheap and 15 expensive runs, no discrepancy).
 The noise families (docs/noise.md) run on the cooling design with two
 instruments alternating over its rows (one noise sd each), with a known sd
 per row rising from 0.1 to 1 degC, or with Student-t noise (its mixture
@@ -39,6 +41,7 @@ from test_latent import BEAM, CENSORED, COUNTS, beam_data, censored_data, exact_
 
 import stancal  # noqa: E402
 from stancal.diagnosing.sbc import simulation_based_calibration  # noqa: E402
+from stancal.problem.config import load_config  # noqa: E402
 
 SIMULATOR = COOLING / "simulator.stan"
 
@@ -66,7 +69,8 @@ def noise_design(**columns) -> stancal.CalibrationData:
 DESIGNS = {"counts": lambda: exact_counts("poisson", seed=1), "binomial": binomial_design,
            "censored": censored_design, "beam": beam_data,
            "two_sources": lambda: noise_design(source="instrument"), "known_sd": lambda: noise_design(noise_sd="sd"),
-           "cooling": lambda: cooling_data(seed=7)}
+           "cooling": lambda: cooling_data(seed=7),
+           "cooling_fidelity": lambda: load_config(ROOT / "case_studies" / "cooling_fidelity" / "config.toml").data}
 LATENT = {
     "koh_latent_poisson": ("counts", {"simulator": COUNTS / "simulator.stan", "method": "koh", "discrepancy": "gp"}),
     "koh_latent_binomial": ("binomial", {"simulator": CENSORED / "simulator.stan", "method": "koh",
@@ -87,7 +91,8 @@ NOISE = {
     "modular_student_t": ("cooling", {"method": "modular", "discrepancy": "gp", "noise": "student_t"}),
     "koh_emulator_known_sd": ("known_sd", {"method": "koh_emulator", "discrepancy": "gp"}),
 }
-DESIGNED = LATENT | NOISE  # families on a design of their own; the rest run on "cooling"
+FIDELITY = {"modular_multifidelity": ("cooling_fidelity", {"method": "modular", "discrepancy": "none"})}
+DESIGNED = LATENT | NOISE | FIDELITY  # families on a design of their own; the rest run on "cooling"
 FAMILIES = {
     "koh": {"simulator": SIMULATOR, "method": "koh", "discrepancy": "gp"},
     "koh_none": {"simulator": SIMULATOR, "method": "koh", "discrepancy": "none"},

@@ -11,6 +11,7 @@ functions {
 #include gp_kernels.stan
 #include gp_conditional.stan
 #include noise.stan
+#include fidelity.stan
 #include koh_joint.stan
 #include loo.stan
 #include priors.stan
@@ -54,6 +55,8 @@ transformed data {
   array[M] vector[D + Q] xt_sim;
   for (j in 1:M) xt_sim[j] = append_row(x_sim[j], theta_sim[j]);
   vector[M + N] y_joint = append_row(y_sim, y);
+  matrix[M, 1] w_sim = rep_matrix(1, M, 1);  // one fidelity: every run on the one GP (fidelity.stan)
+  row_vector[1] w_top = [1];
   check_given_normals(P_normals, P);
 }
 parameters {
@@ -97,9 +100,9 @@ model {
                                           emulator_nugget);
     y_sim ~ multi_normal_cholesky(rep_vector(emulator_mean, M), cholesky_decompose(K_sim));
   } else {
-    matrix[M + N, M + N] K = koh_joint_cov(xt_sim, append_theta(x, theta_unit), x_delta, kernel_id,
-                                           emulator_sd, emulator_length_scale, emulator_nugget,
-                                           rho, delta_sd, delta_length_scale,
+    matrix[M + N, M + N] K = koh_joint_cov(xt_sim, w_sim, append_theta(x, theta_unit), w_top, x_delta,
+                                           kernel_id, {emulator_sd}, {emulator_length_scale},
+                                           rep_vector(emulator_nugget, M), rho, delta_sd, delta_length_scale,
                                            weighted_noise_variance(noise_variance(noise_sd, source, known_sd),
                                                                    noise_weight));
     vector[M + N] mu = append_row(rep_vector(emulator_mean, M), rho * emulator_mean + h * beta);
@@ -123,9 +126,9 @@ generated quantities {
     vector[N] noise_var = noise_variance(noise_sd, source, known_sd);
     tuple(vector[N], vector[N], vector[N], vector[N], vector[N], vector[P], vector[P], vector[P]) q
       = koh_joint_quantities_rng(y_sim, y, xt_sim, x, theta_unit, x_delta, h, beta, x_new, x_delta_new,
-                                 h_new, normals_new, prior_only, kernel_id, emulator_mean, emulator_sd,
-                                 emulator_length_scale, emulator_nugget, rho, delta_sd,
-                                 delta_length_scale, weighted_noise_variance(noise_var, noise_weight),
+                                 h_new, normals_new, prior_only, kernel_id, w_sim, w_top, {emulator_mean},
+                                 {emulator_sd}, {emulator_length_scale}, rep_vector(emulator_nugget, M),
+                                 rho, delta_sd, delta_length_scale, weighted_noise_variance(noise_var, noise_weight),
                                  y_center, y_scale);
     log_lik = q.1;
     y_loo_mean = q.2;

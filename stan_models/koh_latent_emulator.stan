@@ -15,6 +15,7 @@
 functions {
 #include gp_kernels.stan
 #include gp_conditional.stan
+#include fidelity.stan
 #include koh_joint.stan
 #include loo.stan
 #include latent_gp.stan
@@ -82,6 +83,8 @@ transformed data {
   array[M] vector[D + Q] xt_sim;
   for (j in 1:M) xt_sim[j] = append_row(x_sim[j], theta_sim[j]);
   array[0] real no_discrepancy = rep_array(0.0, 0);  // koh_joint_predict draws f alone with it
+  matrix[M, 1] w_sim = rep_matrix(1, M, 1);  // one fidelity: every run on the one GP (fidelity.stan)
+  row_vector[1] w_top = [1];
   matrix[M, M] L_sim = cholesky_decompose(
     emulator_run_cov(xt_sim, kernel_id, emulator_sd, emulator_length_scale, emulator_nugget));
   check_given_normals(P_normals, P);
@@ -195,11 +198,11 @@ generated quantities {
     if (P > 0) {
       vector[M + N] resid = append_row(y_sim, f_std) - emulator_mean;
       matrix[M + N, M + N] L = cholesky_decompose(koh_joint_cov(
-        xt_sim, xt_obs, x_delta, kernel_id, emulator_sd, emulator_length_scale, emulator_nugget,
-        1.0, no_discrepancy, no_discrepancy, rep_vector(0, N)));
+        xt_sim, w_sim, xt_obs, w_top, x_delta, kernel_id, {emulator_sd}, {emulator_length_scale},
+        rep_vector(emulator_nugget, M), 1.0, no_discrepancy, no_discrepancy, rep_vector(0, N)));
       // the delta half of the draw is empty here (no discrepancy): its normals are zeros
       f_std_new += koh_joint_predict(resid, L, xt_sim, xt_obs, x_delta, xt_new, x_delta_new,
-                                     kernel_id, emulator_sd, emulator_length_scale, 1.0,
+                                     kernel_id, w_sim, w_top, {emulator_sd}, {emulator_length_scale}, 1.0,
                                      no_discrepancy, no_discrepancy,
                                      append_row(prediction_normals_rng(normals_new, 1, P), rep_vector(0, P)))[1:P];
     }

@@ -7,10 +7,14 @@
 //   y ~ N(rho * m(theta) + h' beta, rho^2 V(theta) + K_delta + diag(noise variances)),
 // with the measurement noise of functions/noise.stan (Student-t: given its mixture weights),
 // with optional discrepancy mean terms h (a candidate unmodelled effect).
+// The runs may come from simulators of several fidelities, cheapest first
+// (Kennedy & O'Hagan 2000; fidelity.stan): the emulator of the calibrated,
+// top level then learns from the cheaper runs too.
 functions {
 #include gp_kernels.stan
 #include gp_conditional.stan
 #include noise.stan
+#include fidelity.stan
 #include koh_joint.stan
 #include loo.stan
 #include priors.stan
@@ -44,10 +48,13 @@ data {
   array[N] int<lower=1, upper=S> source;  // each row's noise sd: its source (all 1 unless per_source)
   vector<lower=0>[N] known_sd;          // each row's known measurement sd, standardised (0 = none)
   int<lower=0, upper=1> prior_only;     // 1 = ignore y (the runs still inform the emulator)
-  real emulator_mean;                   // stage-1 emulator hyperparameters, standardised units
-  real<lower=0> emulator_sd;            // see emulator_mean
-  array[D + Q] real<lower=0> emulator_length_scale;  // inputs first, then theta; unit-cube units
-  real<lower=0> emulator_nugget;        // see emulator_mean
+  int<lower=1> L;                       // fidelity levels of the runs: 1 = the calibrated simulator only
+  array[M] int<lower=1, upper=L> run_level;  // each run's level: 1 the cheapest, L the calibrated simulator
+  vector[L - 1] level_rho;              // stage 1: each level's scale on the level below
+  array[L] real emulator_mean;          // stage-1 hyperparameters of each level's GP, standardised units
+  array[L] real<lower=0> emulator_sd;   // see emulator_mean
+  array[L, D + Q] real<lower=0> emulator_length_scale;  // inputs first, then theta; unit-cube units
+  array[L] real<lower=0> emulator_nugget;  // see emulator_mean
   int<lower=0> P;                       // number of prediction points
   array[P] vector[D] x_new;             // simulator inputs of the prediction points, scaled to [0, 1]
   array[P] vector[D_delta] x_delta_new; // discrepancy inputs of the prediction points, scaled to [0, 1]
@@ -57,15 +64,28 @@ data {
 transformed data {
   array[M] vector[D + Q] xt_sim;
   for (j in 1:M) xt_sim[j] = append_row(x_sim[j], theta_sim[j]);
+  // each run's weights on the levels' GPs; the physical points are at the top level
+  matrix[L, L] weights = fidelity_weights(level_rho);
+  matrix[M, L] w_sim = weights[run_level, :];
+  row_vector[L] w_top = weights[L, :];
+  vector[M] run_nugget_sd = to_vector(emulator_nugget)[run_level];
+  real top_mean = w_top * to_vector(emulator_mean);
+  real top_variance = fidelity_variance(w_top, emulator_sd);
   matrix[M, M] L_sim = cholesky_decompose(
-    emulator_run_cov(xt_sim, kernel_id, emulator_sd, emulator_length_scale, emulator_nugget));
-  vector[M] alpha_sim = mdivide_right_tri_low(mdivide_left_tri_low(L_sim, y_sim - emulator_mean)',
-                                              L_sim)';
+    fidelity_run_cov(xt_sim, w_sim, w_top, kernel_id, emulator_sd, emulator_length_scale, run_nugget_sd));
+  vector[M] alpha_sim = mdivide_right_tri_low(
+    mdivide_left_tri_low(L_sim, y_sim - w_sim * to_vector(emulator_mean))', L_sim)';
   // the physical points share theta, so the emulator's covariance among them
   // has no theta part: data. Squared exponential: the points' covariance with
-  // the runs factorises into an x part (data here) and a theta part (theta_factor).
-  matrix[N, N] K_obs = ard_cov(x, kernel_id, emulator_sd, emulator_length_scale[1:D]);
-  matrix[N, M] K_obs_sim_x = gp_exp_quad_cov(x, x_sim, emulator_sd, emulator_length_scale[1:D]);
+  // the runs factorises, level by level, into an x part (data here) and a
+  // theta part (theta_factor).
+  matrix[N, N] K_obs = fidelity_cov(x, rep_matrix(w_top, N), kernel_id, emulator_sd,
+                                    emulator_length_scale[:, 1:D]);
+  array[L] matrix[N, M] K_obs_sim_x;
+  for (j in 1:L) {
+    K_obs_sim_x[j] = diag_post_multiply(gp_exp_quad_cov(x, x_sim, emulator_sd[j], emulator_length_scale[j, 1:D]),
+                                        w_top[j] * col(w_sim, j));
+  }
   check_given_normals(P_normals, P);
 }
 parameters {
@@ -97,13 +117,18 @@ model {
   rho_free ~ koh_scale();                            // normal(1, 0.25), rho > 0
   beta ~ normal(0, beta_prior_sd);
   if (!prior_only) {
-    matrix[N, M] K_obs_sim = kernel_id == 1
-      ? diag_post_multiply(K_obs_sim_x, theta_factor(theta_unit, theta_sim,
-                                                     emulator_length_scale[(D + 1):(D + Q)]))
-      : ard_cross_cov(append_theta(x, theta_unit), xt_sim, kernel_id, emulator_sd,
-                      emulator_length_scale);
+    matrix[N, M] K_obs_sim = rep_matrix(0, N, M);
+    if (kernel_id == 1) {
+      for (j in 1:L) {
+        K_obs_sim += diag_post_multiply(K_obs_sim_x[j], theta_factor(theta_unit, theta_sim,
+                                                                     emulator_length_scale[j, (D + 1):(D + Q)]));
+      }
+    } else {
+      K_obs_sim = fidelity_cross_cov(append_theta(x, theta_unit), rep_matrix(w_top, N), xt_sim, w_sim,
+                                     kernel_id, emulator_sd, emulator_length_scale);
+    }
     matrix[M, N] A = mdivide_left_tri_low(L_sim, K_obs_sim');
-    vector[N] emulator_mean_obs = emulator_mean + K_obs_sim * alpha_sim;
+    vector[N] emulator_mean_obs = top_mean + K_obs_sim * alpha_sim;
     matrix[N, N] K = square(rho) * (K_obs - crossprod(A));
     if (use_discrepancy) {
       K += ard_cov(x_delta, kernel_id, delta_sd[1], delta_length_scale);
@@ -111,7 +136,7 @@ model {
     vector[N] noise_var = weighted_noise_variance(noise_variance(noise_sd, source, known_sd), noise_weight);
     y ~ multi_normal_cholesky(rho * emulator_mean_obs + h * beta,
                               cholesky_decompose(add_jitter(add_diag(K, noise_var),
-                                                            square(rho * emulator_sd))));
+                                                            square(rho) * top_variance)));
   }
 }
 generated quantities {
@@ -131,8 +156,8 @@ generated quantities {
     vector[N] noise_var = noise_variance(noise_sd, source, known_sd);
     tuple(vector[N], vector[N], vector[N], vector[N], vector[N], vector[P], vector[P], vector[P]) q
       = koh_joint_quantities_rng(y_sim, y, xt_sim, x, theta_unit, x_delta, h, beta, x_new, x_delta_new,
-                                 h_new, normals_new, prior_only, kernel_id, emulator_mean, emulator_sd,
-                                 emulator_length_scale, emulator_nugget, rho, delta_sd,
+                                 h_new, normals_new, prior_only, kernel_id, w_sim, w_top, emulator_mean,
+                                 emulator_sd, emulator_length_scale, run_nugget_sd, rho, delta_sd,
                                  delta_length_scale, weighted_noise_variance(noise_var, noise_weight),
                                  y_center, y_scale);
     log_lik = q.1;

@@ -7,6 +7,8 @@ import pytest
 from scipy import stats
 
 from stancal.numerics.kernels import ard_cross_cov
+from stancal.numerics.multifidelity import Level, level_covariance
+from stancal.numerics.scalable_emulator import Hyperparameters
 from stancal.problem.codes import Kernel
 from stancal.stan.backends.pystan_compile import compile_programs
 from stancal.stan.source import flatten
@@ -146,6 +148,17 @@ def test_koh_joint_covariance(gq):
     K_oo = rho**2 * se(xt_obs, xt_obs) + delta_sd**2 * np.exp(-0.5 * d2) + np.diag(NOISE_VAR)
     expected = np.block([[K_ss, K_so], [K_so.T, K_oo]]) + JITTER * SD**2 * np.eye(10)
     np.testing.assert_allclose(gq["joint"], expected, rtol=1e-10)
+
+
+def test_fidelity_covariance_is_the_numpy_co_kriging_one(gq):
+    """functions/fidelity.stan against stancal.numerics.multifidelity, two levels, rho 1.7."""
+    levels = [Level(Hyperparameters(0.0, SD, LS, 0.0), 1.0, X2[[0, 2]], np.zeros(2)),
+              Level(Hyperparameters(0.0, 0.5, np.array([0.2, 0.9]), 0.0), 1.7, X2[[1, 3]], np.zeros(2))]
+    np.testing.assert_allclose(gq["fidelity_w"], [[1, 0], [1.7, 1]])
+    expected = np.empty((6, 4))
+    expected[:, [0, 2]] = level_covariance(levels, X1, 1, X2[[0, 2]], 0)
+    expected[:, [1, 3]] = level_covariance(levels, X1, 1, X2[[1, 3]], 1)
+    np.testing.assert_allclose(gq["fidelity_cross"], expected, rtol=1e-10)
 
 
 def test_orthogonal_gp_covariance(gq):

@@ -2,42 +2,45 @@
  * Covariance of the stacked vector [y_sim; y_obs] in the joint KOH model
  * (Kennedy & O'Hagan 2001; review section 4.2): simulator runs and
  * physical data share one emulator GP over (x, theta); the physical block
- * adds the discrepancy GP and measurement noise.
+ * adds the discrepancy GP and measurement noise. The runs may come from
+ * simulators of several fidelities (fidelity.stan); the physical points see
+ * the top one.
  *
  * @param xt_sim emulator inputs of the runs, (x, theta) on the unit cube
+ * @param w_sim the runs' weights on the levels' GPs (one column for one fidelity)
  * @param xt_obs emulator inputs of the physical points at the current theta
+ * @param w_top the top level's weights
  * @param x_delta discrepancy inputs of the physical points
  * @param kernel_id 1 = squared exponential, 2 = Matern 5/2
- * @param emulator_sd emulator GP hyperparameters
- * @param emulator_length_scale emulator GP hyperparameters
- * @param emulator_nugget standard deviation of the runs' jitter
+ * @param level_sd each level's emulator GP marginal sd
+ * @param level_length_scale each level's emulator GP length scales
+ * @param run_nugget_sd each run's nugget sd (its level's)
  * @param rho KOH scale: zeta = rho * f + delta
  * @param delta_sd discrepancy GP hyperparameters
  * @param delta_length_scale discrepancy GP hyperparameters
  *        (empty arrays for no discrepancy)
  * @param noise_var each physical point's noise variance (noise.stan's weighted_noise_variance)
- * @return covariance matrix of size M + N, with the jitter (add_jitter) of the emulator's variance
+ * @return covariance matrix of size M + N, with the jitter (add_jitter) of the top level's variance
  */
-matrix koh_joint_cov(array[] vector xt_sim, array[] vector xt_obs,
-                     array[] vector x_delta, int kernel_id,
-                     real emulator_sd, array[] real emulator_length_scale,
-                     real emulator_nugget, real rho, array[] real delta_sd,
-                     array[] real delta_length_scale, vector noise_var) {
+matrix koh_joint_cov(array[] vector xt_sim, matrix w_sim, array[] vector xt_obs, row_vector w_top,
+                     array[] vector x_delta, int kernel_id, array[] real level_sd,
+                     array[,] real level_length_scale, vector run_nugget_sd, real rho,
+                     array[] real delta_sd, array[] real delta_length_scale, vector noise_var) {
   int m = size(xt_sim);
   int n = size(xt_obs);
+  matrix[n, cols(w_sim)] w_obs = rep_matrix(w_top, n);
   matrix[m + n, m + n] K;
-  K[1:m, 1:m] = add_diag(ard_cov(xt_sim, kernel_id, emulator_sd, emulator_length_scale),
-                         square(emulator_nugget));
-  K[1:m, (m + 1):(m + n)] = rho * ard_cross_cov(xt_sim, xt_obs, kernel_id, emulator_sd,
-                                                emulator_length_scale);
+  K[1:m, 1:m] = add_diag(fidelity_cov(xt_sim, w_sim, kernel_id, level_sd, level_length_scale),
+                         square(run_nugget_sd));
+  K[1:m, (m + 1):(m + n)] = rho * fidelity_cross_cov(xt_sim, w_sim, xt_obs, w_obs, kernel_id, level_sd,
+                                                     level_length_scale);
   K[(m + 1):(m + n), 1:m] = K[1:m, (m + 1):(m + n)]';
-  matrix[n, n] K_obs = square(rho) * ard_cov(xt_obs, kernel_id, emulator_sd,
-                                             emulator_length_scale);
+  matrix[n, n] K_obs = square(rho) * fidelity_cov(xt_obs, w_obs, kernel_id, level_sd, level_length_scale);
   if (size(delta_sd) > 0) {
     K_obs += ard_cov(x_delta, kernel_id, delta_sd[1], delta_length_scale);
   }
   K[(m + 1):(m + n), (m + 1):(m + n)] = add_diag(K_obs, noise_var);
-  return add_jitter(K, square(emulator_sd));
+  return add_jitter(K, fidelity_variance(w_top, level_sd));
 }
 
 /**
@@ -55,8 +58,10 @@ matrix koh_joint_cov(array[] vector xt_sim, array[] vector xt_obs,
  * @param other parameters as in koh_joint_cov
  * @param z standard normals, size 2P: f's, then delta's
  * @param kernel_id 1 = squared exponential, 2 = Matern 5/2
- * @param emulator_sd the emulator GP's marginal sd
- * @param emulator_length_scale the emulator GP's length scales: inputs first, then theta
+ * @param w_sim the runs' weights on the levels' GPs (fidelity.stan)
+ * @param w_top the top level's weights: the physical and new points'
+ * @param level_sd each level's emulator GP marginal sd
+ * @param level_length_scale each level's emulator GP length scales: inputs first, then theta
  * @param rho the Kennedy-O'Hagan scale on the simulator
  * @param delta_sd the discrepancy GP's marginal sd (an empty array: no discrepancy)
  * @param delta_length_scale the discrepancy GP's length scales, one per discrepancy input
@@ -65,19 +70,21 @@ matrix koh_joint_cov(array[] vector xt_sim, array[] vector xt_obs,
 vector koh_joint_predict(vector resid, matrix L_joint, array[] vector xt_sim,
                          array[] vector xt_obs, array[] vector x_delta,
                          array[] vector xt_new, array[] vector x_delta_new,
-                         int kernel_id, real emulator_sd,
-                         array[] real emulator_length_scale, real rho,
+                         int kernel_id, matrix w_sim, row_vector w_top, array[] real level_sd,
+                         array[,] real level_length_scale, real rho,
                          array[] real delta_sd, array[] real delta_length_scale, vector z) {
   int m = size(xt_sim);
   int n = size(xt_obs);
   int p = size(xt_new);
+  matrix[n, cols(w_sim)] w_obs = rep_matrix(w_top, n);
+  matrix[p, cols(w_sim)] w_new = rep_matrix(w_top, p);
   matrix[2 * p, m + n] K_cross = rep_matrix(0, 2 * p, m + n);
   matrix[2 * p, 2 * p] K_new = rep_matrix(0, 2 * p, 2 * p);
-  K_cross[1:p, 1:m] = ard_cross_cov(xt_new, xt_sim, kernel_id, emulator_sd,
-                                    emulator_length_scale);
-  K_cross[1:p, (m + 1):(m + n)] = rho * ard_cross_cov(xt_new, xt_obs, kernel_id,
-                                                      emulator_sd, emulator_length_scale);
-  K_new[1:p, 1:p] = ard_cov(xt_new, kernel_id, emulator_sd, emulator_length_scale);
+  K_cross[1:p, 1:m] = fidelity_cross_cov(xt_new, w_new, xt_sim, w_sim, kernel_id, level_sd,
+                                         level_length_scale);
+  K_cross[1:p, (m + 1):(m + n)] = rho * fidelity_cross_cov(xt_new, w_new, xt_obs, w_obs, kernel_id,
+                                                           level_sd, level_length_scale);
+  K_new[1:p, 1:p] = fidelity_cov(xt_new, w_new, kernel_id, level_sd, level_length_scale);
   if (size(delta_sd) > 0) {
     K_cross[(p + 1):(2 * p), (m + 1):(m + n)]
       = ard_cross_cov(x_delta_new, x_delta, kernel_id, delta_sd[1], delta_length_scale);
@@ -105,8 +112,7 @@ vector koh_joint_predict(vector resid, matrix L_joint, array[] vector xt_sim,
  * @param xt_new emulator inputs of the prediction points
  * @param x_delta_new discrepancy inputs of the prediction points
  * @param kernel_id 1 = squared exponential, 2 = Matern 5/2
- * @param emulator_sd the emulator GP's marginal sd
- * @param emulator_length_scale the emulator GP's length scales: inputs first, then theta
+ * @param w_sim, w_top, level_sd, level_length_scale the emulator, as in koh_joint_predict
  * @param rho the Kennedy-O'Hagan scale on the simulator
  * @param delta_sd the discrepancy GP's marginal sd (an empty array: no discrepancy)
  * @param delta_length_scale the discrepancy GP's length scales, one per discrepancy input
@@ -116,8 +122,8 @@ vector koh_joint_predict(vector resid, matrix L_joint, array[] vector xt_sim,
 matrix koh_joint_draw(vector resid, matrix L_joint, int prior_only,
                       array[] vector xt_sim, array[] vector xt_obs,
                       array[] vector x_delta, array[] vector xt_new,
-                      array[] vector x_delta_new, int kernel_id, real emulator_sd,
-                      array[] real emulator_length_scale, real rho,
+                      array[] vector x_delta_new, int kernel_id, matrix w_sim, row_vector w_top,
+                      array[] real level_sd, array[,] real level_length_scale, real rho,
                       array[] real delta_sd, array[] real delta_length_scale,
                       vector z_f, vector z_delta) {
   int m = size(xt_sim);
@@ -126,8 +132,8 @@ matrix koh_joint_draw(vector resid, matrix L_joint, int prior_only,
   if (p == 0) return rep_matrix(0, 0, 2);
   vector[2 * p] f_delta = koh_joint_predict(
     resid[1:(m + n_cond)], L_joint[1:(m + n_cond), 1:(m + n_cond)], xt_sim,
-    xt_obs[1:n_cond], x_delta[1:n_cond], xt_new, x_delta_new, kernel_id, emulator_sd,
-    emulator_length_scale, rho, delta_sd, delta_length_scale, append_row(z_f, z_delta));
+    xt_obs[1:n_cond], x_delta[1:n_cond], xt_new, x_delta_new, kernel_id, w_sim, w_top, level_sd,
+    level_length_scale, rho, delta_sd, delta_length_scale, append_row(z_f, z_delta));
   return append_col(f_delta[1:p], f_delta[(p + 1):(2 * p)]);
 }
 
@@ -152,10 +158,12 @@ matrix koh_joint_draw(vector resid, matrix L_joint, int prior_only,
  * @param theta_unit every theta on [0, 1]; a functional theta's level
  * @param prior_only 1 = draws from the prior (the data ignored)
  * @param kernel_id 1 = squared exponential, 2 = Matern 5/2
- * @param emulator_mean the emulator GP's constant mean
- * @param emulator_sd the emulator GP's marginal sd
- * @param emulator_length_scale the emulator GP's length scales: inputs first, then theta
- * @param emulator_nugget the emulator's nugget sd (the runs' noise)
+ * @param w_sim the runs' weights on the levels' GPs (fidelity.stan; one column for one fidelity)
+ * @param w_top the top level's weights: the physical and new points'
+ * @param level_mean each level's emulator GP constant mean
+ * @param level_sd each level's emulator GP marginal sd
+ * @param level_length_scale each level's GP length scales: inputs first, then theta
+ * @param run_nugget_sd each run's nugget sd (its level's: the runs' noise)
  * @param rho the Kennedy-O'Hagan scale on the simulator
  * @param delta_sd the discrepancy GP's marginal sd (an empty array: no discrepancy)
  * @param delta_length_scale the discrepancy GP's length scales, one per discrepancy input
@@ -170,30 +178,31 @@ tuple(vector, vector, vector, vector, vector, vector, vector, vector) koh_joint_
     vector y_sim, vector y, array[] vector xt_sim, array[] vector x, vector theta_unit,
     array[] vector x_delta, matrix h, vector beta, array[] vector x_new,
     array[] vector x_delta_new, matrix h_new, matrix normals_new, int prior_only,
-    int kernel_id, real emulator_mean, real emulator_sd, array[] real emulator_length_scale,
-    real emulator_nugget, real rho, array[] real delta_sd, array[] real delta_length_scale,
-    vector noise_var, real y_center, real y_scale) {
+    int kernel_id, matrix w_sim, row_vector w_top, array[] real level_mean, array[] real level_sd,
+    array[,] real level_length_scale, vector run_nugget_sd, real rho, array[] real delta_sd,
+    array[] real delta_length_scale, vector noise_var, real y_center, real y_scale) {
   int m = size(xt_sim);
   int n = size(x);
   int p = size(x_new);
   array[n] vector[num_elements(xt_sim[1])] xt_obs = append_theta(x, theta_unit);
   matrix[m + n, m + n] L = cholesky_decompose(
-    koh_joint_cov(xt_sim, xt_obs, x_delta, kernel_id, emulator_sd, emulator_length_scale,
-                  emulator_nugget, rho, delta_sd, delta_length_scale, noise_var));
-  vector[m + n] resid = append_row(y_sim, y) - append_row(rep_vector(emulator_mean, m),
-                                                          rho * emulator_mean + h * beta);
+    koh_joint_cov(xt_sim, w_sim, xt_obs, w_top, x_delta, kernel_id, level_sd, level_length_scale,
+                  run_nugget_sd, rho, delta_sd, delta_length_scale, noise_var));
+  real top_mean = w_top * to_vector(level_mean);
+  vector[m + n] resid = append_row(y_sim, y) - append_row(w_sim * to_vector(level_mean),
+                                                          rho * top_mean + h * beta);
   tuple(vector[m + n], vector[m + n]) loo = mvn_loo(resid, L);
   // (f, delta) at the physical points, then at the prediction points, whose
   // standard normals stancal may give
   matrix[n, 2] f_delta_obs = koh_joint_draw(
-    resid, L, prior_only, xt_sim, xt_obs, x_delta, xt_obs, x_delta, kernel_id, emulator_sd,
-    emulator_length_scale, rho, delta_sd, delta_length_scale, std_normals_rng(n), std_normals_rng(n));
+    resid, L, prior_only, xt_sim, xt_obs, x_delta, xt_obs, x_delta, kernel_id, w_sim, w_top, level_sd,
+    level_length_scale, rho, delta_sd, delta_length_scale, std_normals_rng(n), std_normals_rng(n));
   matrix[p, 2] f_delta_new = koh_joint_draw(
     resid, L, prior_only, xt_sim, xt_obs, x_delta, append_theta(x_new, theta_unit), x_delta_new,
-    kernel_id, emulator_sd, emulator_length_scale, rho, delta_sd, delta_length_scale,
+    kernel_id, w_sim, w_top, level_sd, level_length_scale, rho, delta_sd, delta_length_scale,
     prediction_normals_rng(normals_new, 1, p), prediction_normals_rng(normals_new, 2, p));
-  vector[n] zeta_obs = rho * (emulator_mean + f_delta_obs[:, 1]) + h * beta + f_delta_obs[:, 2];
-  vector[p] f_new = emulator_mean + f_delta_new[:, 1];
+  vector[n] zeta_obs = rho * (top_mean + f_delta_obs[:, 1]) + h * beta + f_delta_obs[:, 2];
+  vector[p] f_new = top_mean + f_delta_new[:, 1];
   vector[p] delta_new = h_new * beta + f_delta_new[:, 2];
   vector[n] delta_gp_mean = rep_vector(0, n);
   if (size(delta_sd) > 0 && !prior_only) {

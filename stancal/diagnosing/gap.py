@@ -320,7 +320,7 @@ def diagnose_gap(
         clock.lap("compile" if compiled else COMPILED_EARLIER)
         # a theta that carries the constant's level: the constant leaves every fit alike (checked once, here;
         # from runs, on stage 1's emulator, which each fit then fits again)
-        emulator = run_stage_one(plan.program.stage_one, data, plan.options, plan.stan_programs(),
+        emulator = run_stage_one(plan.stage_one, data, plan.options, plan.stan_programs(),
                                  backend=stan_backend, seed=seed) if stage_one_emulator(plan) else None
         plan, confounding = resolve_confounding(plan, data, stan_backend, emulator)
         task = functools.partial(_fit_task, vector=vector, plan=plan, seed=seed, sampling=calibrate_options)

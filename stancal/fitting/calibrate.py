@@ -105,7 +105,7 @@ def _sample_checked(sample_once, data: CalibrationData, plan: Plan, emulator: di
         if refit:
             fit = sample_once(options)
             _, _, messages = check_basis(fit.tree, data, options, chosen_by_user=True)
-    if plan.program.stage_one == STAGE_ONE_SCALABLE:  # its covariance entered at one theta
+    if plan.stage_one == STAGE_ONE_SCALABLE:  # its covariance entered at one theta
         messages += check_emulator_variance(fit.tree, data, emulator, fit.stan_json)
     return fit, options, messages
 
@@ -227,7 +227,7 @@ def calibrate(
     compile_s = stan_backend.compile(programs)  # 0.0: compiled earlier
     seed = command_seed(seed)
     new_points, fit_points, quadrature = _prediction_points(data, new_points, plan.l2)
-    emulator = run_stage_one(plan.program.stage_one, data, plan.options, programs, backend=stan_backend,
+    emulator = run_stage_one(plan.stage_one, data, plan.options, programs, backend=stan_backend,
                              seed=seed) or {}
     # theta against the model's own terms (simulator or stage 1's emulator), before any sampling
     plan, confounding = resolve_confounding(plan, data, stan_backend, emulator)

@@ -62,7 +62,7 @@ from stancal.fitting.plan import Plan
 from stancal.fitting.stage_one import emulator_mean_function
 from stancal.problem.data import CalibrationData
 from stancal.problem.observations import LINKS
-from stancal.stan.registry import STAGE_ONE_GP
+from stancal.stan.registry import STAGE_ONE_FIDELITY, STAGE_ONE_GP
 from stancal.stan.standata import build_stan_data, to_stan_json
 
 logger = logging.getLogger("stancal")
@@ -205,8 +205,9 @@ def checkable(plan: Plan, data, emulator: dict | None) -> bool:
 
 
 def stage_one_emulator(plan: Plan) -> bool:
-    """The plan's simulator is stage 1's GP emulator (modular, koh_latent_emulator)."""
-    return not plan.program.simulator and plan.program.stage_one == STAGE_ONE_GP
+    """The plan's simulator is stage 1's GP emulator (modular, koh_latent_emulator),
+    of one fidelity or several."""
+    return not plan.program.simulator and plan.stage_one in (STAGE_ONE_GP, STAGE_ONE_FIDELITY)
 
 
 def resolve_confounding(plan: Plan, data: CalibrationData, stan_backend,

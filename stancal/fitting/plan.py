@@ -15,7 +15,15 @@ from stancal.problem.functional import check_functional
 from stancal.problem.noise import check_noise
 from stancal.problem.options import EXACT_SIZE_LIMIT, RESTRICTED_DISCREPANCIES, ModelOptions, VectorOptions
 from stancal.problem.vector_data import VectorCalibrationData
-from stancal.stan.registry import L2, PROGRAMS, STAGE_ONE_PROGRAM, Program, default_program, for_method
+from stancal.stan.registry import (
+    L2,
+    PROGRAMS,
+    STAGE_ONE_PROGRAM,
+    Program,
+    default_program,
+    fidelity_programs,
+    for_method,
+)
 from stancal.stan.source import FlatProgram, flatten
 
 logger = logging.getLogger("stancal")
@@ -36,6 +44,12 @@ class Plan:
     confounding_checked: bool = False
     # the latent discrepancy's parametrisation is the user's: never refitted the other way
     parametrization_given: bool = False
+    fidelities: int = 1  # simulators with runs: more than 1 with cheaper simulators' runs
+
+    @property
+    def stage_one(self) -> str | None:
+        """The kind of stage 1 that runs: the program's, or its multi-fidelity one."""
+        return self.program.stage_one_fidelities if self.fidelities > 1 else self.program.stage_one
 
     @property
     def name(self) -> str:
@@ -43,7 +57,7 @@ class Plan:
 
     def stan_programs(self) -> list[FlatProgram]:
         """The flat programs to compile: stage 1's, if it runs one, then the main one."""
-        helper = STAGE_ONE_PROGRAM.get(self.program.stage_one or "")
+        helper = STAGE_ONE_PROGRAM.get(self.stage_one or "")
         return [flatten(PROGRAMS[helper].path), self.main_program()] if helper else [self.main_program()]
 
     def main_program(self) -> FlatProgram:
@@ -133,8 +147,9 @@ def plan_scalar(data: CalibrationData, simulator: str | Path | None = None, meth
         if not options.basis_functions:
             basis = first_basis(options.kernel, data.discrepancy_inputs)
             options = replace(options, basis_functions=basis.counts, boundary_factor=basis.boundary_factors)
+    _check_fidelities(data, chosen, options, method)
     return Plan(chosen, options, _path(simulator), _path(program), l2, basis_given,
-                parametrization_given=parametrization_given)
+                parametrization_given=parametrization_given, fidelities=data.fidelities if chosen.runs else 1)
 
 
 def plan_vector(data: VectorCalibrationData, simulator: str | Path | None = None, method: str | None = None,
@@ -156,7 +171,7 @@ def _requested(data, simulator, method: str | None, output: str) -> Program:
     if method is None:
         if simulator is None and not data.has_runs:
             raise ValueError("give a Stan simulator, simulator runs, or both")
-        return default_program(output, simulator=simulator is not None)
+        return default_program(output, simulator=simulator is not None, fidelities=getattr(data, "fidelities", 1))
     chosen = for_method(method, output)
     if chosen.simulator and simulator is None:
         raise ValueError(f"method '{method}' needs a Stan simulator file" +
@@ -203,7 +218,7 @@ def _latent_parametrization(data: CalibrationData, chosen: Program, options: Mod
 def dense_size(data: CalibrationData, program: Program) -> int:
     """The size of the dense matrix the exact program factorises at every
     gradient: the points, plus the runs for an emulator."""
-    runs = len(data.runs) if data.runs is not None and program.runs else 0
+    runs = sum(len(r) for r in data.runs_by_fidelity()) if program.runs else 0
     return len(data.physical) + runs
 
 
@@ -237,6 +252,22 @@ def _scalable_version(data: CalibrationData, base: Program, options: ModelOption
     logger.info("%d points%s: above %d, so %s runs (%s); approximation = 'exact' keeps the dense GP",
                 len(data.physical), runs, EXACT_SIZE_LIMIT, scalable.name, scalable.description)
     return scalable
+
+
+def _check_fidelities(data: CalibrationData, chosen: Program, options: ModelOptions, method: str | None) -> None:
+    """Low-fidelity runs reach a program that takes them (said in one
+    line), or name why not, before anything compiles."""
+    if data.fidelities == 1 or not chosen.runs:  # a Stan simulator needs no runs of any fidelity
+        return
+    if chosen.stage_one_fidelities is None:
+        takes = [p.name for p in fidelity_programs(chosen.output)]
+        raise ValueError(f"method '{chosen.name}' does not take low-fidelity runs; {', '.join(takes)} does "
+                         f"(review section 8.3), or leave [simulator.low_fidelity] out")
+    if options.kernel != "se":
+        raise ValueError(f"low-fidelity runs: the multi-fidelity emulator has the squared exponential kernel "
+                         f"only; got kernel '{options.kernel}'")
+    logger.info("%d low-fidelity run set(s): the emulator is multi-fidelity (Kennedy & O'Hagan 2000), method "
+                "'%s'%s", data.fidelities - 1, chosen.name, "" if method else " (the default with them)")
 
 
 def _check_noise(chosen: Program, options: ModelOptions, data: CalibrationData) -> None:

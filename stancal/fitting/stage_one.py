@@ -1,8 +1,9 @@
 """Stage 1: the emulator fitted to the simulator runs before sampling, for
 the programs whose registry row names a stage 1 (modular, Liu et al. 2009;
 Bayarri et al. 2007): emulator.stan's hyperparameters by optimisation, the
-scalable emulator of precomputed weights, or one GP per basis component of
-a vector output (Higdon et al. 2008)."""
+scalable emulator of precomputed weights, one GP per basis component of
+a vector output (Higdon et al. 2008), or the multi-fidelity emulator of
+several simulators' runs (Kennedy & O'Hagan 2000)."""
 
 from __future__ import annotations
 
@@ -13,9 +14,11 @@ from typing import Any
 import numpy as np
 
 from stancal.numerics.kernels import ard_cross_cov
+from stancal.numerics.multifidelity import Level, cheap_runs_value, fit_levels, mean_function
 from stancal.numerics.scalable_emulator import (
     ERROR_RANK_SHARE,
     NEIGHBOURS,
+    Hyperparameters,
     ScalableEmulator,
     chebyshev_basis,
     least_squares_theta,
@@ -24,7 +27,7 @@ from stancal.numerics.vector_emulator import VectorEmulator
 from stancal.problem.data import CalibrationData
 from stancal.problem.options import ModelOptions
 from stancal.problem.vector_data import VectorCalibrationData
-from stancal.stan.registry import STAGE_ONE_BASIS, STAGE_ONE_GP, STAGE_ONE_SCALABLE
+from stancal.stan.registry import STAGE_ONE_BASIS, STAGE_ONE_FIDELITY, STAGE_ONE_GP, STAGE_ONE_SCALABLE
 from stancal.stan.source import FlatProgram
 from stancal.stan.standata import EMULATOR_HYPERPARAMETERS, build_emulator_data, emulator_run_data, to_stan_json
 
@@ -46,6 +49,8 @@ def run_stage_one(kind: str | None, data, options, programs: list[FlatProgram], 
         return fit_scalable_emulator(data, seed)
     if kind == STAGE_ONE_BASIS:
         return fit_vector_emulator(data, seed)
+    if kind == STAGE_ONE_FIDELITY:
+        return fit_fidelity_emulator(data, seed)
     raise ValueError(f"unknown stage 1 {kind!r}")
 
 
@@ -118,7 +123,22 @@ def emulator_mean_function(data: CalibrationData, hyperparameters: dict[str, Any
     hyperparameters (stage 1's, or a fit's posterior medians): a function
     of (points with the simulator inputs, theta on the unit box (S, Q)) ->
     (S, points). With the kernels of stancal.numerics.kernels, as the
-    programs' emulator."""
+    programs' emulator; with cheaper simulators' runs, the co-kriging mean."""
+    s = data.scaling
+    mean = (_fidelity_mean(data, hyperparameters["levels"]) if hyperparameters.get("levels")
+            else _one_fidelity_mean(data, hyperparameters, kernel_id))
+
+    def at(points, theta_unit: np.ndarray) -> np.ndarray:
+        x_unit = s.to_unit(points, data.inputs)
+        S, P = len(theta_unit), len(x_unit)
+        xt = np.hstack([np.repeat(x_unit, S, axis=0), np.tile(theta_unit, (P, 1))])
+        return s.original(mean(xt).reshape(P, S).T)
+
+    return at
+
+
+def _one_fidelity_mean(data: CalibrationData, hyperparameters: dict[str, Any], kernel_id: int):
+    """The standardised emulator mean at unit-cube (x, theta) points, given the runs."""
     s = data.scaling
     runs_xt = np.hstack([s.to_unit(data.runs, data.inputs), s.to_unit(data.runs, data.theta_names)])
     sd, mean = float(hyperparameters["emulator_sd"]), float(hyperparameters["emulator_mean"])
@@ -126,11 +146,55 @@ def emulator_mean_function(data: CalibrationData, hyperparameters: dict[str, Any
     k_runs = ard_cross_cov(runs_xt, runs_xt, kernel_id, sd, length)
     k_runs[np.diag_indices_from(k_runs)] += float(hyperparameters["emulator_nugget"]) ** 2
     weights = np.linalg.solve(k_runs, s.standardise(data.runs_on_link_scale()) - mean)
+    return lambda xt: mean + ard_cross_cov(xt, runs_xt, kernel_id, sd, length) @ weights
 
-    def at(points, theta_unit: np.ndarray) -> np.ndarray:
-        x_unit = s.to_unit(points, data.inputs)
-        S, P = len(theta_unit), len(x_unit)
-        xt = np.hstack([np.repeat(x_unit, S, axis=0), np.tile(theta_unit, (P, 1))])
-        return s.original((mean + ard_cross_cov(xt, runs_xt, kernel_id, sd, length) @ weights).reshape(P, S).T)
 
-    return at
+def _fidelity_mean(data: CalibrationData, per_level: list[dict[str, Any]]):
+    """The same for the multi-fidelity emulator: the top level's co-kriging mean."""
+    return mean_function(fidelity_levels(data, per_level))
+
+
+def fidelity_runs(data: CalibrationData) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Every simulator's runs, cheapest first, as the emulator sees them:
+    (x, theta) on the unit cube, y standardised."""
+    runs = [emulator_run_data(data, r) for r in data.runs_by_fidelity()]
+    return [(np.hstack([r["x_sim"], r["theta_sim"]]), r["y_sim"]) for r in runs]
+
+
+def fidelity_levels(data: CalibrationData, per_level: list[dict[str, Any]]) -> list[Level]:
+    """The multi-fidelity emulator that stage 1's per-level hyperparameters describe, on the data's runs."""
+    return [Level(Hyperparameters.from_stan(h), 1.0 if h["rho"] is None else float(h["rho"]), xt, y)
+            for h, (xt, y) in zip(per_level, fidelity_runs(data), strict=True)]
+
+
+def fit_fidelity_emulator(data: CalibrationData, seed: int) -> dict[str, Any]:
+    """Stage 1 with runs of cheaper simulators (stancal.numerics.multifidelity):
+    each level's GP and scale at their posterior mode, level by level (Le
+    Gratiet & Garnier 2014); the top level's leave-one-out error with and
+    without the cheaper runs, and a warning when they do not help."""
+    started = time.perf_counter()
+    runs = fidelity_runs(data)
+    levels = fit_levels([xt for xt, _ in runs], [y for _, y in runs], seed)
+    value = cheap_runs_value(levels, seed)
+    seconds = time.perf_counter() - started
+    logger.info("stage 1: %d levels of fidelity (%s runs, cheapest first), hyperparameters level by level "
+                "in %.1f s; scale on the level below %s; leave-one-out error at the calibrated simulator's runs "
+                "%.3g with the cheaper runs, %.3g without (standardised units)", len(levels),
+                " + ".join(str(len(y)) for _, y in runs), seconds, ", ".join(f"{r:.3g}" for r in value.rho),
+                value.loo_with, value.loo_without)
+    if value.warning():
+        logger.warning("%s", value.warning())
+    per_level = [{**lv.hyperparameters.as_stan(), "rho": lv.rho} for lv in levels]
+    per_level[0]["rho"] = None  # the cheapest level scales nothing
+    return {
+        # the top level's own GP under the usual names; every level's in "levels"
+        "hyperparameters": {**{k: per_level[-1][k] for k in EMULATOR_HYPERPARAMETERS}, "levels": per_level},
+        "loo_rmse": value.loo_with,
+        "loo_rmse_without_low_fidelity": value.loo_without,
+        "level_rho": value.rho,
+        "warning": value.warning(),
+        "runs_sd": float(data.runs_on_link_scale().std(ddof=1)),
+        "stage1": (f"multi-fidelity: {len(levels)} levels, hyperparameters level by level at their posterior "
+                   f"mode (scipy L-BFGS), co-kriging given every level's runs"),
+        "fit_s": seconds,
+    }

@@ -85,7 +85,8 @@ def run_covariance(xt: np.ndarray, h: Hyperparameters) -> np.ndarray:
     return K
 
 
-def _unpack(u: np.ndarray) -> Hyperparameters:
+def unpack(u: np.ndarray) -> Hyperparameters:
+    """Hyperparameters from negative_log_posterior's vector (mean, log sd, log length scales, log nugget)."""
     return Hyperparameters(u[0], math.exp(u[1]), np.exp(u[2:-1]), math.exp(u[-1]))
 
 
@@ -93,7 +94,7 @@ def negative_log_posterior(u: np.ndarray, xt: np.ndarray, y: np.ndarray) -> tupl
     """emulator.stan's log density on the unconstrained scale (with the
     Jacobian, as Stan's optimiser with jacobian=True sees it), negated, and
     its gradient; u = (mean, log sd, log length scales, log nugget)."""
-    h = _unpack(u)
+    h = unpack(u)
     correlation = se_correlation(xt, xt, h.length_scale)
     K = h.sd**2 * correlation
     K[np.diag_indices_from(K)] += h.nugget**2 + JITTER * h.sd**2
@@ -144,7 +145,7 @@ def fit_hyperparameters(xt: np.ndarray, y: np.ndarray, seed: int,
     if best is None:
         raise RuntimeError("stage 1: the emulator's marginal likelihood could not be optimised "
                            "from any start (the runs' covariance is not positive definite)")
-    return _unpack(best.x), len(chosen)
+    return unpack(best.x), len(chosen)
 
 
 def whitener(factor: tuple[np.ndarray, bool]) -> np.ndarray:

@@ -119,11 +119,19 @@ def _problem(raw: dict[str, Any], base: Path) -> Problem:
         noise_sd=physical.get("noise_sd"),
         source=physical.get("source"),
         **observation,
+        low_fidelity_runs=_low_fidelity_runs(simulator, base),
     )
     _check_noise(model.get("noise", "iid"), data)
     candidates = _candidates(raw.get("candidates", {}), base)
     return Problem(data=data, simulator=stan, model=model, candidates=candidates, units=dict(raw.get("units", {})),
                    design=dict(raw.get("design", {})))
+
+
+def _low_fidelity_runs(simulator: dict[str, Any], base: Path) -> list[pd.DataFrame]:
+    """[simulator.low_fidelity] runs: one CSV, or several (levels, cheapest first)."""
+    files = simulator.get("low_fidelity", {}).get("runs", [])
+    return [_read_csv(base / name, "simulator.low_fidelity.runs") for name in ([files] if isinstance(files, str)
+                                                                             else files)]
 
 
 def _check_noise(noise: str, data: CalibrationData) -> None:

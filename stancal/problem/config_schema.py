@@ -48,6 +48,7 @@ TYPES: dict[str, Callable[[Any], bool]] = {
     "path": _is_string,
     "list of names": _is_strings,
     "list of names (or one name)": lambda v: _is_string(v) or _is_strings(v),
+    "path (or a list of paths)": lambda v: _is_string(v) or _is_strings(v),
     "boolean": lambda v: isinstance(v, bool),
     "number": _is_number,
     "integer": lambda v: isinstance(v, int) and not isinstance(v, bool),
@@ -114,6 +115,11 @@ TABLES: tuple[Table, ...] = (
     )),
     Table("simulator.theta", _THETA_MEANING + ", in the simulator's order", entries="[lower, upper]",
           required=True),
+    Table("simulator.low_fidelity", "Runs of cheaper simulators of the same process (coarser mesh, reduced "
+          "physics): the emulator of `runs` learns from them too (docs/multifidelity.md)", keys=(
+        Key("runs", "path (or a list of paths)", "required", "CSV(s) of the cheaper simulators' runs, with the "
+            "columns of [simulator] runs; several files are levels, cheapest first", SCALAR),
+    )),
     Table("simulator.theta_per_experiment", "Parameters with one value per experiment, `name = [lower, upper]` "
           "(vector outputs; they follow the shared theta in the simulator's theta)", entries="[lower, upper]"),
     Table("model", "The statistical model and the method", keys=(
@@ -247,17 +253,33 @@ def check(raw: dict[str, Any]) -> str | None:
     output = VECTOR if "output_index" in raw["physical"] else SCALAR
     simulator = raw["simulator"]
     problem = (_check_table(raw["physical"], table("physical"), output)
-               or _check_table(simulator, table("simulator"), output, subtables=("theta", "theta_per_experiment")))
+               or _check_table(simulator, table("simulator"), output,
+                               subtables=("theta", "theta_per_experiment", "low_fidelity")))
     if problem or "theta" not in simulator:
         return problem or "missing the [simulator.theta] table"
     if output == SCALAR and "theta_per_experiment" in simulator:
         return "[simulator.theta_per_experiment] applies to a vector output only (a [physical] output_index)"
-    return (_check_entries(simulator["theta"], table("simulator.theta"))
+    return (_check_low_fidelity(simulator, output)
+            or _check_entries(simulator["theta"], table("simulator.theta"))
             or _check_entries(simulator.get("theta_per_experiment", {}), table("simulator.theta_per_experiment"))
             or _check_table(raw.get("model", {}), table("model"), output)
             or _check_table(raw.get("design", {}), table("design"), output)
             or _check_candidates(raw.get("candidates", {}))
             or _check_units(raw))
+
+
+def _check_low_fidelity(simulator: dict[str, Any], output: str) -> str | None:
+    """[simulator.low_fidelity]: its keys, its runs, and the runs it needs beside it."""
+    low = simulator.get("low_fidelity")
+    if low is None:
+        return None
+    problem = _check_table(low, table("simulator.low_fidelity"), output)
+    if problem or "runs" not in low:
+        return problem or "[simulator.low_fidelity] needs runs = \"file.csv\" (the cheaper simulator's runs)"
+    if "runs" not in simulator:
+        return ("[simulator.low_fidelity] needs [simulator] runs: the cheaper runs inform the emulator of the "
+                "simulator being calibrated")
+    return None
 
 
 def _check_table(values: dict[str, Any], spec: Table, output: str, subtables: tuple[str, ...] = (),

@@ -88,8 +88,9 @@ def require_runs_within_bounds(runs: pd.DataFrame, parameters: Sequence[Paramete
                             f"[{p.lower}, {p.upper}] in {_rows(bad, runs.index)}")
 
 
-def warn_outside_runs(physical: pd.DataFrame, runs: pd.DataFrame, inputs: Sequence[str]) -> None:
-    """InputRangeWarning for physical inputs beyond the runs' range, where the emulator extrapolates."""
+def warn_outside_runs(physical: pd.DataFrame, runs: pd.DataFrame, inputs: Sequence[str], stacklevel: int = 4) -> None:
+    """InputRangeWarning for physical inputs beyond the runs' range, where the
+    emulator extrapolates; ``stacklevel`` points at the code that built the data."""
     for column in inputs:
         lo, hi = runs[column].min(), runs[column].max()
         values = physical[column].to_numpy()
@@ -97,7 +98,7 @@ def warn_outside_runs(physical: pd.DataFrame, runs: pd.DataFrame, inputs: Sequen
         if outside.any():
             warnings.warn(f"physical input '{column}' lies outside the simulator runs' range [{lo:g}, {hi:g}] "
                           f"in {_rows(outside, physical.index)}{_of_file(physical)}; the emulator extrapolates there",
-                          InputRangeWarning, stacklevel=4)
+                          InputRangeWarning, stacklevel=stacklevel)
 
 
 def _of_file(frame: pd.DataFrame) -> str:
@@ -152,7 +153,9 @@ class CalibrationData:
     theta : calibration parameters in the simulator's order, name -> (lower, upper).
     covariates : extra physical columns the discrepancy may depend on;
         text columns are categorical and enter the discrepancy one-hot.
-    runs : simulator runs: the input columns, one column per theta, the output.
+    runs : simulator runs: the input columns, one column per theta, the output;
+        or a list of several simulators' runs, cheapest first, the calibrated
+        simulator's last (as ``low_fidelity_runs`` and ``runs``).
     levels : categories of categorical covariates, when they must not be
         taken from ``physical`` (a subset that lacks a level).
     likelihood : gaussian (default), poisson, negbinomial (counts, log link)
@@ -163,6 +166,10 @@ class CalibrationData:
     lower, upper : gaussian only: columns of censoring bounds. A row whose
         output is empty is censored to [lower, upper] (an empty lower is
         -inf, an empty upper +inf); rows with an output are exact.
+    low_fidelity_runs : runs of cheaper simulators of the same process,
+        cheapest first, with the columns of ``runs`` (review section 8.3;
+        stancal.numerics.multifidelity): the emulator of ``runs`` learns
+        from them too.
     noise_sd : gaussian only: a column of each row's known measurement sd,
         added in quadrature to the estimated noise (stancal.problem.noise).
     source : a column naming each row's measurement source (instrument),
@@ -178,12 +185,13 @@ class CalibrationData:
         output: str,
         theta: Mapping[str, tuple[float, float]],
         covariates: Sequence[str] = (),
-        runs: pd.DataFrame | None = None,
+        runs: pd.DataFrame | Sequence[pd.DataFrame] | None = None,
         levels: Mapping[str, Sequence[str]] | None = None,
         likelihood: str = "gaussian",
         trials: str | None = None,
         lower: str | None = None,
         upper: str | None = None,
+        low_fidelity_runs: Sequence[pd.DataFrame] = (),
         noise_sd: str | None = None,
         source: str | None = None,
         sources: Sequence[str] | None = None,
@@ -215,7 +223,15 @@ class CalibrationData:
             )
         if np.ptp(self.observations.value[self.observations.observed]) == 0 and self.observations.is_gaussian:
             raise DataError(f"{what}: output column '{output}' is constant")
+        if isinstance(runs, list | tuple):  # every simulator's runs, cheapest first, the calibrated one's last
+            if low_fidelity_runs or not runs:
+                raise DataError("give the simulators' runs either as runs=[cheapest, ..., calibrated] or as "
+                                "runs=calibrated with low_fidelity_runs=[...], not both")
+            *low_fidelity_runs, runs = runs
         self.runs = None if runs is None else self._check_runs(runs)
+        self.low_fidelity_runs = self._check_low_fidelity(low_fidelity_runs)
+        if self.runs is not None:  # every simulator's runs teach the emulator
+            warn_outside_runs(self.physical, pd.concat(self.runs_by_fidelity()), self.inputs, stacklevel=3)
         self.scaling = self._scaling()
 
     @property
@@ -261,7 +277,8 @@ class CalibrationData:
         return CalibrationData(source, self.inputs if inputs is None else inputs, self.output,
                                bounds_of(self.parameters) if theta is None else theta,
                                self.covariates if covariates is None else covariates,
-                               runs, levels=self.levels, sources=self.noise.given_sources, **self.observation_columns)
+                               runs, levels=self.levels, sources=self.noise.given_sources, **self.observation_columns,
+                               low_fidelity_runs=self.low_fidelity_runs if runs is not None else ())
 
     def subset(self, rows: Sequence[int]) -> CalibrationData:
         """The same problem on some physical rows (positions), same categories."""
@@ -375,8 +392,25 @@ class CalibrationData:
             raise DataError(f"{what}: output column '{self.output}' is constant")
         self._check_runs_on_link_scale(table)
         require_runs_within_bounds(table, self.parameters)
-        warn_outside_runs(self.physical, table, self.inputs)
         return table
+
+    def _check_low_fidelity(self, given: Sequence[pd.DataFrame]) -> list[pd.DataFrame]:
+        """Cheaper simulators' runs, checked as runs are; they need the calibrated simulator's runs."""
+        if given is None or isinstance(given, pd.DataFrame):
+            given = [] if given is None else [given]
+        if given and self.runs is None:
+            raise DataError("low-fidelity runs need the runs of the simulator being calibrated (runs = ...): "
+                            "the cheaper runs inform its emulator")
+        return [self._check_runs(runs) for runs in given]
+
+    @property
+    def fidelities(self) -> int:
+        """How many simulators of the process have runs: 1, or more with low-fidelity runs."""
+        return 1 + len(self.low_fidelity_runs)
+
+    def runs_by_fidelity(self) -> list[pd.DataFrame]:
+        """Every simulator's runs, cheapest first, the calibrated one's last."""
+        return [*self.low_fidelity_runs, *([] if self.runs is None else [self.runs])]
 
     def _check_runs_on_link_scale(self, table: pd.DataFrame) -> None:
         """The runs' output is the simulator's mean: it must lie where the link is defined."""
@@ -388,17 +422,19 @@ class CalibrationData:
                             f"{link.requirement}; "
                             f"{_rows(bad, table.index)} hold {values[bad][:5].tolist()}")
 
-    def runs_on_link_scale(self) -> np.ndarray:
-        """The runs' output on the likelihood's link scale."""
-        assert self.runs is not None
-        return LINKS[self.observations.likelihood].transform(self.runs[self.output].to_numpy())
+    def runs_on_link_scale(self, runs: pd.DataFrame | None = None) -> np.ndarray:
+        """The runs' output (by default the calibrated simulator's) on the likelihood's link scale."""
+        runs = self.runs if runs is None else runs
+        assert runs is not None
+        return LINKS[self.observations.likelihood].transform(runs[self.output].to_numpy())
 
     def _scaling(self) -> Scaling:
         low, width = {}, {}
         for column in self.discrepancy_inputs:
             values = self.physical[column].to_numpy()
-            if self.runs is not None and column in self.runs:
-                values = np.concatenate([values, self.runs[column].to_numpy()])
+            for runs in self.runs_by_fidelity():  # every run inside the unit cube
+                if column in runs:
+                    values = np.concatenate([values, runs[column].to_numpy()])
             low[column] = float(values.min())
             width[column] = float(np.ptp(values)) or 1.0
         for p in self.parameters:
@@ -428,6 +464,7 @@ class CalibrationData:
             "covariates": self.covariates,
             "theta": {p.name: [p.lower, p.upper] for p in self.parameters},
             "runs": None if self.runs is None else self.runs.to_dict(orient="list"),
+            "low_fidelity_runs": [runs.to_dict(orient="list") for runs in self.low_fidelity_runs],
             "levels": self.levels,
             "sources": self.noise.given_sources,
             **self.observation_columns,
@@ -440,4 +477,5 @@ class CalibrationData:
                    {k: tuple(v) for k, v in d["theta"].items()}, d["covariates"], runs,
                    levels=d.get("levels"), sources=d.get("sources"), likelihood=d.get("likelihood", "gaussian"),
                    trials=d.get("trials"), lower=d.get("lower"), upper=d.get("upper"),
-                   noise_sd=d.get("noise_sd"), source=d.get("source"))
+                   noise_sd=d.get("noise_sd"), source=d.get("source"),
+                   low_fidelity_runs=[pd.DataFrame(r) for r in d.get("low_fidelity_runs", [])])

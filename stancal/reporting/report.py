@@ -76,6 +76,18 @@ def parametrization_line(summary: dict) -> list[str]:
     return [f"- the discrepancy's latent GP was sampled {reason}"] if reason else []
 
 
+def fidelity_lines(emulator: dict) -> list[str]:
+    """What the cheaper simulators' runs gave the emulator (stancal.numerics.multifidelity)."""
+    if "level_rho" not in emulator:
+        return []
+    return ["", "## Emulator of several fidelities (Kennedy & O'Hagan 2000)", "",
+            f"- {emulator['stage1']}",
+            f"- each level's scale on the one below: {', '.join(f'{r:.3g}' for r in emulator['level_rho'])}",
+            (f"- leave-one-out error at the calibrated simulator's runs: {emulator['loo_rmse']:.3g} with the "
+             f"cheaper runs, {emulator['loo_rmse_without_low_fidelity']:.3g} without (standardised units)"),
+            *([f"- **warning**: {emulator['warning']}"] if emulator.get("warning") else [])]
+
+
 def noise_lines(noise: dict, table) -> list[str]:
     """The noise model, each source's sd and nu (docs/noise.md), and the rows
     a Student-t fit treats as outliers, by its stated rule."""
@@ -104,6 +116,7 @@ def _report(summary: dict, table, plots: list[Path]) -> str:
     if summary.get("confounding"):  # found before sampling (stancal.fitting.confounding)
         lines += ["", "## Before sampling: theta against the model's own terms", "",
                   *(f"- {c['message']}" for c in summary["confounding"])]
+    lines += fidelity_lines(summary.get("emulator", {}))
     if "noise" in summary:
         lines += ["", "## Measurement noise", "", *noise_lines(summary["noise"], table)]
     if "censoring" in summary:

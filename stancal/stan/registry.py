@@ -30,6 +30,7 @@ DESIGN = "design"  # `stancal design --criterion posterior`: the program of its 
 STAGE_ONE_GP = "gp_emulator"  # emulator.stan's hyperparameters by optimisation
 STAGE_ONE_SCALABLE = "scalable_emulator"  # stancal.numerics.scalable_emulator
 STAGE_ONE_BASIS = "basis_emulator"  # stancal.numerics.vector_emulator: one GP per basis component
+STAGE_ONE_FIDELITY = "fidelity_emulator"  # stancal.numerics.multifidelity: cheaper simulators' runs too
 
 
 @dataclass(frozen=True)
@@ -44,6 +45,7 @@ class Program:
     simulator: bool = False  # includes the user's simulator.stan
     runs: bool = False  # needs simulator runs
     stage_one: str | None = None  # see STAGE_ONE_*
+    stage_one_fidelities: str | None = None  # stage 1 with cheaper simulators' runs too (None: one fidelity only)
     latent: bool = False  # latent GPs at the data: counts, binomial, censored, functional theta
     approximation: str = "exact"  # exact | hsgp
     discrepancies: tuple[str, ...] = ("gp", "none")
@@ -88,8 +90,9 @@ PROGRAMS: dict[str, Program] = {program.name: program for program in (
     Program("emulator", "emulator.stan", "GP emulator of simulator runs (stage 1 of modular)", runs=True,
             helper=True),
     Program("modular", "modular.stan", "modular KOH: stage 2 with the stage-1 emulator fixed", runs=True,
-            stage_one=STAGE_ONE_GP, latent_version="koh_latent_emulator", scalable_version="modular_hsgp",
-            data=(*_GAUSSIAN, sd.noise_model, sd.emulator_inputs, sd.fixed_emulator),
+            stage_one=STAGE_ONE_GP, stage_one_fidelities=STAGE_ONE_FIDELITY, latent_version="koh_latent_emulator",
+            scalable_version="modular_hsgp",
+            data=(*_GAUSSIAN, sd.noise_model, sd.emulator_points, sd.fidelity_emulator),
             commands=_SCALAR | {L2, DESIGN}, **_NOISY),
     Program("koh_latent", "koh_latent.stan",
             "KOH with latent GPs: counts, binomial, censored outputs, functional theta", simulator=True,
@@ -175,10 +178,19 @@ def for_method(method: str, output: str) -> Program:
                      f"{', '.join(method_names(output))}")
 
 
-def default_program(output: str, *, simulator: bool) -> Program:
+def default_program(output: str, *, simulator: bool, fidelities: int = 1) -> Program:
     """koh with a Stan simulator, else the runs' default: koh_emulator for a
-    scalar output, modular for a vector one."""
-    return for_method("koh" if simulator else "koh_emulator" if output == "scalar" else "modular", output)
+    scalar output, modular for a vector one; with runs of cheaper simulators
+    too, the first of those that takes them."""
+    chosen = for_method("koh" if simulator else "koh_emulator" if output == "scalar" else "modular", output)
+    if fidelities > 1 and chosen.stage_one_fidelities is None and not simulator:
+        return fidelity_programs(output)[0]
+    return chosen
+
+
+def fidelity_programs(output: str) -> list[Program]:
+    """The programs of an output kind that take runs of cheaper simulators too."""
+    return [p for p in PROGRAMS.values() if p.output == output and p.stage_one_fidelities and not p.helper]
 
 
 def commands_taking(command: str, output: str) -> list[str]:

@@ -152,9 +152,31 @@ def restricted_discrepancy(inputs: StanInputs) -> dict[str, Any]:
 
 def emulator_inputs(inputs: StanInputs) -> dict[str, Any]:
     """The runs and the unit-scaled points of the GP-emulator programs."""
+    return {**emulator_run_data(inputs.data), **emulator_points(inputs)}
+
+
+def emulator_points(inputs: StanInputs) -> dict[str, Any]:
+    """The physical and prediction points' simulator inputs, on the unit cube."""
     data = inputs.data
-    return {**emulator_run_data(data), "x": data.scaling.to_unit(data.physical, data.inputs),
+    return {"x": data.scaling.to_unit(data.physical, data.inputs),
             "x_new": data.scaling.to_unit(inputs.points, data.inputs)}
+
+
+def fidelity_emulator(inputs: StanInputs) -> dict[str, Any]:
+    """modular.stan's emulator: every simulator's runs, cheapest first,
+    each with its level, and stage 1's hyperparameters of each level's GP
+    (one level: the usual emulator; functions/fidelity.stan)."""
+    if inputs.emulator is None:
+        raise ValueError("this program needs the stage-1 emulator's hyperparameters")
+    data, levels = inputs.data, inputs.emulator.get("levels") or [inputs.emulator]
+    runs = [emulator_run_data(data, r) for r in data.runs_by_fidelity()]
+    return {"M": sum(r["M"] for r in runs), "L": len(runs),
+            "x_sim": np.vstack([r["x_sim"] for r in runs]),
+            "theta_sim": np.vstack([r["theta_sim"] for r in runs]),
+            "y_sim": np.concatenate([r["y_sim"] for r in runs]),
+            "run_level": np.concatenate([np.full(r["M"], k + 1) for k, r in enumerate(runs)]),
+            "level_rho": [float(level["rho"]) for level in levels[1:]],
+            **{name: [level[name] for level in levels] for name in EMULATOR_HYPERPARAMETERS}}
 
 
 def fixed_emulator(inputs: StanInputs) -> dict[str, Any]:
@@ -283,15 +305,17 @@ def restricted_gp_data(data: CalibrationData, options: ModelOptions) -> dict[str
     return out
 
 
-def emulator_run_data(data: CalibrationData) -> dict[str, Any]:
-    """The runs as the emulator programs take them (emulator.stan's data)."""
-    assert data.runs is not None
+def emulator_run_data(data: CalibrationData, runs: pd.DataFrame | None = None) -> dict[str, Any]:
+    """The runs (by default the calibrated simulator's) as the emulator
+    programs take them (emulator.stan's data)."""
+    runs = data.runs if runs is None else runs
+    assert runs is not None
     s = data.scaling
     return {
-        "M": len(data.runs),
-        "x_sim": s.to_unit(data.runs, data.inputs),
-        "theta_sim": s.to_unit(data.runs, data.theta_names),
-        "y_sim": data.scaling.standardise(data.runs_on_link_scale()),
+        "M": len(runs),
+        "x_sim": s.to_unit(runs, data.inputs),
+        "theta_sim": s.to_unit(runs, data.theta_names),
+        "y_sim": data.scaling.standardise(data.runs_on_link_scale(runs)),
     }
 
 

@@ -8,6 +8,7 @@ vector simulator(matrix X, vector theta) {
 #include gp_kernels.stan
 #include gp_conditional.stan
 #include noise.stan
+#include fidelity.stan
 #include koh_joint.stan
 #include loo.stan
 #include scaling.stan
@@ -135,7 +136,14 @@ generated quantities {
   matrix[2, 2] theta_rows = theta_rows_original(theta_unit_rows([0.25, 0.5]', {0, 1}, [[0.0], [2.0]]),
                                                 [0, 10]', [1, 20]');
   matrix[n2 + n1, n2 + n1] joint = koh_joint_cov(
-    x2, append_theta(coordinate(x1, 1), [0.3]'), x1, 1, sd_, ls, 0.01, 1.3, {0.7}, {0.4, 0.6}, noise_var);
+    x2, rep_matrix(1, n2, 1), append_theta(coordinate(x1, 1), [0.3]'), [1], x1, 1, {sd_}, {ls},
+    rep_vector(0.01, n2), 1.3, {0.7}, {0.4, 0.6}, noise_var);
+  // two fidelities (level 2 = 1.7 level 1 + its own GP): the top level at x1 against runs at x2 of
+  // levels 1, 2, 1, 2
+  matrix[2, 2] fidelity_w = fidelity_weights([1.7]');
+  matrix[n1, n2] fidelity_cross = fidelity_cross_cov(x1, rep_matrix(fidelity_w[2, :], n1), x2,
+                                                     fidelity_w[{1, 2, 1, 2}, :], 1, {sd_, 0.5},
+                                                     {ls, {0.2, 0.9}});
   // latent LOO of the four observations with delta = resid[1:4] at x2 (nugget 0.01), for each
   // observation model (row k: likelihood_id k), y_center 0.2 and y_scale 1.5
   matrix[4, 4] latent_loo_lik;

@@ -1,0 +1,168 @@
+"""Calibration with runs of a cheaper simulator (review section 8.3):
+modular.stan's multi-fidelity emulator against the same model's posterior
+by quadrature with the numpy co-kriging of stancal.numerics.multifidelity,
+the plan's choice, and the errors before any compile."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+from conftest import assert_healthy, fit
+from scipy import stats
+from scipy.stats import qmc
+
+import stancal
+from stancal.fitting.plan import model_options, plan_scalar
+from stancal.fitting.stage_one import fidelity_levels
+from stancal.numerics import multifidelity as mf
+from stancal.problem.config import ConfigError, load_config
+from stancal.problem.data import DataError
+
+K_BOUNDS = (0.5, 2.0)
+K_TRUE = 1.2
+
+
+def newton(t: np.ndarray, k: np.ndarray) -> np.ndarray:
+    """The cheap model: Newton cooling of a unit temperature excess."""
+    return np.exp(-k * t)
+
+
+def radiating(t: np.ndarray, k: np.ndarray) -> np.ndarray:
+    """The expensive one: the same with a radiative term that speeds the early cooling."""
+    return np.exp(-k * t) * (1 - 0.25 * np.sin(2.5 * t) * np.exp(-t))
+
+
+def runs_of(model, n: int, seed: int) -> pd.DataFrame:
+    u = qmc.LatinHypercube(d=2, seed=seed).random(n)
+    t, k = 2 * u[:, 0], K_BOUNDS[0] + np.ptp(K_BOUNDS) * u[:, 1]
+    return pd.DataFrame({"t": t, "k": k, "excess": model(t, k)})
+
+
+def problem(seed: int = 0, low: int = 40, high: int = 6, **extra) -> stancal.CalibrationData:
+    rng = np.random.default_rng(seed)
+    t = np.linspace(0.2, 1.8, 12)  # inside the runs: a Latin hypercube of 10 has a run in each fifth
+    physical = pd.DataFrame({"t": t, "excess": radiating(t, K_TRUE) + rng.normal(0, 0.01, len(t))})
+    return stancal.CalibrationData(physical, ["t"], "excess", {"k": K_BOUNDS},
+                                   runs=[runs_of(newton, low, seed + 1), runs_of(radiating, high, seed + 2)], **extra)
+
+
+def quadrature_posterior(data: stancal.CalibrationData, levels: list[mf.Level]) -> tuple[float, float]:
+    """theta's posterior mean and sd under modular.stan's model with no
+    discrepancy: y ~ N(m(theta), V(theta) + noise_sd^2 I) on the standardised
+    scale, m and V the co-kriging of the top level at the points given every
+    run; theta uniform, noise_sd half-normal(0, 1); on a grid."""
+    x = data.scaling.to_unit(data.physical, data.inputs)
+    y = data.scaling.standardise(data.physical[data.output].to_numpy())
+    theta = np.linspace(0, 1, 241)
+    noise = np.linspace(0.001, 0.2, 400)  # standardised: the data's noise is about 0.03
+    log_post = np.empty((len(theta), len(noise)))
+    for i, th in enumerate(theta):
+        mean, cov = mf.predictive(levels, np.hstack([x, np.full((len(x), 1), th)]))
+        values, vectors = np.linalg.eigh(cov)
+        projected = vectors.T @ (y - mean)
+        variance = np.maximum(values, 0)[:, None] + noise[None, :] ** 2
+        log_post[i] = (-0.5 * (projected[:, None] ** 2 / variance).sum(0) - 0.5 * np.log(variance).sum(0)
+                       + stats.halfnorm.logpdf(noise))
+    weights = np.exp(log_post - log_post.max()).sum(axis=1)
+    weights /= weights.sum()
+    k = K_BOUNDS[0] + np.ptp(K_BOUNDS) * theta
+    mean = float(weights @ k)
+    return mean, float(np.sqrt(weights @ (k - mean) ** 2))
+
+
+@pytest.fixture(scope="module")
+def mf_fit():
+    return fit(problem(), method="modular", discrepancy="none", draws=1000)
+
+
+def test_the_multifidelity_posterior_matches_quadrature_of_the_same_model(mf_fit):
+    assert_healthy(mf_fit)
+    levels = fidelity_levels(mf_fit.data, mf_fit.emulator["hyperparameters"]["levels"])
+    mean, sd = quadrature_posterior(mf_fit.data, levels)
+    k = np.asarray(mf_fit.idata["posterior"]["theta"]).reshape(-1)
+    # over seeds 0-2 the mean differed by +0.056, 0.000, -0.018 quadrature sds and the sd by
+    # factors 1.048, 1.078, 1.008 (2 x 1,000 draws)
+    assert abs(k.mean() - mean) < 0.2 * sd, (k.mean(), mean, sd)
+    assert k.std() == pytest.approx(sd, rel=0.15)
+    assert abs(mean - K_TRUE) < 3 * sd
+
+
+def test_the_summary_states_the_levels_and_what_the_cheap_runs_add(mf_fit):
+    emulator = mf_fit.to_summary_json()["emulator"]
+    assert len(emulator["level_rho"]) == 1 and 0.5 < emulator["level_rho"][0] < 1.5  # 0.86, 0.91, 0.94
+    assert emulator["loo_rmse"] < 0.5 * emulator["loo_rmse_without_low_fidelity"]  # 0.15 vs 1.02 at seed 0
+    assert "multi-fidelity" in emulator["stage1"] and emulator["warning"] is None
+
+
+def test_the_report_says_what_the_cheap_runs_gave(mf_fit, tmp_path):
+    stancal.write_calibration(mf_fit, tmp_path)
+    report = (tmp_path / "report.md").read_text()
+    assert "## Emulator of several fidelities" in report and "leave-one-out error" in report
+
+
+@pytest.mark.slow  # a second fit; case_studies/cooling_fidelity/compare.py measures the same on the case study
+def test_cheap_runs_narrow_theta_against_the_expensive_runs_alone(mf_fit):
+    data = problem()
+    with pytest.warns(stancal.InputRangeWarning, match="extrapolates"):  # 6 runs leave the ends uncovered
+        expensive_only = stancal.CalibrationData(data.source, ["t"], "excess", {"k": K_BOUNDS}, runs=data.runs)
+    alone = fit(expensive_only, method="modular", discrepancy="none", draws=1000)
+    assert_healthy(alone)
+    sd = {name: float(np.asarray(r.idata["posterior"]["theta"]).std()) for name, r in (("mf", mf_fit),
+                                                                                        ("alone", alone))}
+    assert sd["mf"] < 0.7 * sd["alone"], sd  # 0.518, 0.514, 0.463 over seeds 0-2
+
+
+def test_the_default_method_with_low_fidelity_runs_is_modular_and_says_so(caplog):
+    with caplog.at_level("INFO", logger="stancal"):
+        plan = plan_scalar(problem(low=10, high=4))
+    assert plan.name == "modular" and plan.fidelities == 2 and plan.stage_one == "fidelity_emulator"
+    assert "multi-fidelity" in caplog.text
+    with pytest.raises(ValueError, match="method 'koh_emulator' does not take low-fidelity runs; modular"):
+        plan_scalar(problem(low=10, high=4), method="koh_emulator")
+    assert plan_scalar(problem(low=10, high=4), simulator="any.stan", method="koh").fidelities == 1  # no runs used
+    with pytest.raises(ValueError, match="squared exponential kernel only"):
+        plan_scalar(problem(low=10, high=4), options=model_options(
+            kernel="matern52"))
+
+
+def test_low_fidelity_runs_round_trip_and_are_checked_as_runs_are():
+    data = problem(low=10, high=4)
+    again = stancal.CalibrationData.from_dict(json.loads(json.dumps(data.to_dict())))
+    assert again.fidelities == 2 and len(again.low_fidelity_runs[0]) == 10
+    bad = data.low_fidelity_runs[0].drop(columns="k")
+    with pytest.raises(DataError, match="'k'"):
+        stancal.CalibrationData(data.source, ["t"], "excess", {"k": K_BOUNDS}, runs=data.runs,
+                                low_fidelity_runs=[bad])
+    with pytest.raises(DataError, match="need the runs of the simulator being calibrated"):
+        stancal.CalibrationData(data.source, ["t"], "excess", {"k": K_BOUNDS}, low_fidelity_runs=[bad])
+
+
+@pytest.mark.parametrize(("table", "message"), [
+    ('[simulator.low_fidelity]\nrunz = "low.csv"\n', "unknown key 'runz' in .simulator.low_fidelity.; did you mean"),
+    ("[simulator.low_fidelity]\n", "needs runs ="),
+])
+def test_config_errors_name_the_table_before_any_compile(tmp_path, table, message):
+    data = problem(low=10, high=4)
+    data.source.to_csv(tmp_path / "physical.csv", index=False)
+    data.runs.to_csv(tmp_path / "runs.csv", index=False)
+    (tmp_path / "config.toml").write_text(
+        '[physical]\ncsv = "physical.csv"\ninputs = ["t"]\noutput = "excess"\n'
+        '[simulator]\nruns = "runs.csv"\n[simulator.theta]\nk = [0.5, 2.0]\n' + table)
+    with pytest.raises(ConfigError, match=message):
+        load_config(tmp_path / "config.toml")
+
+
+def test_a_config_with_low_fidelity_runs_reads_them(tmp_path):
+    data = problem(low=10, high=4)
+    data.source.to_csv(tmp_path / "physical.csv", index=False)
+    data.runs.to_csv(tmp_path / "runs.csv", index=False)
+    data.low_fidelity_runs[0].to_csv(tmp_path / "low.csv", index=False)
+    (tmp_path / "config.toml").write_text(
+        '[physical]\ncsv = "physical.csv"\ninputs = ["t"]\noutput = "excess"\n'
+        '[simulator]\nruns = "runs.csv"\n[simulator.theta]\nk = [0.5, 2.0]\n'
+        '[simulator.low_fidelity]\nruns = "low.csv"\n')
+    loaded = load_config(tmp_path / "config.toml")
+    assert loaded.data.fidelities == 2 and len(loaded.data.low_fidelity_runs[0]) == 10
