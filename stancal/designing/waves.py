@@ -17,6 +17,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import pandas as pd
 
+from stancal.designing.emulator_checks import checked
 from stancal.designing.emulators import BasisEmulator, ScalarEmulator, emulator_from_dict
 from stancal.designing.implausibility import Cut, combined, nth_maximum_for
 from stancal.designing.nroy import NroySample, sample_nroy
@@ -46,6 +47,7 @@ class Wave:
     nroy_fraction: float = float("nan")
     nroy_fraction_cv: float = float("nan")
     levels: list[float] = field(default_factory=list)
+    checks: list[dict] = field(default_factory=list)  # each GP's held-out errors and variance inflation
 
     def cut(self, targets: Targets) -> Cut:
         """The wave's cut, with its own variances on the current observations."""
@@ -166,12 +168,15 @@ def history_match(data, *, waves: list[Wave] | None = None, settings: DesignSett
             logger.warning("design: only %d runs lie inside the earlier waves' NROY (fewer than %d): wave %d's "
                            "emulator is fitted on all %d runs", len(inside), RUNS_PER_DIMENSION * xt.shape[1],
                            len(earlier) + 1, total)
-    emulator = fit_emulator(data, xt[used], outputs[used], seed)
+    emulator, checks = checked(fit_emulator(data, xt[used], outputs[used], seed), seed)
+    if max(c["inflation"] for c in checks) > 1:
+        logger.info("design: wave %d's emulator is overconfident at runs it did not see; its variance is "
+                    "inflated by %s", len(earlier) + 1, ", ".join(f"{c['inflation']:.2f}" for c in checks))
     if targets.noise_estimated:
         targets = targets.noise_bounded_by(least_squares_variance(emulator, targets, len(box.nroy_names), seed))
     nth = settings.nth_maximum or nth_maximum_for(targets.count, settings.cutoff)
     wave = Wave(len(earlier) + 1, total, len(used), refocused, emulator.to_dict(), targets.discrepancy_variance,
-                targets.noise_variance.tolist(), nth, settings.cutoff)
+                targets.noise_variance.tolist(), nth, settings.cutoff, checks=checks)
     cuts = [*(w.cut(targets) for w in earlier), wave.cut(targets)]
     nroy = sample_nroy(lambda t: combined(cuts, t), len(box.nroy_names), settings.cutoff, settings.nroy_points, seed)
     wave.nroy_fraction, wave.nroy_fraction_cv, wave.levels = nroy.fraction, nroy.fraction_cv, nroy.levels
