@@ -63,6 +63,8 @@ def test_an_overconfident_gp_is_inflated_by_its_mean_squared_error():
 def test_the_inflation_is_the_larger_mean_square_and_at_least_one():
     assert Check(np.array([2.0, 0.0]), np.array([1.0, 1.0])).inflation == pytest.approx(2.0)
     assert Check(np.array([0.5, 0.5]), np.array([1.0, 3.0])).inflation == pytest.approx(5.0)
+    repeated = np.array([[1.0, 3.0], [1.0, 1.0]])  # two partitions: the mean square over both
+    assert Check(np.array([0.5, 0.5]), repeated).inflation == pytest.approx(3.0)
     assert Check(np.array([0.5, 0.5]), np.array([0.1, 0.2])).inflation == 1.0
 
 
