@@ -267,7 +267,8 @@ def test_the_stage_one_emulator_on_the_design_box_is_the_calibrations():
 def test_the_posterior_criterion_uses_the_emulator_of_every_run_not_the_waves_refocused_one():
     from test_design_loop import simulator, toy_data
 
-    loop = stancal.run_waves(toy_data(runs=12), simulator=simulator, waves=2, runs_per_wave=8, seed=1)
+    # 30 runs proposed inside wave 1's NROY: the 10 per dimension of (x, a, b) that wave 2 needs to refocus
+    loop = stancal.run_waves(toy_data(runs=12), simulator=simulator, waves=2, runs_per_wave=30, seed=1)
     match = loop.designs[-1].match
     assert match.waves[-1].runs_used < match.waves[-1].runs_total  # the wave's emulator is refocused
     draws = match.nroy_frame().iloc[:300]
