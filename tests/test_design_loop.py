@@ -243,12 +243,14 @@ def test_next_experiments_lower_thetas_variance_as_a_direct_computation_says():
 # ---- waves ---------------------------------------------------------------------------
 def test_run_waves_shrinks_nroy_and_keeps_every_waves_cut():
     data = toy_data(runs=12)
-    loop = stancal.run_waves(data, simulator=simulator, waves=3, runs_per_wave=8, seed=1)
-    assert len(loop.designs) == 3 and len(loop.data.runs) == 12 + 3 * 8
+    # 30 runs a wave: wave 1's proposals lie inside its NROY, so wave 2 has the 10 per dimension of (x, a, b)
+    # it needs to refocus
+    loop = stancal.run_waves(data, simulator=simulator, waves=2, runs_per_wave=30, seed=1)
+    assert len(loop.designs) == 2 and len(loop.data.runs) == 12 + 2 * 30
     fractions = loop.fractions
     assert fractions[-1] < fractions[0]
     last = loop.designs[-1].match
-    assert [w.number for w in last.waves] == [1, 2, 3] and last.waves[-1].refocused
+    assert [w.number for w in last.waves] == [1, 2] and last.waves[-1].refocused
     assert last.waves[-1].runs_used < last.waves[-1].runs_total  # refocused on the runs inside NROY
     first_cut = last.cuts[0]
     assert (first_cut(last.nroy.theta_unit) <= first_cut.cutoff).all()  # wave 1's cut still holds

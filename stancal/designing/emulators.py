@@ -26,11 +26,14 @@ from stancal.problem.output_basis import OutputBasis
 
 @dataclass
 class GaussianProcess:
-    """A GP of standardised values over (x, theta) on the unit cube."""
+    """A GP of standardised values over (x, theta) on the unit cube. Its
+    predictive variance is multiplied by ``inflation``: 1, or what its
+    check asked for (stancal.designing.emulator_checks)."""
 
     hyperparameters: Hyperparameters
     xt_runs: np.ndarray
     values: np.ndarray
+    inflation: float = 1.0
 
     def __post_init__(self) -> None:
         self.factor = run_factor(self.xt_runs, self.hyperparameters)
@@ -42,7 +45,9 @@ class GaussianProcess:
         return cls(fit_hyperparameters(xt_runs, values, seed)[0], xt_runs, values)
 
     def predict(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        return predictive_mean_variance(points, self.xt_runs, self.alpha, self.hyperparameters, self.inverse_factor)
+        mean, variance = predictive_mean_variance(points, self.xt_runs, self.alpha, self.hyperparameters,
+                                                  self.inverse_factor)
+        return mean, self.inflation * variance
 
     def covariance(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
         """The predictive covariance between the rows of a and b given the
@@ -51,10 +56,10 @@ class GaussianProcess:
         h = self.hyperparameters
         whitened_a = h.sd**2 * se_correlation(a, self.xt_runs, h.length_scale) @ self.inverse_factor.T
         whitened_b = h.sd**2 * se_correlation(b, self.xt_runs, h.length_scale) @ self.inverse_factor.T
-        return h.sd**2 * se_correlation(a, b, h.length_scale) - whitened_a @ whitened_b.T
+        return self.inflation * (h.sd**2 * se_correlation(a, b, h.length_scale) - whitened_a @ whitened_b.T)
 
     def to_dict(self) -> dict:
-        return {"hyperparameters": self.hyperparameters.as_stan()}
+        return {"hyperparameters": self.hyperparameters.as_stan(), "inflation": self.inflation}
 
 
 def pairs(x_unit: np.ndarray, theta_unit: np.ndarray) -> np.ndarray:
@@ -95,7 +100,8 @@ class ScalarEmulator:
     @classmethod
     def from_dict(cls, d: dict) -> ScalarEmulator:
         xt, y = np.asarray(d["xt_runs"], float), np.asarray(d["y"], float)
-        gp = GaussianProcess(Hyperparameters.from_stan(d["hyperparameters"]), xt, (y - d["center"]) / d["scale"])
+        gp = GaussianProcess(Hyperparameters.from_stan(d["hyperparameters"]), xt, (y - d["center"]) / d["scale"],
+                             d.get("inflation", 1.0))  # waves.json written before the checks: none
         return cls(gp, d["center"], d["scale"])
 
 
@@ -158,8 +164,8 @@ class BasisEmulator:
                             b["truncation_variance"], b["interpolation_variance"])
         xt, outputs = np.asarray(d["xt_runs"], float), np.asarray(d["outputs"], float)
         scores = basis.weights(outputs)
-        gps = [GaussianProcess(Hyperparameters.from_stan(c["hyperparameters"]), xt, scores[:, j])
-               for j, c in enumerate(d["components"])]
+        gps = [GaussianProcess(Hyperparameters.from_stan(c["hyperparameters"]), xt, scores[:, j],
+                               c.get("inflation", 1.0)) for j, c in enumerate(d["components"])]
         return cls(basis, gps, outputs)
 
 
