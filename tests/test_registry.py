@@ -9,7 +9,7 @@ from dataclasses import replace
 import numpy as np
 import pandas as pd
 import pytest
-from conftest import COOLING, assert_healthy, fit
+from conftest import COOLING, assert_healthy, fit, no_stancal_warnings
 
 import stancal
 from stancal.fitting.plan import plan_scalar
@@ -54,8 +54,11 @@ def test_a_registered_copy_calibrates_predicts_saves_loads_and_runs_in_gap(my_ko
     loaded = stancal.load_result(mine.save(tmp_path / "mine.nc"))
     assert loaded.method == "my_koh"
     pd.testing.assert_frame_equal(loaded.predict(points), predicted)
-    analysis = stancal.diagnose_gap(exact_cooling_data, [stancal.Candidate("quadratic", formula="I(t**2)")],
-                                    simulator=simulator, method="my_koh", scheduler="in-process", **SAMPLING)
+    # the row must reach the gap diagnosis; the candidate's own fit at these small settings may warn
+    # (R-hat 1.025 on delta_sd and 2 of 1,600 divergent once koh.stan took the noise models): said, not hidden
+    with no_stancal_warnings(allow="candidate 'quadratic'"):
+        analysis = stancal.diagnose_gap(exact_cooling_data, [stancal.Candidate("quadratic", formula="I(t**2)")],
+                                        simulator=simulator, method="my_koh", scheduler="in-process", **SAMPLING)
     assert analysis.baseline.method == "my_koh"
     assert_healthy(analysis.baseline)
     assert [c.candidate.name for c in analysis.candidates] == ["quadratic"]
