@@ -94,6 +94,29 @@ tuple(matrix, array[] matrix) experiment_weights(array[] vector x, vector theta_
 }
 
 /**
+ * The weights' covariance between experiments with the weight GPs' nugget
+ * added where two experiments share their emulator inputs (x_e, theta,
+ * theta_e): the nugget is the part of the runs' weights a smooth GP does
+ * not follow (the simulator's numerical jitter), and the simulator at the
+ * experiments has it as much as at the runs (Higdon et al. 2008, section
+ * 2.2; SEPIA adds 1/lamWs to the experiments' weight covariance too). The
+ * simulator is deterministic, so experiments at one input share one jitter.
+ * Left out, the emulator is surest right at its runs, where its error is
+ * the nugget's, and least sure in the theta box's corners: chains then
+ * settle in the corners (docs/vector.md).
+ *
+ * @param covariances per component, the weights' covariance between experiments
+ * @param nugget per component, the weight GP's nugget sd
+ * @param same_point 1 where two experiments' emulator inputs are identical, else 0
+ * @return per component, covariances + nugget^2 * same_point
+ */
+array[] matrix with_nugget(array[] matrix covariances, vector nugget, matrix same_point) {
+  array[size(covariances)] matrix[rows(same_point), cols(same_point)] out;
+  for (c in 1:size(covariances)) out[c] = covariances[c] + square(nugget[c]) * same_point;
+  return out;
+}
+
+/**
  * Covariance between two sets of measured values (rows a and b) of what
  * the basis mean does not give: the emulator's weight uncertainty through
  * the components, plus the discrepancy GP over (inputs, output index).

@@ -14,7 +14,11 @@ subset of data approximation; Quinonero-Candela & Rasmussen 2005, section
 becomes O(VARIANCE_RUNS^2), and a GP given fewer runs is never more
 certain, so the bands can only widen. The components are independent a
 priori and their weights uncorrelated over the runs, so the GPs are too;
-the output's predictive variance adds the basis truncation error."""
+the output's predictive variance adds the basis truncation error. The
+weights' predictive variance keeps each GP's nugget, as Higdon et al.
+(2008) and SEPIA do: the emulator is then no surer near its runs than
+their jitter allows (left out, chains of a fit without a discrepancy
+settled in the theta box's corners: docs/vector.md)."""
 
 from __future__ import annotations
 
@@ -39,12 +43,15 @@ class ComponentGP:
     def predict(self, xt_runs: np.ndarray, variance_runs: np.ndarray,
                 points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Mean (given all runs) and covariance (given the variance runs) of
-        the weight at the points, no nugget (the simulator is
-        deterministic), as component_weights in functions/vector_output.stan."""
+        the weight at the points, as component_weights and with_nugget in
+        functions/vector_output.stan: the nugget, the runs' jitter about a
+        smooth GP, is the simulator's at the points too (Higdon et al. 2008),
+        one jitter at identical points (the simulator is deterministic)."""
         h = self.hyperparameters
         cross = h.sd**2 * se_correlation(points, xt_runs, h.length_scale)
         cross_variance = cross[:, variance_runs]
-        covariance = (h.sd**2 * se_correlation(points, points, h.length_scale)
+        same = np.abs(points[:, None, :] - points[None, :, :]).max(axis=2, initial=0.0) == 0
+        covariance = (h.sd**2 * se_correlation(points, points, h.length_scale) + h.nugget**2 * same
                       - cross_variance @ linalg.cho_solve(self.variance_factor, cross_variance.T))
         return h.mean + cross @ self.alpha, covariance
 
