@@ -10,8 +10,8 @@
 //                        + truncation_ei + delta(x_e, t_ei) + e_ei),
 // with w_c given the runs' weights normal (component_weights: its mean
 // given every run, its covariance given a subset of them, at most a few
-// hundred: a GP given fewer runs is never more certain; with_nugget: plus
-// the GP's nugget, one per distinct (x_e, theta_e)), the basis'
+// hundred: a GP given fewer runs is never more certain; plus the GP's
+// nugget, one per distinct (x_e, theta_e)), the basis'
 // truncation error independent with the variance the components leave in
 // the runs (plus the interpolation's, off the runs' grid), delta =
 // h(e, t_ei)' beta + a GP over (inputs, output index, covariates z_e)
@@ -139,12 +139,11 @@ model {
                             weight_gp_nugget);
       for (c in 1:C) run_weights[:, c] ~ multi_normal_cholesky(rep_vector(weight_gp_mean[c], M), runs.1[c]);
       w = experiment_weights(x, theta_unit, theta_exp_unit, xt_runs, runs.2, xt_runs, runs.1, weight_gp_mean,
-                             weight_gp_sd, weight_gp_length_scale);
+                             weight_gp_sd, weight_gp_length_scale, weight_gp_nugget, same_point);
     } else {
       w = experiment_weights(x, theta_unit, theta_exp_unit, xt_runs, emulator_alpha, xt_variance, L_variance,
-                             weight_gp_mean, weight_gp_sd, weight_gp_length_scale);
+                             weight_gp_mean, weight_gp_sd, weight_gp_length_scale, weight_gp_nugget, same_point);
     }
-    w.2 = with_nugget(w.2, weight_gp_nugget, same_point);  // the simulator's jitter at the experiments
     matrix[N, N] K = add_diag(signal_cov(experiment, components, x_delta, experiment, components, x_delta,
                                          w.2, delta_sd, delta_length_scale),
                               independent_variance(noise_mode, known_noise_sd, noise_sd, experiment)
@@ -173,12 +172,11 @@ generated quantities {
         = weight_gp_factors(xt_runs, run_weights, weight_gp_mean, weight_gp_sd, weight_gp_length_scale,
                             weight_gp_nugget);
       w = experiment_weights(x, theta_unit, theta_exp_unit, xt_runs, runs.2, xt_runs, runs.1, weight_gp_mean,
-                             weight_gp_sd, weight_gp_length_scale);
+                             weight_gp_sd, weight_gp_length_scale, weight_gp_nugget, same_point);
     } else {
       w = experiment_weights(x, theta_unit, theta_exp_unit, xt_runs, emulator_alpha, xt_variance, L_variance,
-                             weight_gp_mean, weight_gp_sd, weight_gp_length_scale);
+                             weight_gp_mean, weight_gp_sd, weight_gp_length_scale, weight_gp_nugget, same_point);
     }
-    w.2 = with_nugget(w.2, weight_gp_nugget, same_point);  // the simulator's jitter at the experiments
     vector[N] mu = rows_dot_product(components, w.1[experiment]) + h * beta;
     vector[P] mu_new = rows_dot_product(components_new, w.1[experiment_new]);
     matrix[N, N] L = cholesky_decompose(add_jitter(
