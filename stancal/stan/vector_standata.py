@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from stancal.numerics.vector_emulator import VectorEmulator
+from stancal.numerics.vector_emulator import VectorEmulator, same_point
 from stancal.problem.codes import NOISE_MODES
 from stancal.problem.mean_terms import MeanTerms, build_mean_terms
 from stancal.problem.options import VectorOptions
@@ -115,14 +115,13 @@ def koh_vector_data(data: VectorCalibrationData, options: VectorOptions, terms: 
 
 def same_emulator_point(x: np.ndarray, per_experiment: int) -> np.ndarray:
     """(E, E): 1 where two experiments' emulator inputs are identical, so
-    their weights share the weight GPs' nugget (with_nugget in
+    their weights share the weight GPs' nugget (component_weights in
     functions/vector_output.stan): the same inputs x and no per-experiment
     theta (theta_e differ between experiments, and so do their points).
     With no inputs (``inputs = []``) every experiment is at one point."""
     if per_experiment:
         return np.eye(len(x))
-    x = np.asarray(x, float).reshape(len(x), -1)
-    return (np.abs(x[:, None, :] - x[None, :, :]).max(axis=2, initial=0.0) == 0).astype(float)
+    return same_point(np.asarray(x, float).reshape(len(x), -1)).astype(float)
 
 
 def modular_vector_data(data: VectorCalibrationData, options: VectorOptions, emulator: VectorEmulator,
