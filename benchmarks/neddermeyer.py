@@ -87,7 +87,7 @@ def rescale(stan_data: dict, factor: float = 10.0) -> None:
 ABLATIONS = {
     "baseline": ("modular", "gp", lambda data, sd: None),
     "no_discrepancy": ("modular", "none", lambda data, sd: None),
-    "no_truncation": ("modular", "gp", lambda data, sd: sd.update(truncation_variance=0.0)),
+    "no_truncation": ("modular", "gp", lambda data, sd: sd.update(truncation_variance=np.zeros(sd["N"]))),
     "exact_basis": ("modular", "gp", exact_basis),
     "known_noise": ("modular", "gp", lambda data, sd: sd.update(
         noise_mode=0, known_noise_sd=np.full(sd["N"], make_data.NOISE_SD / sd["output_scale"]))),

@@ -10,10 +10,12 @@
 //                        + truncation_ei + delta(x_e, t_ei) + e_ei),
 // with w_c given the runs' weights normal (component_weights: its mean
 // given every run, its covariance given a subset of them, at most a few
-// hundred: a GP given fewer runs is never more certain), the basis'
+// hundred: a GP given fewer runs is never more certain; plus the GP's
+// nugget, one per distinct (x_e, theta_e)), the basis'
 // truncation error independent with the variance the components leave in
-// the runs, delta = h(e, t_ei)' beta + a GP over (inputs, output index,
-// covariates z_e) and e_ei the measurement
+// the runs (plus the interpolation's, off the runs' grid), delta =
+// h(e, t_ei)' beta + a GP over (inputs, output index, covariates z_e)
+// and e_ei the measurement
 // error (known per value, one sd, or one per experiment). theta is shared;
 // theta_e, if any, belongs to experiment e. The weights and delta are
 // integrated out: the values' covariance is dense, N x N per gradient.
@@ -35,6 +37,8 @@ data {
   int<lower=1> N;                       // number of measured values
   array[N] int<lower=1, upper=E> experiment;  // each value's experiment
   array[E] vector[D] x;                 // each experiment's inputs, scaled to [0, 1]
+  matrix<lower=0, upper=1>[E, E] same_point;  // 1 where two experiments' emulator inputs (x_e, theta_e) are
+                                        // identical (their weights share the nugget), else 0
   int<lower=0> D_cov;                   // number of covariates (discrepancy only)
   array[E] vector[D_cov] z;             // each experiment's covariates, scaled to [0, 1]
   int<lower=1> K_index;                 // number of output index columns
@@ -44,8 +48,9 @@ data {
   real<lower=0> output_scale;           // s: original = mu + s * standardised
   int<lower=1> C;                       // number of basis components
   matrix[N, C] components;              // k_c at each value's index
-  real<lower=0> truncation_variance;    // what the components leave of the runs, plus the error of
-                                        // interpolating them off their grid, standardised
+  vector<lower=0>[N] truncation_variance;  // per value: what the components leave of the runs, plus,
+                                        // for a value off the runs' grid, the error of interpolating them
+                                        // there; standardised
   int<lower=0, upper=2> noise_mode;     // 0 = known per value, 1 = one sd, 2 = one per experiment
   vector<lower=0>[N] known_noise_sd;    // standardised; used when noise_mode = 0
   int<lower=0, upper=1> use_discrepancy;     // 1 = GP over (inputs, output index, covariates), 0 = none
@@ -134,10 +139,10 @@ model {
                             weight_gp_nugget);
       for (c in 1:C) run_weights[:, c] ~ multi_normal_cholesky(rep_vector(weight_gp_mean[c], M), runs.1[c]);
       w = experiment_weights(x, theta_unit, theta_exp_unit, xt_runs, runs.2, xt_runs, runs.1, weight_gp_mean,
-                             weight_gp_sd, weight_gp_length_scale);
+                             weight_gp_sd, weight_gp_length_scale, weight_gp_nugget, same_point);
     } else {
       w = experiment_weights(x, theta_unit, theta_exp_unit, xt_runs, emulator_alpha, xt_variance, L_variance,
-                             weight_gp_mean, weight_gp_sd, weight_gp_length_scale);
+                             weight_gp_mean, weight_gp_sd, weight_gp_length_scale, weight_gp_nugget, same_point);
     }
     matrix[N, N] K = add_diag(signal_cov(experiment, components, x_delta, experiment, components, x_delta,
                                          w.2, delta_sd, delta_length_scale),
@@ -167,10 +172,10 @@ generated quantities {
         = weight_gp_factors(xt_runs, run_weights, weight_gp_mean, weight_gp_sd, weight_gp_length_scale,
                             weight_gp_nugget);
       w = experiment_weights(x, theta_unit, theta_exp_unit, xt_runs, runs.2, xt_runs, runs.1, weight_gp_mean,
-                             weight_gp_sd, weight_gp_length_scale);
+                             weight_gp_sd, weight_gp_length_scale, weight_gp_nugget, same_point);
     } else {
       w = experiment_weights(x, theta_unit, theta_exp_unit, xt_runs, emulator_alpha, xt_variance, L_variance,
-                             weight_gp_mean, weight_gp_sd, weight_gp_length_scale);
+                             weight_gp_mean, weight_gp_sd, weight_gp_length_scale, weight_gp_nugget, same_point);
     }
     vector[N] mu = rows_dot_product(components, w.1[experiment]) + h * beta;
     vector[P] mu_new = rows_dot_product(components_new, w.1[experiment_new]);

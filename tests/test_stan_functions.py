@@ -377,14 +377,19 @@ def se_with(a, b, sd, ls):
     return sd**2 * np.exp(-0.5 * d2)
 
 
-def weights_reference(points, mean, sd, ls, alpha):
+# the harness's same_point: x2's points 1 and 3 share one nugget draw, as identical points would
+SAME_POINT = np.array([[1, 0, 1, 0], [0, 1, 0, 0], [1, 0, 1, 0], [0, 0, 0, 1.0]])
+
+
+def weights_reference(points, mean, sd, ls, alpha, nugget):
     K_var = se(X1, X1) + 0.1 * np.eye(6)  # the variance runs x1 with se_sym's hyperparameters + 0.1
     K_pv = se_with(points, X1, sd, ls)
-    return mean + K_pv @ alpha, se_with(points, points, sd, ls) - K_pv @ np.linalg.solve(K_var, K_pv.T)
+    return mean + K_pv @ alpha, (se_with(points, points, sd, ls) + nugget**2 * SAME_POINT
+                                 - K_pv @ np.linalg.solve(K_var, K_pv.T))
 
 
 def test_component_weights(gq):
-    mean, cov = weights_reference(X2, 0.2, SD, LS, RESID)
+    mean, cov = weights_reference(X2, 0.2, SD, LS, RESID, nugget=0.3)
     np.testing.assert_allclose(gq["component_mean"], mean, rtol=1e-10)
     np.testing.assert_allclose(gq["component_cov"], cov, rtol=1e-8, atol=1e-10)
 
@@ -399,10 +404,10 @@ def test_weight_gp_factors(gq):
 def test_experiment_weights(gq):
     points = np.column_stack([X2[:, 0], np.full(4, 0.3)])
     K_var = se(X1, X1) + 0.1 * np.eye(6)
-    for c, (mean, sd, ls) in enumerate([(0.2, SD, LS), (-0.1, 0.9, [0.5, 0.6])]):
+    for c, (mean, sd, ls, nugget) in enumerate([(0.2, SD, LS, 0.05), (-0.1, 0.9, [0.5, 0.6], 0.1)]):
         K_pv = se_with(points, X1, sd, ls)
         np.testing.assert_allclose(gq["experiment_means"][:, c], mean + K_pv @ A_RESTRICT[:, c], rtol=1e-10)
-        cov = se_with(points, points, sd, ls) - K_pv @ np.linalg.solve(K_var, K_pv.T)
+        cov = se_with(points, points, sd, ls) + nugget**2 * SAME_POINT - K_pv @ np.linalg.solve(K_var, K_pv.T)
         np.testing.assert_allclose(gq["experiment_covs"][c], cov, rtol=1e-8, atol=1e-10)
 
 

@@ -9,6 +9,16 @@
  * subset of data approximation, conservative: fewer runs never give a
  * smaller variance), so each gradient costs O(subset^2), not O(runs^2).
  *
+ * The covariance keeps the weight GP's nugget where two points are one
+ * (same_point): the nugget is the part of the runs' weights a smooth GP
+ * does not follow (the simulator's numerical jitter), and the simulator at
+ * the experiments has it as much as at the runs (Higdon et al. 2008,
+ * section 2.2; SEPIA adds 1/lamWs to the experiments' weight covariance
+ * too). The simulator is deterministic, so points at one input share one
+ * jitter. Left out, the emulator is surest right at its runs, where its
+ * error is the nugget's, and least sure in the theta box's corners: chains
+ * then settle in the corners (docs/vector.md).
+ *
  * @param points (x_e, theta, theta_e) of each experiment, unit cube
  * @param xt_runs (x, theta) of each run, unit cube
  * @param alpha K^-1 (run weights - mean), over every run
@@ -17,15 +27,17 @@
  * @param mean the component's hyperparameters
  * @param sd the component's hyperparameters
  * @param length_scale the component's hyperparameters
+ * @param nugget the component's hyperparameters: the nugget's sd
+ * @param same_point 1 where two points are identical, else 0
  * @return (weight means at the experiments, their covariance)
  */
 tuple(vector, matrix) component_weights(array[] vector points, array[] vector xt_runs, vector alpha,
                                         array[] vector xt_variance, matrix L_variance, real mean, real sd,
-                                        array[] real length_scale) {
+                                        array[] real length_scale, real nugget, matrix same_point) {
   matrix[size(xt_variance), size(points)] A
     = mdivide_left_tri_low(L_variance, gp_exp_quad_cov(xt_variance, points, sd, length_scale));
   return (mean + gp_exp_quad_cov(points, xt_runs, sd, length_scale) * alpha,
-          gp_exp_quad_cov(points, sd, length_scale) - crossprod(A));
+          gp_exp_quad_cov(points, sd, length_scale) + square(nugget) * same_point - crossprod(A));
 }
 
 /**
@@ -67,6 +79,8 @@ tuple(array[] matrix, matrix) weight_gp_factors(array[] vector xt_runs, matrix r
  * @param emulator_mean stage 1, per component
  * @param emulator_sd stage 1, per component
  * @param emulator_length_scale stage 1, per component
+ * @param emulator_nugget stage 1, per component
+ * @param same_point 1 where two experiments' emulator inputs are identical, else 0
  * @param theta_unit every theta on [0, 1]; a functional theta's level
  * @param theta_exp_unit per-experiment parameters on the unit cube
  * @return (weight means, experiments x components; per component, the
@@ -76,7 +90,8 @@ tuple(matrix, array[] matrix) experiment_weights(array[] vector x, vector theta_
                                                 array[] vector xt_runs, matrix alpha,
                                                 array[] vector xt_variance, array[] matrix L_variance,
                                                 vector emulator_mean, vector emulator_sd,
-                                                array[,] real emulator_length_scale) {
+                                                array[,] real emulator_length_scale, vector emulator_nugget,
+                                                matrix same_point) {
   int n_exp = size(x);
   int n_comp = cols(alpha);
   array[n_exp] vector[rows(x[1]) + rows(theta_unit) + rows(theta_exp_unit[1])] points;
@@ -86,7 +101,7 @@ tuple(matrix, array[] matrix) experiment_weights(array[] vector x, vector theta_
   for (c in 1:n_comp) {
     tuple(vector[n_exp], matrix[n_exp, n_exp]) w
       = component_weights(points, xt_runs, alpha[:, c], xt_variance, L_variance[c], emulator_mean[c],
-                          emulator_sd[c], emulator_length_scale[c]);
+                          emulator_sd[c], emulator_length_scale[c], emulator_nugget[c], same_point);
     means[:, c] = w.1;
     covariances[c] = w.2;
   }

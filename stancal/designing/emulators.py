@@ -108,8 +108,9 @@ class ScalarEmulator:
 @dataclass
 class BasisEmulator:
     """One GP per component weight of the output basis: y(index) =
-    mean(index) + scale * components(index) @ w, plus the basis's
-    truncation and interpolation error, as stancal.numerics.vector_emulator."""
+    mean(index) + scale * components(index) @ w, each weight's variance with
+    its GP's nugget, plus the basis's truncation error (and, off its grid,
+    interpolation error), as stancal.numerics.vector_emulator."""
 
     basis: OutputBasis
     gps: list[GaussianProcess]
@@ -134,7 +135,9 @@ class BasisEmulator:
             points = np.column_stack([np.broadcast_to(row, (len(theta), len(row))), theta])
             predicted = [gp.predict(points) for gp in self.gps]
             weight_mean = np.column_stack([m for m, _ in predicted])
-            weight_variance = np.column_stack([v for _, v in predicted])
+            # each weight's nugget too, as stage 1's emulator keeps it (ComponentGP.predict; Higdon et al. 2008)
+            weight_variance = np.column_stack([v + gp.hyperparameters.nugget**2
+                                               for (_, v), gp in zip(predicted, self.gps, strict=True)])
             mean[:, values], variance[:, values] = self.basis.predict(indices, weight_mean, weight_variance)
         return mean, variance
 

@@ -14,7 +14,11 @@ subset of data approximation; Quinonero-Candela & Rasmussen 2005, section
 becomes O(VARIANCE_RUNS^2), and a GP given fewer runs is never more
 certain, so the bands can only widen. The components are independent a
 priori and their weights uncorrelated over the runs, so the GPs are too;
-the output's predictive variance adds the basis truncation error."""
+the output's predictive variance adds the basis truncation error. The
+weights' predictive variance keeps each GP's nugget, as Higdon et al.
+(2008) and SEPIA do: the emulator is then no surer near its runs than
+their jitter allows (left out, chains of a fit without a discrepancy
+settled in the theta box's corners: docs/vector.md)."""
 
 from __future__ import annotations
 
@@ -30,21 +34,34 @@ HYPERPARAMETER_RUNS = 400  # per component: the mode moves little beyond a few h
 VARIANCE_RUNS = 400  # the weights' covariance conditions on this many runs at most
 
 
+def same_point(points: np.ndarray) -> np.ndarray:
+    """(n, n) boolean: True where two of the n points are identical, so they
+    share one draw of the weight GPs' nugget (the simulator is
+    deterministic). Grouped exactly, as latent_data groups replicates."""
+    _, group = np.unique(points, axis=0, return_inverse=True)
+    group = group.ravel()  # numpy 2.0.0 gave the inverse the input's rank
+    return group[:, None] == group[None, :]
+
+
 @dataclass
 class ComponentGP:
     hyperparameters: Hyperparameters
     variance_factor: tuple[np.ndarray, bool]  # Cholesky of the variance runs' covariance
     alpha: np.ndarray  # K^-1 (w - m), all runs
 
-    def predict(self, xt_runs: np.ndarray, variance_runs: np.ndarray,
-                points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def predict(self, xt_runs: np.ndarray, variance_runs: np.ndarray, points: np.ndarray,
+                same: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Mean (given all runs) and covariance (given the variance runs) of
-        the weight at the points, no nugget (the simulator is
-        deterministic), as component_weights in functions/vector_output.stan."""
+        the weight at the points, as component_weights in
+        functions/vector_output.stan: the nugget, the runs' jitter about a
+        smooth GP, is the simulator's at the points too (Higdon et al. 2008),
+        one jitter at identical points (``same``, same_point(points) unless
+        given: the simulator is deterministic)."""
         h = self.hyperparameters
         cross = h.sd**2 * se_correlation(points, xt_runs, h.length_scale)
         cross_variance = cross[:, variance_runs]
-        covariance = (h.sd**2 * se_correlation(points, points, h.length_scale)
+        same = same_point(points) if same is None else same
+        covariance = (h.sd**2 * se_correlation(points, points, h.length_scale) + h.nugget**2 * same
                       - cross_variance @ linalg.cho_solve(self.variance_factor, cross_variance.T))
         return h.mean + cross @ self.alpha, covariance
 
@@ -77,7 +94,8 @@ class VectorEmulator:
 
     def weights(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Predictive means and variances (points, p) of the component weights."""
-        predicted = [gp.predict(self.xt_runs, self.variance_runs, points) for gp in self.components]
+        same = same_point(points)  # one grouping for every component
+        predicted = [gp.predict(self.xt_runs, self.variance_runs, points, same) for gp in self.components]
         return (np.column_stack([m for m, _ in predicted]),
                 np.column_stack([np.maximum(np.diag(v), 0.0) for _, v in predicted]))
 

@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from stancal.numerics.vector_emulator import VectorEmulator
+from stancal.numerics.vector_emulator import VectorEmulator, same_point
 from stancal.problem.codes import NOISE_MODES
 from stancal.problem.mean_terms import MeanTerms, build_mean_terms
 from stancal.problem.options import VectorOptions
@@ -113,6 +113,17 @@ def koh_vector_data(data: VectorCalibrationData, options: VectorOptions, terms: 
         x_delta_new=scaling.to_unit(data.with_one_hot(new_rows), data.discrepancy_inputs))
 
 
+def same_emulator_point(x: np.ndarray, per_experiment: int) -> np.ndarray:
+    """(E, E): 1 where two experiments' emulator inputs are identical, so
+    their weights share the weight GPs' nugget (component_weights in
+    functions/vector_output.stan): the same inputs x and no per-experiment
+    theta (theta_e differ between experiments, and so do their points).
+    With no inputs (``inputs = []``) every experiment is at one point."""
+    if per_experiment:
+        return np.eye(len(x))
+    return same_point(np.asarray(x, float).reshape(len(x), -1)).astype(float)
+
+
 def modular_vector_data(data: VectorCalibrationData, options: VectorOptions, emulator: VectorEmulator,
                         new_rows: pd.DataFrame, terms: MeanTerms | None = None) -> dict[str, Any]:
     """modular_vector.stan's data (joint = 1 for koh_emulator)."""
@@ -121,13 +132,15 @@ def modular_vector_data(data: VectorCalibrationData, options: VectorOptions, emu
     mean_new, components_new = basis.at(new_rows[data.output_index].to_numpy())
     hyper = [gp.hyperparameters for gp in emulator.components]
     shared = _shared_stan_data(data, options, new_rows, basis.scale)
+    x = data.scaling.to_unit(data.experiments, data.inputs)
     return dict(
         shared, **_mean_term_data(terms, len(physical), new_rows),
-        x=data.scaling.to_unit(data.experiments, data.inputs), D_cov=len(data.covariate_columns),
+        x=x, same_point=same_emulator_point(x, len(data.per_experiment)), D_cov=len(data.covariate_columns),
         z=data.scaling.to_unit(data.experiments, data.covariate_columns),
         index=data.scaling.to_unit(physical, data.output_index),
         y=(physical[data.output].to_numpy() - mean) / basis.scale, output_mean=mean, output_scale=basis.scale,
-        C=basis.count, components=components, truncation_variance=basis.independent_variance,
+        C=basis.count, components=components,
+        truncation_variance=basis.independent_variance_at(physical[data.output_index].to_numpy()),
         M=len(emulator.xt_runs), xt_runs=emulator.xt_runs,
         run_weights=basis.weights(data.run_outputs),
         emulator_alpha=np.column_stack([gp.alpha for gp in emulator.components]),

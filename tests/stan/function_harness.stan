@@ -201,12 +201,15 @@ generated quantities {
   vector[3] variance_per_experiment = independent_variance(2, [0.1, 0.2, 0.3]', {0.5, 0.7}, {1, 2, 1});
   // the simulator above per experiment: theta 1 shared, theta 2 each experiment's own
   vector[3] experiment_f = experiment_simulator(X_sim, {1, 2, 1}, theta_sim[1:1], {[0.5]', [2.0]'}, 0.2, 1.5);
-  // weight GPs: one component's weights at x2 given runs x1 (alpha = resid) and variance runs x1
+  // weight GPs: one component's weights at x2 given runs x1 (alpha = resid) and variance runs x1, with
+  // a nugget sd 0.3 shared by x2's points 1 and 3 (as if identical)
+  matrix[n2, n2] same_point = [[1, 0, 1, 0], [0, 1, 0, 0], [1, 0, 1, 0], [0, 0, 0, 1]];
   vector[n2] component_mean;
   matrix[n2, n2] component_cov;
   {
     tuple(vector[n2], matrix[n2, n2]) w = component_weights(x2, x1, resid, x1,
-                                                            cholesky_decompose(add_diag(se_sym, 0.1)), 0.2, sd_, ls);
+                                                            cholesky_decompose(add_diag(se_sym, 0.1)), 0.2, sd_, ls,
+                                                            0.3, same_point);
     component_mean = w.1;
     component_cov = w.2;
   }
@@ -227,7 +230,7 @@ generated quantities {
     matrix[n1, n1] L_var = cholesky_decompose(add_diag(se_sym, 0.1));
     tuple(matrix[n2, 2], array[2] matrix[n2, n2]) e = experiment_weights(
       coordinate(x2, 1), [0.3]', none, x1, A_restrict, x1, {L_var, L_var}, [0.2, -0.1]', [sd_, 0.9]',
-      {ls, {0.5, 0.6}});
+      {ls, {0.5, 0.6}}, [0.05, 0.1]', same_point);
     experiment_means = e.1;
     experiment_covs = e.2;
   }
