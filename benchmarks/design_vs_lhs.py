@@ -16,14 +16,13 @@ theta's implausibility under every wave's cut so far, against the cutoff
 
 ``--waves-only`` runs the design loop and the truth's check alone, no fits.
 
-Writes benchmarks/design_vs_lhs.json and .png (copied to docs/img) and prints a table.
+Writes benchmarks/design_vs_lhs.json and docs/img/design_vs_lhs.png and prints a table.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import shutil
 import sys
 import time
 from pathlib import Path
@@ -154,8 +153,7 @@ def main() -> None:
     print_truth_table(rows)
     if sampler is None:
         return
-    plot(rows, Path(__file__).parent / "design_vs_lhs.png")
-    shutil.copy(Path(__file__).parent / "design_vs_lhs.png", ROOT / "docs" / "img" / "design_vs_lhs.png")
+    plot(rows, ROOT / "docs" / "img" / "design_vs_lhs.png")
     print("| arm | runs | emulator RMS error at the truth | " + " | ".join(f"{n} width / prior, covered"
                                                                             for n in ACTIVE) + " |")
     for arm in ("designed", "lhs"):
