@@ -68,6 +68,7 @@ transformed data {
   matrix[L, L] weights = fidelity_weights(level_rho);
   matrix[M, L] w_sim = weights[run_level, :];
   row_vector[L] w_top = weights[L, :];
+  matrix[N, L] w_obs = rep_matrix(w_top, N);
   vector[M] run_nugget_sd = to_vector(emulator_nugget)[run_level];
   real top_mean = w_top * to_vector(emulator_mean);
   real top_variance = fidelity_variance(w_top, emulator_sd);
@@ -79,8 +80,7 @@ transformed data {
   // has no theta part: data. Squared exponential: the points' covariance with
   // the runs factorises, level by level, into an x part (data here) and a
   // theta part (theta_factor).
-  matrix[N, N] K_obs = fidelity_cov(x, rep_matrix(w_top, N), kernel_id, emulator_sd,
-                                    emulator_length_scale[:, 1:D]);
+  matrix[N, N] K_obs = fidelity_cov(x, w_obs, kernel_id, emulator_sd, emulator_length_scale[:, 1:D]);
   array[L] matrix[N, M] K_obs_sim_x;
   for (j in 1:L) {
     K_obs_sim_x[j] = diag_post_multiply(gp_exp_quad_cov(x, x_sim, emulator_sd[j], emulator_length_scale[j, 1:D]),
@@ -117,15 +117,17 @@ model {
   rho_free ~ koh_scale();                            // normal(1, 0.25), rho > 0
   beta ~ normal(0, beta_prior_sd);
   if (!prior_only) {
-    matrix[N, M] K_obs_sim = rep_matrix(0, N, M);
-    if (kernel_id == 1) {
-      for (j in 1:L) {
+    matrix[N, M] K_obs_sim;
+    if (kernel_id == 1) {  // the first level assigned, the others added: one pass for one fidelity
+      K_obs_sim = diag_post_multiply(K_obs_sim_x[1], theta_factor(theta_unit, theta_sim,
+                                                                  emulator_length_scale[1, (D + 1):(D + Q)]));
+      for (j in 2:L) {
         K_obs_sim += diag_post_multiply(K_obs_sim_x[j], theta_factor(theta_unit, theta_sim,
                                                                      emulator_length_scale[j, (D + 1):(D + Q)]));
       }
     } else {
-      K_obs_sim = fidelity_cross_cov(append_theta(x, theta_unit), rep_matrix(w_top, N), xt_sim, w_sim,
-                                     kernel_id, emulator_sd, emulator_length_scale);
+      K_obs_sim = fidelity_cross_cov(append_theta(x, theta_unit), w_obs, xt_sim, w_sim, kernel_id, emulator_sd,
+                                     emulator_length_scale);
     }
     matrix[M, N] A = mdivide_left_tri_low(L_sim, K_obs_sim');
     vector[N] emulator_mean_obs = top_mean + K_obs_sim * alpha_sim;

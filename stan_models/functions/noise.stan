@@ -114,7 +114,7 @@ vector noise_log_lik(vector resid, vector variance, array[] real nu) {
  * @return one observation per row
  */
 vector noise_rng(vector mean, vector variance, array[] real nu, vector weight) {
-  if (rows(weight) > 0) return to_vector(normal_rng(mean, sqrt(variance ./ weight)));
+  if (rows(weight) > 0) return to_vector(normal_rng(mean, sqrt(weighted_noise_variance(variance, weight))));
   if (size(nu) == 0) return to_vector(normal_rng(mean, sqrt(variance)));
   return to_vector(student_t_rng(nu[1], mean, sqrt(variance)));
 }

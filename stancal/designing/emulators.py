@@ -185,7 +185,9 @@ def stage_one_emulator(data, box, stage_one) -> ScalarEmulator | BasisEmulator |
     one is the other's times the ratio of the widths, so the GP is the same.
     ``stage_one``: a scalar result's ``emulator`` dict, or a vector result's
     VectorEmulator. The vector one is conditioned here on every run for its
-    variance (stage 1 on at most its VARIANCE_RUNS; the same below that)."""
+    variance (stage 1 on at most its VARIANCE_RUNS; the same below that).
+    A multi-fidelity stage 1 gives None too: the design's emulators are of
+    the calibrated simulator's runs alone."""
     scaling = data.scaling
     factor = np.array([scaling.width[c] for c in box.columns]) / box.width
 
@@ -193,9 +195,10 @@ def stage_one_emulator(data, box, stage_one) -> ScalarEmulator | BasisEmulator |
         return Hyperparameters(h.mean, h.sd, h.length_scale * factor, h.nugget)
 
     if isinstance(stage_one, dict):
-        if "hyperparameters" not in stage_one:
+        hyperparameters = stage_one.get("hyperparameters")
+        if hyperparameters is None or "levels" in hyperparameters:
             return None
-        h = on_box(Hyperparameters.from_stan(stage_one["hyperparameters"]))
+        h = on_box(Hyperparameters.from_stan(hyperparameters))
         gp = GaussianProcess(h, box.to_unit(data.runs), scaling.standardise(data.runs_on_link_scale()))
         return ScalarEmulator(gp, scaling.y_center, scaling.y_scale)
     if stage_one is None:

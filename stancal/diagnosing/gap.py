@@ -307,8 +307,12 @@ def diagnose_gap(
     def home(candidate: Candidate | None) -> tuple[str, ...]:  # a fit's folder under out (and under refits)
         return ("baseline",) if candidate is None else ("candidates", _slug(candidate.name))
 
+    # each candidate's data, built and checked once (a variant's has its own inputs and theta)
+    datasets = {label_name(c): variant_data(data, c) if c and c.kind == "variant" else data
+                for c in [None, *candidates]}
+
     def data_for(candidate: Candidate | None):
-        return variant_data(data, candidate) if candidate and candidate.kind == "variant" else data
+        return datasets[label_name(candidate)]
 
     labels = [None, *candidates]
     failed: list[FitFailure] = []
@@ -326,7 +330,7 @@ def diagnose_gap(
         task = functools.partial(_fit_task, vector=vector, plan=plan, seed=seed, sampling=calibrate_options)
 
         def fit_task(c: Candidate | None, start: CalibrationResult | None) -> FitTask:
-            fitted = data_for(c)  # a variant's data are rebuilt and checked at each call
+            fitted = data_for(c)
             return task(label_name(c), c, fitted, None if vector else fitted.source.reset_index(drop=True),
                         folder(*home(c)), None if start is None else warm_candidate_options(
                             start, bounds_of(fitted.parameters), calibrate_options,
@@ -411,7 +415,7 @@ def comparison_scheme(labels: list, scores: list[Score], kfold: int | None,
     settled candidate is judged on PSIS-LOO's bounds, so when the comparison
     falls back to K-fold every fit is refitted: its PSIS score beside the
     others' K-fold ones would rank two scales as one."""
-    skipped = set() if every else set(settled(scores))  # K-fold asked for: refitted below
+    skipped = set() if every else set(settled(scores))  # every candidate asked for: none skipped
     chosen = _scheme([c for i, c in enumerate(labels) if i not in skipped],
                      [s for i, s in enumerate(scores) if i not in skipped], kfold)
     if chosen is not None:

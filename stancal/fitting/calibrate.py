@@ -175,11 +175,14 @@ def calibrate(
     closely) or non_centred (noisy or sparse data); a fit whose sampler
     struggles is told to try the other.
     ``discrepancy_parametrization`` of the latent programs' discrepancy GP:
-    centred, non_centred, or auto (centred when the data's information per
-    point dominates the prior's precision at most points, Papaspiliopoulos,
-    Roberts & Sköld 2007: stancal.numerics.parametrization); under auto, a fit
-    with more than 5 % of its transitions at the maximum tree depth is
-    refitted once the other way and the better kept. The summary says which
+    centred, non_centred, partial (partially non-centred with the data's
+    information, koh_latent only; Christensen, Roberts & Sköld 2006) or auto
+    (centred when the data's information per point dominates the prior's
+    precision at most points, Papaspiliopoulos, Roberts & Sköld 2007, or
+    partial where the program offers it: stancal.numerics.parametrization);
+    under auto, a fit with more than 5 % of its transitions at the maximum
+    tree depth is refitted once the other way (non-centred after partial) and
+    the better kept. The summary says which
     ran and why (options.discrepancy_parametrization_reason).
     ``noise``: the measurement noise (docs/noise.md): iid (one sd), per_source
     (one sd per the data's ``source``) or student_t (robust, its degrees of

@@ -277,7 +277,8 @@ def _check_noise(chosen: Program, options: ModelOptions, data: CalibrationData) 
     if options.noise not in chosen.noises:
         taking = [p.name for p in PROGRAMS.values() if options.noise in p.noises and p.output == "scalar"]
         raise ValueError(f"noise {options.noise!r} runs on the programs {', '.join(taking)}; this problem "
-                         f"runs {chosen.name} ({chosen.description}), which has one iid noise sd")
+                         f"runs {chosen.name} ({chosen.description}), which takes noise {', '.join(chosen.noises)} "
+                         f"only")
     if data.noise.noise_sd_column and not chosen.known_noise_sd:
         taking = [p.name for p in PROGRAMS.values() if p.known_noise_sd]
         raise ValueError(f"a known noise sd (column '{data.noise.noise_sd_column}') runs on the programs "

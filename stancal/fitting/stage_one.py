@@ -29,7 +29,13 @@ from stancal.problem.options import ModelOptions
 from stancal.problem.vector_data import VectorCalibrationData
 from stancal.stan.registry import STAGE_ONE_BASIS, STAGE_ONE_FIDELITY, STAGE_ONE_GP, STAGE_ONE_SCALABLE
 from stancal.stan.source import FlatProgram
-from stancal.stan.standata import EMULATOR_HYPERPARAMETERS, build_emulator_data, emulator_run_data, to_stan_json
+from stancal.stan.standata import (
+    EMULATOR_HYPERPARAMETERS,
+    build_emulator_data,
+    emulator_run_data,
+    fidelity_run_data,
+    to_stan_json,
+)
 
 logger = logging.getLogger("stancal")
 
@@ -70,7 +76,7 @@ def fit_emulator(data: CalibrationData, options: ModelOptions, program: FlatProg
     return {
         "hyperparameters": {name: mode[name][0, 0].tolist() for name in EMULATOR_HYPERPARAMETERS},
         "loo_rmse": float(np.sqrt(np.mean(loo_error**2))),
-        "runs_sd": float(data.runs_on_link_scale().std(ddof=1)),  # the scale the emulator works on
+        "runs_sd": runs_sd(data),
         "fit_s": seconds,
     }
 
@@ -99,7 +105,7 @@ def fit_scalable_emulator(data: CalibrationData, seed: int) -> dict[str, Any]:
                           f"{emulator['hyperparameter_runs']} of {len(data.runs)} runs; mean from all runs; "
                           f"covariance at theta's least-squares fit: its leading eigenvectors by Nystroem, "
                           f"the rest of each point's variance by local GPs of {NEIGHBOURS} runs")
-    emulator["runs_sd"] = float(data.runs_on_link_scale().std(ddof=1))
+    emulator["runs_sd"] = runs_sd(data)
     emulator["fit_s"] = time.perf_counter() - started
     logger.info("stage 1 in %.1f s in all", emulator["fit_s"])
     return emulator
@@ -137,6 +143,11 @@ def emulator_mean_function(data: CalibrationData, hyperparameters: dict[str, Any
     return at
 
 
+def runs_sd(data: CalibrationData) -> float:
+    """The sd of the calibrated simulator's runs on the link scale, the scale the emulator works on."""
+    return float(data.runs_on_link_scale().std(ddof=1))
+
+
 def _one_fidelity_mean(data: CalibrationData, hyperparameters: dict[str, Any], kernel_id: int):
     """The standardised emulator mean at unit-cube (x, theta) points, given the runs."""
     s = data.scaling
@@ -157,13 +168,12 @@ def _fidelity_mean(data: CalibrationData, per_level: list[dict[str, Any]]):
 def fidelity_runs(data: CalibrationData) -> list[tuple[np.ndarray, np.ndarray]]:
     """Every simulator's runs, cheapest first, as the emulator sees them:
     (x, theta) on the unit cube, y standardised."""
-    runs = [emulator_run_data(data, r) for r in data.runs_by_fidelity()]
-    return [(np.hstack([r["x_sim"], r["theta_sim"]]), r["y_sim"]) for r in runs]
+    return [(np.hstack([r["x_sim"], r["theta_sim"]]), r["y_sim"]) for r in fidelity_run_data(data)]
 
 
 def fidelity_levels(data: CalibrationData, per_level: list[dict[str, Any]]) -> list[Level]:
     """The multi-fidelity emulator that stage 1's per-level hyperparameters describe, on the data's runs."""
-    return [Level(Hyperparameters.from_stan(h), 1.0 if h["rho"] is None else float(h["rho"]), xt, y)
+    return [Level(Hyperparameters.from_stan(h), float(h["rho"]), xt, y)
             for h, (xt, y) in zip(per_level, fidelity_runs(data), strict=True)]
 
 
@@ -184,16 +194,15 @@ def fit_fidelity_emulator(data: CalibrationData, seed: int) -> dict[str, Any]:
                 value.loo_with, value.loo_without)
     if value.warning():
         logger.warning("%s", value.warning())
-    per_level = [{**lv.hyperparameters.as_stan(), "rho": lv.rho} for lv in levels]
-    per_level[0]["rho"] = None  # the cheapest level scales nothing
+    per_level = [{**lv.hyperparameters.as_stan(), "rho": lv.rho} for lv in levels]  # the cheapest's rho: 1, unused
     return {
-        # the top level's own GP under the usual names; every level's in "levels"
-        "hyperparameters": {**{k: per_level[-1][k] for k in EMULATOR_HYPERPARAMETERS}, "levels": per_level},
+        # every level's GP; no single-level names, which would read as the top level's emulator
+        "hyperparameters": {"levels": per_level},
         "loo_rmse": value.loo_with,
         "loo_rmse_without_low_fidelity": value.loo_without,
         "level_rho": value.rho,
         "warning": value.warning(),
-        "runs_sd": float(data.runs_on_link_scale().std(ddof=1)),
+        "runs_sd": runs_sd(data),
         "stage1": (f"multi-fidelity: {len(levels)} levels, hyperparameters level by level at their posterior "
                    f"mode (scipy L-BFGS), co-kriging given every level's runs"),
         "fit_s": seconds,

@@ -14,7 +14,8 @@ subset of data approximation; Quinonero-Candela & Rasmussen 2005, section
 becomes O(VARIANCE_RUNS^2), and a GP given fewer runs is never more
 certain, so the bands can only widen. The components are independent a
 priori and their weights uncorrelated over the runs, so the GPs are too;
-the output's predictive variance adds the basis truncation error. The
+the output's predictive variance adds the basis truncation error (and,
+off the runs' grid, its interpolation error). The
 weights' predictive variance keeps each GP's nugget, as Higdon et al.
 (2008) and SEPIA do: the emulator is then no surer near its runs than
 their jitter allows (left out, chains of a fit without a discrepancy

@@ -166,8 +166,8 @@ def write_vector_calibration(result, folder: str | Path, warning_messages: list[
     lines = [
         f"# Calibration report ({summary['method']}, {summary['backend']})", "",
         *([(f"Output basis: {basis['description']}; truncation error sd {basis['truncation_sd']:.3g}, "
-            f"interpolation error sd {basis['interpolation_sd']:.3g} (output units; each value carries both, "
-            "independently, beside the noise)."), ""]
+            f"interpolation error sd {basis['interpolation_sd']:.3g} at the {basis['values_off_grid']} of "
+            f"{basis['values']} values off the runs' grid (output units; each independent, beside the noise)."), ""]
           if basis else ["The Stan simulator is evaluated at every measured value (no output basis).", ""]),
         *_parameters_and_sampler(summary, table),
         "", "## Figures", "", "![curves per experiment](curves.png)", "![theta](theta.png)", ""]

@@ -65,9 +65,13 @@ class VectorCalibrationResult:
             "parameters": json.loads(self.summary().reset_index().to_json(orient="records")),
             "basis": None if self.emulator is None else {
                 "components": basis.count, "explained": basis.explained.tolist(),
-                # the two errors the likelihood adds to every value, independent, original units
+                # the errors the likelihood adds, independent, original units: truncation at every value,
+                # interpolation at the values off the runs' grid (OutputBasis.independent_variance_at)
                 "truncation_sd": float(basis.scale * np.sqrt(basis.truncation_variance)),
                 "interpolation_sd": float(basis.scale * np.sqrt(basis.interpolation_variance)),
+                "values_off_grid": int((basis.independent_variance_at(
+                    self.data.physical[self.data.output_index].to_numpy()) > basis.truncation_variance).sum()),
+                "values": len(self.data.physical),
                 "description": basis.describe()},
             "diagnostics": d.summary(),
             "timing": self.timing,

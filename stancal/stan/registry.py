@@ -190,7 +190,7 @@ def default_program(output: str, *, simulator: bool, fidelities: int = 1) -> Pro
 
 def fidelity_programs(output: str) -> list[Program]:
     """The programs of an output kind that take runs of cheaper simulators too."""
-    return [p for p in PROGRAMS.values() if p.output == output and p.stage_one_fidelities and not p.helper]
+    return [p for p in PROGRAMS.values() if p.output == output and p.stage_one_fidelities]
 
 
 def commands_taking(command: str, output: str) -> list[str]:

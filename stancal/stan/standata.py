@@ -169,7 +169,7 @@ def fidelity_emulator(inputs: StanInputs) -> dict[str, Any]:
     if inputs.emulator is None:
         raise ValueError("this program needs the stage-1 emulator's hyperparameters")
     data, levels = inputs.data, inputs.emulator.get("levels") or [inputs.emulator]
-    runs = [emulator_run_data(data, r) for r in data.runs_by_fidelity()]
+    runs = fidelity_run_data(data)
     return {"M": sum(r["M"] for r in runs), "L": len(runs),
             "x_sim": np.vstack([r["x_sim"] for r in runs]),
             "theta_sim": np.vstack([r["theta_sim"] for r in runs]),
@@ -317,6 +317,11 @@ def emulator_run_data(data: CalibrationData, runs: pd.DataFrame | None = None) -
         "theta_sim": s.to_unit(runs, data.theta_names),
         "y_sim": data.scaling.standardise(data.runs_on_link_scale(runs)),
     }
+
+
+def fidelity_run_data(data: CalibrationData) -> list[dict[str, Any]]:
+    """Every simulator's runs, cheapest first, as emulator_run_data gives each."""
+    return [emulator_run_data(data, runs) for runs in data.runs_by_fidelity()]
 
 
 def build_emulator_data(data: CalibrationData, options: ModelOptions) -> dict[str, Any]:

@@ -140,6 +140,7 @@ def modular_vector_data(data: VectorCalibrationData, options: VectorOptions, emu
         index=data.scaling.to_unit(physical, data.output_index),
         y=(physical[data.output].to_numpy() - mean) / basis.scale, output_mean=mean, output_scale=basis.scale,
         C=basis.count, components=components,
+        # the truncation error at every value, plus the interpolation error off the runs' grid
         truncation_variance=basis.independent_variance_at(physical[data.output_index].to_numpy()),
         M=len(emulator.xt_runs), xt_runs=emulator.xt_runs,
         run_weights=basis.weights(data.run_outputs),
