@@ -33,12 +33,14 @@ sys.path.insert(0, str(ROOT))
 
 import stancal  # noqa: E402
 from stancal.diagnosing.gap import diagnose_gap  # noqa: E402
-from stancal.fitting.parametrization_fallback import SATURATED_SHARE, saturated_share  # noqa: E402
+from stancal.fitting.parametrization_fallback import SATURATED_SHARE  # noqa: E402
 from stancal.problem.config import load_config  # noqa: E402
+
+sys.path.insert(0, str(ROOT / "benchmarks"))
+from gap_cost import differences, kfold_reference  # noqa: E402  (the cooling benchmark's figures)
 
 CASE = ROOT / "case_studies" / "source_shield" / "config.toml"
 TARGET_RATIO = 3.0  # issue 30, target 2
-MAX_TREEDEPTH = 10
 
 
 def arguments() -> argparse.Namespace:
@@ -58,16 +60,10 @@ def sampler_figures(result) -> dict:
     stats = result.idata["sample_stats"]
     d = result.diagnostics
     return {"parametrization": result.options.discrepancy_parametrization,
-            "saturated": round(saturated_share(result.idata, MAX_TREEDEPTH), 4),
+            "saturated": round(d.treedepth_hits / d.draws, 4),  # at the depth the fit ran at
             "mean_steps": round(float(np.mean(stats["n_steps"])), 1),
             "divergences": d.divergences, "draws": d.draws, "max_rhat": round(d.max_rhat, 3),
             "min_ess_bulk": round(d.min_ess_bulk)}
-
-
-def differences(analysis) -> dict[str, dict]:
-    """Each candidate's ELPD difference to the baseline, its se and scheme."""
-    return {c["name"]: {"elpd_diff": round(c["elpd_diff"], 2), "se": round(c["elpd_diff_se"], 2),
-                        "scheme": c["scheme"], "refits": c["refits"]} for c in analysis.to_json()["candidates"]}
 
 
 def gap_figures(gap, baseline_s: float, gap_s: float) -> dict:
@@ -113,12 +109,7 @@ def main() -> None:
     print(json.dumps(figures, indent=1), flush=True)
     print_targets(figures)
     if args.kfold:
-        reference = diagnose_gap(problem.data, problem.candidates, simulator=problem.simulator, seed=args.seed,
-                                 kfold=args.kfold, warm_refits=False, warm_candidates=False, **sampling)
-        kfold = differences(reference)
-        figures["kfold"] = {"folds": args.kfold, "candidates": kfold}
-        figures["distance_in_se"] = {name: round(abs(c["elpd_diff"] - kfold[name]["elpd_diff"]) / kfold[name]["se"], 2)
-                                     for name, c in figures["candidates"].items() if name in kfold}
+        kfold_reference(problem, figures, args.kfold, args.seed, **sampling)
         print(json.dumps(figures["kfold"], indent=1), flush=True)
         print_targets(figures)
     if args.json:

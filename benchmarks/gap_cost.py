@@ -63,6 +63,17 @@ def differences(analysis) -> dict[str, dict]:
                         "scheme": c["scheme"], "refits": c["refits"]} for c in summary["candidates"]}
 
 
+def kfold_reference(problem, figures: dict, folds: int, seed: int, **options) -> None:
+    """The same diagnosis by K-fold cross-validation from scratch, and each
+    candidate's distance from it in K-fold's se, added to ``figures``."""
+    reference = diagnose_gap(problem.data, problem.candidates, simulator=problem.simulator, seed=seed,
+                             kfold=folds, warm_refits=False, warm_candidates=False, **options)
+    kfold = differences(reference)
+    figures["kfold"] = {"folds": folds, "candidates": kfold}
+    figures["distance_in_se"] = {name: round(abs(c["elpd_diff"] - kfold[name]["elpd_diff"]) / kfold[name]["se"], 2)
+                                 for name, c in figures["candidates"].items() if name in kfold}
+
+
 def refit_lever(problem, model: dict, sampling: dict, args: argparse.Namespace) -> dict:
     """Lever 1 alone: the baseline's 5-fold refits, cold and warm-started
     alternated (so that both see the same load), their wall times and their
@@ -124,14 +135,7 @@ def main() -> None:
                    "candidates": differences(gap)}
         print(json.dumps(figures, indent=1), flush=True)
         if args.kfold:
-            reference = diagnose_gap(problem.data, problem.candidates, simulator=problem.simulator,
-                                     seed=args.seed, kfold=args.kfold, warm_refits=False, warm_candidates=False,
-                                     **model, **sampling)
-            kfold = differences(reference)
-            figures["kfold"] = {"folds": args.kfold, "candidates": kfold}
-            figures["distance_in_se"] = {name: round(abs(c["elpd_diff"] - kfold[name]["elpd_diff"])
-                                                     / kfold[name]["se"], 2)
-                                         for name, c in figures["candidates"].items() if name in kfold}
+            kfold_reference(problem, figures, args.kfold, args.seed, **model, **sampling)
             print(json.dumps({k: figures[k] for k in ("kfold", "distance_in_se")}, indent=1), flush=True)
     if args.json:
         args.json.write_text(json.dumps(figures, indent=1))

@@ -9,7 +9,6 @@ naive fits. Cheap simulators only; about a second a fit once compiled.
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import sys
 import warnings
 from pathlib import Path
@@ -20,16 +19,17 @@ import pandas as pd
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+sys.path.insert(0, str(ROOT / "tests"))
+
+from conftest import case_study_module  # noqa: E402
+
 import stancal  # noqa: E402
 
 STUDIES = ROOT / "case_studies"
 
 
 def case_study(name: str):
-    spec = importlib.util.spec_from_file_location(f"{name}_make_data", STUDIES / name / "make_data.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return case_study_module(STUDIES / name)
 
 
 def fit(data, **options):

@@ -42,6 +42,7 @@ from test_latent import BEAM, CENSORED, COUNTS, beam_data, censored_data, exact_
 import stancal  # noqa: E402
 from stancal.diagnosing.sbc import simulation_based_calibration  # noqa: E402
 from stancal.problem.config import load_config  # noqa: E402
+from stancal.problem.data import bounds_of  # noqa: E402
 
 SIMULATOR = COOLING / "simulator.stan"
 
@@ -63,7 +64,8 @@ def noise_design(**columns) -> stancal.CalibrationData:
     base = cooling_data(seed=7)
     physical = base.source.assign(instrument=np.where(np.arange(len(base.source)) % 2, "camera", "probe"),
                                   sd=np.linspace(0.1, 1.0, len(base.source)))
-    return stancal.CalibrationData(physical, base.inputs, base.output, {"k": (0.01, 0.2)}, runs=base.runs, **columns)
+    return stancal.CalibrationData(physical, base.inputs, base.output, bounds_of(base.parameters), runs=base.runs,
+                                   **columns)
 
 
 DESIGNS = {"counts": lambda: exact_counts("poisson", seed=1), "binomial": binomial_design,
@@ -92,16 +94,15 @@ NOISE = {
     "koh_emulator_known_sd": ("known_sd", {"method": "koh_emulator", "discrepancy": "gp"}),
 }
 FIDELITY = {"modular_multifidelity": ("cooling_fidelity", {"method": "modular", "discrepancy": "none"})}
-DESIGNED = LATENT | NOISE | FIDELITY  # families on a design of their own; the rest run on "cooling"
+# every family: its design, then its calibrate() options
 FAMILIES = {
-    "koh": {"simulator": SIMULATOR, "method": "koh", "discrepancy": "gp"},
-    "koh_none": {"simulator": SIMULATOR, "method": "koh", "discrepancy": "none"},
-    "koh_orthogonal": {"simulator": SIMULATOR, "method": "koh", "discrepancy": "orthogonal"},
-    "koh_scaled": {"simulator": SIMULATOR, "method": "koh", "discrepancy": "scaled"},
-    "modular": {"method": "modular", "discrepancy": "gp"},
-    "koh_emulator": {"method": "koh_emulator", "discrepancy": "gp"},
-    **{name: options for name, (_, options) in DESIGNED.items()},
-}
+    "koh": ("cooling", {"simulator": SIMULATOR, "method": "koh", "discrepancy": "gp"}),
+    "koh_none": ("cooling", {"simulator": SIMULATOR, "method": "koh", "discrepancy": "none"}),
+    "koh_orthogonal": ("cooling", {"simulator": SIMULATOR, "method": "koh", "discrepancy": "orthogonal"}),
+    "koh_scaled": ("cooling", {"simulator": SIMULATOR, "method": "koh", "discrepancy": "scaled"}),
+    "modular": ("cooling", {"method": "modular", "discrepancy": "gp"}),
+    "koh_emulator": ("cooling", {"method": "koh_emulator", "discrepancy": "gp"}),
+} | LATENT | NOISE | FIDELITY
 
 
 def main() -> None:
@@ -117,10 +118,9 @@ def main() -> None:
         started = time.perf_counter()
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            data = DESIGNS[DESIGNED[family][0] if family in DESIGNED else "cooling"]()
-            result = simulation_based_calibration(data, simulations=args.sims, scheduler=args.scheduler,
-                                                  draws_per_fit=args.draws_per_fit, seed=1, warmup=300,
-                                                  **FAMILIES[family])
+            design, options = FAMILIES[family]
+            result = simulation_based_calibration(DESIGNS[design](), simulations=args.sims, scheduler=args.scheduler,
+                                                  draws_per_fit=args.draws_per_fit, seed=1, warmup=300, **options)
         rows[family] = {"simulations": args.sims, "draws_per_fit": args.draws_per_fit,
                         "p_values": {n: t.p_value for n, t in result.tests.items()},
                         "rejected": [n for n, t in result.tests.items() if t.rejected],

@@ -5,7 +5,6 @@ Python API with the joint emulator) and shield build-up (Poisson counts; the
 real effect is a multiplicative variant; decoys include a nearly constant
 air pressure)."""
 
-
 import numpy as np
 import pandas as pd
 import pytest

@@ -10,10 +10,9 @@ import numpy as np
 import pandas as pd
 import pytest
 from conftest import ROOT, assert_healthy, fit
+from test_parametrization import choose
 
 import stancal
-from stancal.numerics.parametrization import choose_parametrization
-from stancal.problem.codes import Kernel
 
 SIMULATOR = ROOT / "case_studies" / "detector_counts" / "simulator.stan"
 MU_TRUE = 0.35
@@ -31,22 +30,24 @@ def detector_counts(d: np.ndarray, s: np.ndarray, scale: float, seed: int = 0) -
 
 def separate_counts() -> stancal.CalibrationData:
     """9 counts of 390 to 91,000 on a 3 x 3 grid: far apart against the GP's
-    length scale, and each pinned by its count (the rule: centred)."""
+    length scale, and each pinned by its count (the rule: centred where the
+    program has no partial form; koh_latent: partial)."""
     d, s = np.meshgrid([0.5, 1.75, 3.0], [0.0, 2.5, 5.0])
     return detector_counts(d.ravel(), s.ravel(), scale=10)
 
 
 def close_counts() -> stancal.CalibrationData:
     """30 counts of 90 to 9,000 on a 10 x 3 grid: as large, but close together,
-    so the GP ties each to its neighbours (the rule: non-centred)."""
+    so the GP ties each to its neighbours (the rule: non-centred where the
+    program has no partial form; koh_latent: partial)."""
     d, s = np.meshgrid(np.linspace(0.5, 3.0, 10), [0.0, 1.0, 2.5])
     return detector_counts(d.ravel(), s.ravel(), scale=1)
 
 
 def steps(result) -> tuple[float, float]:
-    """(share of transitions at the maximum tree depth 10, mean leapfrog steps)."""
-    stats = result.idata["sample_stats"]
-    return float(np.mean(np.asarray(stats["tree_depth"]) >= 10)), float(np.mean(stats["n_steps"]))
+    """(share of transitions at the maximum tree depth, mean leapfrog steps)."""
+    d = result.diagnostics
+    return d.treedepth_hits / d.draws, float(np.mean(result.idata["sample_stats"]["n_steps"]))
 
 
 def test_counts_on_a_grid_are_sampled_partially_non_centred():
@@ -75,10 +76,9 @@ def test_the_chosen_parametrization_saves_tree_depth():
     and R-hat 1.02, for mu trades with a discrepancy over 9 points.)"""
     for data, chosen, other in ((separate_counts(), "centred", "non_centred"),
                                 (close_counts(), "non_centred", "centred")):
-        # the rule where a program offers no partial form (koh_latent_emulator); koh_latent would choose
-        # partial for both (the test above)
-        x_delta = data.scaling.to_unit(data.physical, data.discrepancy_inputs)
-        assert choose_parametrization(data.observations, x_delta, 2, int(Kernel.SE)).parametrization == chosen
+        # the rule where a program offers no partial form (koh_latent_emulator); koh_latent chooses partial
+        # (test_parametrization.py::test_where_the_program_offers_it_large_counts_are_partially_non_centred)
+        assert choose(data).parametrization == chosen
         best = fit(data, simulator=SIMULATOR, seed=1, discrepancy_parametrization=chosen, **SHORT)
         worse = fit(data, simulator=SIMULATOR, seed=1, discrepancy_parametrization=other, **SHORT)
         (best_share, best_steps), (worse_share, worse_steps) = steps(best), steps(worse)

@@ -19,7 +19,8 @@ SEPIA_SD_OVER_PRIOR = np.array([0.083, 0.12])
 
 
 def _problem():
-    """The shipped case study, with the basis the default rule keeps (not the config's 3 components)."""
+    """The shipped case study, with the basis the default rule keeps (not the config's `components = 3`;
+    the rule also keeps 3)."""
     from stancal.problem.vector_data import VectorCalibrationData
 
     physical, runs = pd.read_csv(NEDDERMEYER / "physical.csv"), pd.read_csv(NEDDERMEYER / "runs.csv")

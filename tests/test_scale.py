@@ -4,14 +4,13 @@ switch, and agreement with the exact programs on problems both can fit."""
 
 from __future__ import annotations
 
-import importlib.util
 import re
 import warnings
 
 import numpy as np
 import pandas as pd
 import pytest
-from conftest import ROOT, assert_healthy, assert_healthy_summary, fit, no_stancal_warnings
+from conftest import ROOT, assert_healthy, assert_healthy_summary, case_study_module, fit, no_stancal_warnings
 from scipy import optimize
 
 import stancal
@@ -24,10 +23,7 @@ from stancal.stan.backends import get_backend
 from stancal.stan.standata import build_emulator_data, emulator_run_data, to_stan_json
 
 SENSOR = ROOT / "case_studies" / "sensor_log"
-# the case study's own physics (conftest holds another make_data module)
-_spec = importlib.util.spec_from_file_location("sensor_make_data", SENSOR / "make_data.py")
-sensor_physics = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(sensor_physics)
+sensor_physics = case_study_module(SENSOR)  # the case study's own physics
 newton = sensor_physics.newton
 
 THETA = {"k": (0.01, 0.1), "Ta": (15.0, 25.0)}

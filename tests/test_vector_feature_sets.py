@@ -18,8 +18,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from conftest import ROOT
 from scipy import optimize
-from test_vector_outputs import _log_density, long_experiments, long_runs
+from test_vector_outputs import log_density_reference, long_experiments, long_runs
 
 from stancal.problem.output_basis import OutputBasis
 from stancal.problem.vector_data import VectorCalibrationData
@@ -103,7 +104,7 @@ def test_experiments_share_a_jitter_only_at_one_emulator_point():
 
 def test_modular_vector_stan_density_is_the_numpy_one_with_no_inputs(emulated):
     """modular_vector.stan's log density at several theta, against the numpy
-    reference (_log_density: per-value independent error, the nugget shared
+    reference (log_density_reference: per-value independent error, the nugget shared
     by experiments at one point), up to a constant, to 1e-8: the program
     and the Python emulator are one model."""
     from stancal.fitting.plan import plan_vector
@@ -121,7 +122,7 @@ def test_modular_vector_stan_density_is_the_numpy_one_with_no_inputs(emulated):
     _, log_density = get_backend().log_density_functions(plan.main_program(), to_stan_json(stan_data))
     theta = np.random.default_rng(4).uniform(0.05, 0.95, size=(5, 3))
     stan = log_density(np.log(theta / (1 - theta))) - np.log(theta * (1 - theta)).sum(axis=1)  # no Jacobian
-    reference = np.array([_log_density(stan_data, emulator, t) for t in theta])
+    reference = np.array([log_density_reference(stan_data, emulator, t) for t in theta])
     np.testing.assert_allclose(np.diff(stan), np.diff(reference), rtol=1e-8, atol=1e-8)
 
 
@@ -145,7 +146,6 @@ def test_al5083s_modular_density_has_no_optimum_in_the_boxs_corners():
     the 11 coordinates on a bound, 14 to 24 below the best optimum; with it,
     every optimum has at most 2 coordinates on a bound and lies within 5 of
     the best (measured: at most 1, within 2.2)."""
-    from conftest import ROOT
 
     from stancal.fitting.stage_one import fit_vector_emulator
     from stancal.fitting.vector_calibrate import prediction_rows
@@ -156,7 +156,7 @@ def test_al5083s_modular_density_has_no_optimum_in_the_boxs_corners():
     data = load_config(ROOT / "case_studies" / "al5083" / "config.toml").data
     emulator = fit_vector_emulator(data, seed=1)
     stan_data = modular_vector_data(data, VectorOptions("none", "known"), emulator, prediction_rows(data))
-    found = optima(lambda u: _log_density(stan_data, emulator, u), 11, starts=12, seed=0)
+    found = optima(lambda u: log_density_reference(stan_data, emulator, u), 11, starts=12, seed=0)
     assert found[:, 1].max() <= 2, found
     assert found[:, 0].max() - found[:, 0].min() <= 5, found
 
@@ -164,7 +164,6 @@ def test_al5083s_modular_density_has_no_optimum_in_the_boxs_corners():
 def test_a_feature_set_config_keeps_every_value_on_the_grid():
     """Al-5083's values all sit at features 1-12, the runs' grid: no
     interpolation error reaches its likelihood."""
-    from conftest import ROOT
 
     from stancal.problem.config import load_config
 

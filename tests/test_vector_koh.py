@@ -3,13 +3,12 @@ gap diagnosis of a vector output: the issue's proofs 1 (koh) and 2."""
 
 from __future__ import annotations
 
-import importlib.util
 import json
 
 import numpy as np
 import pandas as pd
 import pytest
-from conftest import ROOT, assert_gap_summary_healthy, assert_healthy
+from conftest import ROOT, assert_gap_summary_healthy, assert_healthy, case_study_module
 from test_vector_outputs import long_experiments
 
 from stancal.problem.vector_data import VectorCalibrationData
@@ -147,10 +146,7 @@ def test_vector_gap_finds_the_withheld_draught(wind_gap):
     """Proof 2: the forced-convection variant ranks first with shrinkage
     above 0.5; the decoys (humidity, probe depth) stay below 0.2; k's error
     shrinks once the draught is modelled (truth 0.045)."""
-    spec = importlib.util.spec_from_file_location("cooling_wind_data", WIND / "make_data.py")
-    truth = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(truth)  # the case study's own truth
-    K_TRUE = truth.K_TRUE
+    K_TRUE = case_study_module(WIND).K_TRUE  # the case study's own truth
 
     gap, out = wind_gap
     assert_wind_gap_healthy(gap)

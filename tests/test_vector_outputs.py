@@ -244,7 +244,7 @@ def test_component_emulator_predicts_held_out_curves_within_its_bands():
 
 # ---- modular_vector.stan against a quadrature of the same posterior ---------
 
-def _log_density(stan_data: dict, emulator, theta_unit: np.ndarray) -> float:
+def log_density_reference(stan_data: dict, emulator, theta_unit: np.ndarray) -> float:
     """modular_vector.stan's log likelihood (no discrepancy, known noise) at
     one shared theta, in numpy: the reference the sampler is checked against."""
     points = np.column_stack([np.asarray(stan_data["x"]), np.tile(theta_unit, (stan_data["E"], 1))])
@@ -265,7 +265,7 @@ def _log_density(stan_data: dict, emulator, theta_unit: np.ndarray) -> float:
 def _grid_moments(stan_data, emulator, centre, half_width, points=61):
     axes = [np.clip(np.linspace(c - h, c + h, points), 0, 1) for c, h in zip(centre, half_width, strict=False)]
     grid = np.array(np.meshgrid(*axes, indexing="ij")).reshape(2, -1).T
-    log_p = np.array([_log_density(stan_data, emulator, theta) for theta in grid])
+    log_p = np.array([log_density_reference(stan_data, emulator, theta) for theta in grid])
     weight = np.exp(log_p - log_p.max())
     weight /= weight.sum()
     mean = weight @ grid
@@ -277,14 +277,32 @@ def vector_problem():
     return vector_data(runs=long_runs(40, 2))
 
 
-def test_modular_vector_posterior_matches_quadrature(vector_problem):
+@pytest.fixture(scope="session")
+def vector_reference(vector_problem):
+    """The modular density of vector_problem with stage 1 at seed 3 (the
+    fits' below), and theta's posterior mean and sd on the unit box by grid
+    quadrature in numpy: a coarse grid over the box, then finer ones about
+    the mode."""
+    from stancal.fitting.stage_one import fit_vector_emulator
+    from stancal.fitting.vector_calibrate import prediction_rows
+    from stancal.problem.options import VectorOptions
+    from stancal.stan.vector_standata import modular_vector_data
+
+    emulator = fit_vector_emulator(vector_problem, seed=3)
+    stan_data = modular_vector_data(vector_problem, VectorOptions("none", "known"), emulator,
+                                    prediction_rows(vector_problem))
+    best, _, _ = _grid_moments(stan_data, emulator, [0.5, 0.5], [0.5, 0.5], points=41)
+    _, mean, sd = _grid_moments(stan_data, emulator, best, [0.05, 0.05], points=41)
+    _, mean, sd = _grid_moments(stan_data, emulator, mean, 6 * sd)
+    return emulator, mean, sd
+
+
+def test_modular_vector_posterior_matches_quadrature(vector_problem, vector_reference):
     """Ragged experiments, known noise, no discrepancy: theta's posterior
     mean within 0.15 sd and its sd within 10 % of a grid quadrature of the
     same density, computed in numpy (coarse grid over the box, then finer
     ones about the mode); R-hat <= 1.01."""
-    from stancal.fitting.vector_calibrate import calibrate_vector, prediction_rows
-    from stancal.problem.options import VectorOptions
-    from stancal.stan.vector_standata import modular_vector_data
+    from stancal.fitting.vector_calibrate import calibrate_vector
 
     data = vector_problem
     # one chain of the four sits in a second theta mode of weight 0.000 (said by the mode check, a
@@ -292,11 +310,8 @@ def test_modular_vector_posterior_matches_quadrature(vector_problem):
     with no_stancal_warnings(allow="separate theta modes"):
         result = calibrate_vector(data, discrepancy="none", chains=4, warmup=1000, draws=1000, seed=3)
     assert_healthy(result)
-    emulator = result.emulator  # stage 1, fixed in the fit
-    stan_data = modular_vector_data(data, VectorOptions("none", "known"), emulator, prediction_rows(data))
-    best, _, _ = _grid_moments(stan_data, emulator, [0.5, 0.5], [0.5, 0.5], points=41)
-    _, mean, sd = _grid_moments(stan_data, emulator, best, [0.05, 0.05], points=41)
-    _, mean, sd = _grid_moments(stan_data, emulator, mean, 6 * sd)
+    emulator, mean, sd = vector_reference  # stage 1 at the fit's seed: the emulator fixed in the fit
+    np.testing.assert_array_equal(result.emulator.components[0].alpha, emulator.components[0].alpha)
     summary = result.theta_summary()
     print({p.name: (summary[p.name]["mean"], summary[p.name]["sd"], p.lower + (p.upper - p.lower) * mean[q],
                     (p.upper - p.lower) * sd[q]) for q, p in enumerate(data.parameters)}, result.modes)
@@ -402,16 +417,15 @@ def test_the_posterior_keeps_one_noise_sd_or_one_per_experiment():
 
 
 @pytest.mark.slow
-def test_joint_vector_emulator_agrees_with_the_quadrature_when_the_runs_pin_it_down(vector_problem):
+def test_joint_vector_emulator_agrees_with_the_quadrature_when_the_runs_pin_it_down(vector_problem,
+                                                                                     vector_reference):
     """koh_emulator for a vector output samples the weight GPs'
     hyperparameters with theta. With 40 runs of a smooth simulator the
     emulator is nearly exact, so theta's posterior must agree with the
     quadrature of the modular density (stage 1 fixed): means within 0.25 sd,
     sds within 20 %; R-hat <= 1.01, and the hyperparameters are in the
     posterior."""
-    from stancal.fitting.vector_calibrate import calibrate_vector, prediction_rows
-    from stancal.problem.options import VectorOptions
-    from stancal.stan.vector_standata import modular_vector_data
+    from stancal.fitting.vector_calibrate import calibrate_vector
 
     # The default basis (4 components). Its chains start at the modular density's mode (joint_start): spread
     # over the theta box, as before issue 31, two of four stayed in modes of weight 0.000 where the data bend
@@ -425,11 +439,7 @@ def test_joint_vector_emulator_agrees_with_the_quadrature_when_the_runs_pin_it_d
     assert result.method == "koh_emulator_vector"
     assert_healthy(result)
     assert result.idata["posterior"]["weight_gp_length_scale"].dims[2:] == ("component", "emulator_input")
-    emulator = result.emulator  # stage 1, where the joint fit started
-    stan_data = modular_vector_data(data, VectorOptions("none", "known"), emulator, prediction_rows(data))
-    best, _, _ = _grid_moments(stan_data, emulator, [0.5, 0.5], [0.5, 0.5], points=41)
-    _, mean, sd = _grid_moments(stan_data, emulator, best, [0.05, 0.05], points=41)
-    _, mean, sd = _grid_moments(stan_data, emulator, mean, 6 * sd)
+    _, mean, sd = vector_reference  # stage 1 at the fit's seed, where the joint fit started
     summary = result.theta_summary()
     for q, p in enumerate(data.parameters):
         width = p.upper - p.lower
@@ -439,7 +449,7 @@ def test_joint_vector_emulator_agrees_with_the_quadrature_when_the_runs_pin_it_d
         assert abs(summary[p.name]["sd"] / reference_sd - 1) <= 0.20, (p.name, summary[p.name])
 
 
-def test_the_joint_vector_fit_starts_at_the_modular_mode(vector_problem):
+def test_the_joint_vector_fit_starts_at_the_modular_mode(vector_problem, vector_reference):
     """koh_emulator's chains start theta at the mode of the modular density
     (joint_start: the same program, the weight GPs at stage 1), found by
     L-BFGS: within 0.5 sd of the quadrature's posterior mean of that density
@@ -447,19 +457,15 @@ def test_the_joint_vector_fit_starts_at_the_modular_mode(vector_problem):
     normal at 40 runs). Chains spread over the box fell into modes of the
     joint posterior where the data bend the emulator (docs/vector.md)."""
     from stancal.fitting.plan import plan_vector
-    from stancal.fitting.stage_one import fit_vector_emulator
     from stancal.fitting.vector_calibrate import joint_start, prediction_rows
     from stancal.problem.options import VectorOptions
     from stancal.stan.backends import get_backend
-    from stancal.stan.vector_standata import build_vector_stan_data, modular_vector_data
+    from stancal.stan.vector_standata import build_vector_stan_data
 
     data, options = vector_problem, VectorOptions("none", "known")
     plan = plan_vector(data, None, "koh_emulator", options)
-    emulator = fit_vector_emulator(data, seed=3)
+    emulator, mean, sd = vector_reference
     stan_data = build_vector_stan_data(data, plan.program.data, options, prediction_rows(data), emulator)
     assert stan_data["joint"] == 1
     start = joint_start(get_backend(None), plan.main_program(), stan_data, seed=3)
-    reference = modular_vector_data(data, options, emulator, prediction_rows(data))
-    best, _, _ = _grid_moments(reference, emulator, [0.5, 0.5], [0.5, 0.5], points=41)
-    _, mean, sd = _grid_moments(reference, emulator, best, [0.05, 0.05], points=41)
     assert np.all(np.abs(np.asarray(start["theta_unit"]) - mean) <= 0.5 * sd), (start, mean, sd)

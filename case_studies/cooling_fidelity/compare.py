@@ -20,19 +20,21 @@ import stancal  # noqa: E402
 from stancal.fitting.stage_one import fidelity_levels  # noqa: E402
 from stancal.numerics import multifidelity as mf  # noqa: E402
 from stancal.problem.config import load_config  # noqa: E402
+from stancal.problem.data import bounds_of  # noqa: E402
 
 HERE = Path(__file__).parent
 sys.path.insert(0, str(HERE))
-from make_data import K_BOUNDS, K_TRUE, design, with_loss  # noqa: E402
+from make_data import K_TRUE, design, with_loss  # noqa: E402
 
+MULTI_FIDELITY = "150 cheap + 15 expensive runs (multi-fidelity)"
 SAMPLING = {"chains": 4, "warmup": 500, "draws": 1000, "seed": 7}
 
 
 def fits(data: stancal.CalibrationData) -> dict[str, stancal.CalibrationResult]:
-    expensive_only = stancal.CalibrationData(data.source, data.inputs, data.output, {"k": K_BOUNDS},
+    expensive_only = stancal.CalibrationData(data.source, data.inputs, data.output, bounds_of(data.parameters),
                                              runs=data.runs)
     return {
-        "150 cheap + 15 expensive runs (multi-fidelity)": stancal.calibrate(
+        MULTI_FIDELITY: stancal.calibrate(
             data, method="modular", discrepancy="none", **SAMPLING),
         "15 expensive runs alone": stancal.calibrate(expensive_only, method="modular", discrepancy="none",
                                                      **SAMPLING),
@@ -94,7 +96,7 @@ def main(out: Path) -> None:
     data = load_config(HERE / "config.toml").data
     results = fits(data)
     intervals = interval_table(results)
-    holdout = holdout_table(data, next(iter(results.values())))
+    holdout = holdout_table(data, results[MULTI_FIDELITY])
     intervals.to_csv(out / "intervals.csv", index=False)
     holdout.to_csv(out / "holdout.csv", index=False)
     figure(intervals, out / "intervals.png")

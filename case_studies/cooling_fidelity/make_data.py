@@ -26,12 +26,13 @@ T_RANGE, T0_RANGE = (0.0, 60.0), (55.0, 95.0)
 
 
 def newton(t, T0, k):
-    """The cheap simulator."""
+    """The cheap simulator (case_studies/cooling's newton)."""
     return AMBIENT + (T0 - AMBIENT) * np.exp(-k * t)
 
 
 def with_loss(t, T0, k, c=C_LOSS):
-    """The expensive simulator: the exact solution of dT/dt = -k (T - Ta) - c (T - Ta)^2."""
+    """The expensive simulator: the exact solution of dT/dt = -k (T - Ta) - c (T - Ta)^2
+    (case_studies/cooling's reality, c fixed)."""
     u0 = T0 - AMBIENT
     decay = np.exp(-k * t)
     return AMBIENT + k * u0 * decay / (k + c * u0 * (1 - decay))

@@ -8,7 +8,9 @@ S exp(-mu s) / d^2 counts per period. A real, broad beam also delivers photons
 scattered in the shield: the counts are multiplied by a build-up factor
 B = 1 + a mu s (the linear form; Shultis & Faw, "Radiation Shielding", ch. 8),
 which the simulator lacks. The air pressure (1016 +- 5 hPa) and the operator
-are recorded and play no part: decoys for the gap diagnosis.
+are recorded and play no part: decoys for the gap diagnosis. This is
+case_studies/shield_buildup's physics and decoys on a larger grid, with the
+source strength S unknown (there a fixed 2,000).
 """
 
 from pathlib import Path

@@ -20,7 +20,7 @@ calibrated; the cheaper ones teach it where their runs are dense.
       cov(f_a(s), f_b(t)) = sum_{j <= min(a, b)} P(j, a) P(j, b) k_j(s, t),
   P(j, a) = rho_{j+1} ... rho_a (P(a, a) = 1). For nested designs without
   noise it equals Le Gratiet & Garnier's recursive formulas
-  (``recursive_predict``, kept as the independent check).
+  (tests/test_multifidelity_numerics.py keeps them as the check).
 - Leave-one-out errors at the top level's runs, with and without the
   cheaper runs (Dubrule 1983: the left-out residual is alpha_i / [K^-1]_ii),
   say whether the cheap runs help.
@@ -35,11 +35,11 @@ import numpy as np
 from scipy import linalg, optimize
 
 from stancal.numerics.scalable_emulator import (
-    JITTER,
     Hyperparameters,
     fit_hyperparameters,
     negative_log_posterior,
-    run_factor,
+    pack,
+    run_nugget_variance,
     se_correlation,
     unpack,
 )
@@ -84,8 +84,7 @@ def joint_covariance(levels: list[Level]) -> np.ndarray:
     blocks = [[level_covariance(levels, levels[a].xt, a, levels[b].xt, b) for b in range(len(levels))]
               for a in range(len(levels))]
     K = np.block(blocks)
-    diagonal = np.concatenate([np.full(len(lv.y), lv.hyperparameters.nugget**2 + JITTER * lv.hyperparameters.sd**2)
-                               for lv in levels])
+    diagonal = np.concatenate([np.full(len(lv.y), run_nugget_variance(lv.hyperparameters)) for lv in levels])
     K[np.diag_indices_from(K)] += diagonal
     return K
 
@@ -102,11 +101,10 @@ def predictive(levels: list[Level], points: np.ndarray, level: int | None = None
     ``points`` given every level's runs (no nugget at the points: the
     simulator is deterministic there)."""
     top = len(levels) - 1 if level is None else level
-    factor = linalg.cho_factor(joint_covariance(levels), lower=True)
-    residual, _ = _stacked(levels)
-    cross = np.hstack([level_covariance(levels, points, top, lv.xt, a) for a, lv in enumerate(levels)])
-    mean = level_mean(levels, top) + cross @ linalg.cho_solve(factor, residual)
-    return mean, level_covariance(levels, points, top, points, top) - cross @ linalg.cho_solve(factor, cross.T)
+    factor, alpha = _conditioned(levels)
+    cross = _cross(levels, points, top)
+    return (level_mean(levels, top) + cross @ alpha,
+            level_covariance(levels, points, top, points, top) - cross @ linalg.cho_solve(factor, cross.T))
 
 
 def predict(levels: list[Level], points: np.ndarray, level: int | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -118,31 +116,21 @@ def predict(levels: list[Level], points: np.ndarray, level: int | None = None) -
 def mean_function(levels: list[Level]) -> Callable[[np.ndarray], np.ndarray]:
     """The top level's co-kriging mean as a function of points, with the
     runs' factorisation done once (for many calls: the L2 projection)."""
-    residual, _ = _stacked(levels)
-    alpha = linalg.cho_solve(linalg.cho_factor(joint_covariance(levels), lower=True), residual)
-    top, mean = len(levels) - 1, level_mean(levels, len(levels) - 1)
-    return lambda points: mean + np.hstack(
-        [level_covariance(levels, points, top, lv.xt, a) for a, lv in enumerate(levels)]) @ alpha
+    _, alpha = _conditioned(levels)
+    top = len(levels) - 1
+    mean = level_mean(levels, top)
+    return lambda points: mean + _cross(levels, points, top) @ alpha
 
 
-def recursive_predict(levels: list[Level], points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Le Gratiet & Garnier (2014), eq. (9)-(10), for nested designs:
-    mu_k = rho_k mu_{k-1} + m_k + k_k' K_k^-1 (y_k - rho_k y_{k-1}(D_k) - m_k),
-    s2_k = rho_k^2 s2_{k-1} + s2_{g_k}; y_{k-1}(D_k) is read from the level
-    below's runs, which must contain level k's."""
-    mean, variance = np.zeros(len(points)), np.zeros(len(points))
-    for k, lv in enumerate(levels):
-        h = lv.hyperparameters
-        matched = matching_runs(lv.xt, levels[k - 1].xt) if k else np.zeros(len(lv.y), int)
-        if (matched < 0).any():
-            raise ValueError(f"recursive_predict needs nested designs: level {k + 1} has runs its level below lacks")
-        below = np.zeros(len(lv.y)) if k == 0 else levels[k - 1].y[matched]
-        factor = run_factor(lv.xt, h)
-        cross = h.sd**2 * se_correlation(points, lv.xt, h.length_scale)
-        own_mean = h.mean + cross @ linalg.cho_solve(factor, lv.y - lv.rho * below - h.mean)
-        own_variance = h.sd**2 - np.einsum("ij,ji->i", cross, linalg.cho_solve(factor, cross.T))
-        mean, variance = lv.rho * mean + own_mean, lv.rho**2 * variance + own_variance
-    return mean, np.maximum(variance, 0.0)
+def _conditioned(levels: list[Level]) -> tuple[tuple[np.ndarray, bool], np.ndarray]:
+    """The Cholesky factor of every run's covariance and K^-1 (y - E y)."""
+    factor = linalg.cho_factor(joint_covariance(levels), lower=True)
+    return factor, linalg.cho_solve(factor, _stacked(levels)[0])
+
+
+def _cross(levels: list[Level], points: np.ndarray, level: int) -> np.ndarray:
+    """cov(f_level(points), every run), cheapest level's runs first."""
+    return np.hstack([level_covariance(levels, points, level, lv.xt, a) for a, lv in enumerate(levels)])
 
 
 def matching_runs(xt: np.ndarray, xt_below: np.ndarray) -> np.ndarray:
@@ -151,11 +139,6 @@ def matching_runs(xt: np.ndarray, xt_below: np.ndarray) -> np.ndarray:
     distance = np.abs(xt[:, None, :] - xt_below[None, :, :]).max(axis=2)
     nearest = distance.argmin(axis=1)
     return np.where(distance[np.arange(len(xt)), nearest] < SAME_RUN, nearest, -1)
-
-
-def _packed(h: Hyperparameters) -> np.ndarray:
-    """scalable_emulator.unpack's inverse: the unconstrained vector of negative_log_posterior."""
-    return np.concatenate([[h.mean, np.log(h.sd)], np.log(h.length_scale), [np.log(max(h.nugget, 1e-8))]])
 
 
 def _objective(v: np.ndarray, xt: np.ndarray, y: np.ndarray, below: np.ndarray) -> tuple[float, np.ndarray]:
@@ -183,9 +166,9 @@ def fit_level(levels: list[Level], xt: np.ndarray, y: np.ndarray, seed: int) -> 
     below = level_below(levels, xt)
     slope = np.polyfit(below, y, 1)[0] if np.ptp(below) > 0 else 1.0
     start, _ = fit_hyperparameters(xt, y - slope * below, seed)
-    found = optimize.minimize(_objective, np.concatenate([[slope], _packed(start)]), args=(xt, y, below),
+    found = optimize.minimize(_objective, np.concatenate([[slope], pack(start)]), args=(xt, y, below),
                               jac=True, method="L-BFGS-B", options={"maxiter": 500})
-    best = found.x if np.isfinite(found.fun) else np.concatenate([[slope], _packed(start)])
+    best = found.x if np.isfinite(found.fun) else np.concatenate([[slope], pack(start)])
     return Level(unpack(best[1:]), float(best[0]), xt, y)
 
 

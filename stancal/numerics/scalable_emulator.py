@@ -81,13 +81,23 @@ def se_correlation(a: np.ndarray, b: np.ndarray, length_scale: np.ndarray) -> np
 def run_covariance(xt: np.ndarray, h: Hyperparameters) -> np.ndarray:
     """emulator_run_cov of functions/gp_kernels.stan (squared exponential)."""
     K = h.sd**2 * se_correlation(xt, xt, h.length_scale)
-    K[np.diag_indices_from(K)] += h.nugget**2 + JITTER * h.sd**2
+    K[np.diag_indices_from(K)] += run_nugget_variance(h)
     return K
+
+
+def run_nugget_variance(h: Hyperparameters) -> float:
+    """What each run adds on the diagonal: its nugget and the jitter (add_jitter)."""
+    return h.nugget**2 + JITTER * h.sd**2
 
 
 def unpack(u: np.ndarray) -> Hyperparameters:
     """Hyperparameters from negative_log_posterior's vector (mean, log sd, log length scales, log nugget)."""
     return Hyperparameters(u[0], math.exp(u[1]), np.exp(u[2:-1]), math.exp(u[-1]))
+
+
+def pack(h: Hyperparameters) -> np.ndarray:
+    """unpack's inverse (a zero nugget kept just above 0, for its log)."""
+    return np.concatenate([[h.mean, np.log(h.sd)], np.log(h.length_scale), [np.log(max(h.nugget, 1e-8))]])
 
 
 def negative_log_posterior(u: np.ndarray, xt: np.ndarray, y: np.ndarray) -> tuple[float, np.ndarray]:
@@ -97,7 +107,7 @@ def negative_log_posterior(u: np.ndarray, xt: np.ndarray, y: np.ndarray) -> tupl
     h = unpack(u)
     correlation = se_correlation(xt, xt, h.length_scale)
     K = h.sd**2 * correlation
-    K[np.diag_indices_from(K)] += h.nugget**2 + JITTER * h.sd**2
+    K[np.diag_indices_from(K)] += run_nugget_variance(h)
     try:
         factor = linalg.cho_factor(K, lower=True)
     except linalg.LinAlgError:

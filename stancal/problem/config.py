@@ -140,9 +140,9 @@ def _check_noise(noise: str, data: CalibrationData) -> None:
         raise ConfigError(f"[model] noise applies to a vector output only as {noise!r} (a [physical] output_index); "
                           f"a scalar output's noise is one of {', '.join(NOISES)}")
     try:
-        check_noise_name(noise)
+        check_noise_name(noise)  # the schema's choices let through only a model not built yet
     except ValueError as err:
-        raise ConfigError(f"[model] {err}") from None
+        raise ConfigError(str(err)) from None
     check_noise(noise, data.noise)  # a DataError naming the key and the column
 
 

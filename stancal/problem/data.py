@@ -396,8 +396,6 @@ class CalibrationData:
 
     def _check_low_fidelity(self, given: Sequence[pd.DataFrame]) -> list[pd.DataFrame]:
         """Cheaper simulators' runs, checked as runs are; they need the calibrated simulator's runs."""
-        if given is None or isinstance(given, pd.DataFrame):
-            given = [] if given is None else [given]
         if given and self.runs is None:
             raise DataError("low-fidelity runs need the runs of the simulator being calibrated (runs = ...): "
                             "the cheaper runs inform its emulator")
