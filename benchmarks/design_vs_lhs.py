@@ -34,28 +34,32 @@ ROOT = Path(__file__).resolve().parents[1]
 CASE = ROOT / "case_studies" / "design_loop"
 sys.path[:0] = [str(ROOT), str(CASE)]
 
-from make_data import INITIAL_RUNS, NOISE_SD, initial_runs, physical  # noqa: E402
+from make_data import INITIAL_RUNS, initial_runs, physical  # noqa: E402
 from simulator import THETA, TRUTH, fin_temperature  # noqa: E402
 
 import stancal  # noqa: E402
-from stancal.designing.emulators import ScalarEmulator  # noqa: E402
-from stancal.designing.targets import DesignSettings, UnitBox  # noqa: E402
+from stancal.designing.targets import DesignSettings, UnitBox, run_table  # noqa: E402
+from stancal.designing.waves import fit_emulator  # noqa: E402
+from stancal.problem.config import load_config  # noqa: E402
 
 WAVES, RUNS_PER_WAVE, STOP_SHRINK = 6, 20, 0.9
-SETTINGS = DesignSettings(noise_sd=NOISE_SD, discrepancy_sd=1.0)  # as the case study's config
+CONFIG = load_config(CASE / "config.toml")  # the case study's problem: its inputs, theta bounds and [design]
+SETTINGS = DesignSettings(**CONFIG.design)
 ACTIVE = ("h", "k", "T_a", "eta")
 
 
 def data_with(table: pd.DataFrame, runs: pd.DataFrame) -> stancal.CalibrationData:
-    return stancal.CalibrationData(table, ["x", "T_b"], "T", THETA, runs=runs)
+    """The case study's problem on other measurements and runs."""
+    bounds = {p.name: (p.lower, p.upper) for p in CONFIG.data.parameters}
+    return stancal.CalibrationData(table, CONFIG.data.inputs, CONFIG.data.output, bounds, runs=runs)
 
 
 def emulator_error(data: stancal.CalibrationData, seed: int) -> dict:
     """The emulator of all the runs at the measured inputs and the true theta."""
     box = UnitBox.of(data)
-    emulator = ScalarEmulator.fit(box.to_unit(data.runs), data.runs["T"].to_numpy(), seed)
-    truth = data.physical[["x", "T_b"]].assign(**TRUTH)
-    mean, variance = emulator.at(box.inputs_to_unit(truth), box.to_unit(truth)[:1, 2:])
+    emulator = fit_emulator(data, *run_table(data, box), seed)
+    truth = data.physical[box.inputs].assign(**TRUTH)
+    mean, variance = emulator.at(box.inputs_to_unit(truth), box.theta_to_unit([[TRUTH[n] for n in box.nroy_names]]))
     error = mean[0] - fin_temperature(truth)
     return {"rms_error": float(np.sqrt(np.mean(error**2))), "mean_sd": float(np.sqrt(variance[0]).mean())}
 

@@ -82,6 +82,63 @@ def exact_cooling_data() -> stancal.CalibrationData:
     return cooling_data(seed=7)
 
 
+# ---- the design loop's toy problem (test_design_*.py, test_emulator_checks.py) ----------------------------------
+TOY_TRUTH = {"a": 0.6, "b": -0.4}
+TOY_BOUNDS = {"a": (0.0, 1.0), "b": (-1.0, 1.0)}
+
+
+def toy_simulator(frame: pd.DataFrame) -> np.ndarray:
+    """A cheap stand-in for an expensive simulator: f(x; a, b) = a sin(3x) + b x."""
+    return (frame["a"] * np.sin(3 * frame["x"]) + frame["b"] * frame["x"]).to_numpy()
+
+
+def toy_data(runs: int = 30, seed: int = 1, noise: float = 0.02) -> stancal.CalibrationData:
+    from scipy.stats import qmc
+
+    x = np.linspace(0, 1, 8)
+    physical = pd.DataFrame({"x": x})
+    physical["y"] = toy_simulator(physical.assign(**TOY_TRUTH)) + np.random.default_rng(seed).normal(0, noise, len(x))
+    unit = qmc.LatinHypercube(d=3, seed=seed).random(runs)
+    table = pd.DataFrame(qmc.scale(unit, [0, 0, -1], [1, 1, 1]), columns=["x", "a", "b"])
+    table.loc[:1, "x"] = [0.0, 1.0]  # the runs span the physical inputs: no point needs extrapolation
+    table["y"] = toy_simulator(table)
+    return stancal.CalibrationData(physical, ["x"], "y", TOY_BOUNDS, runs=table)
+
+
+# Read by several files and by no test changed (history_match's and run_waves' results are only read). Not in
+# SESSION_FITS / WORKER_GROUPS: at about a second each, building them once per xdist worker is cheaper than
+# tying the four design files to one worker.
+@pytest.fixture(scope="session")
+def toy_match():
+    """history_match(toy_data(), seed=2): one wave on 30 runs."""
+    return stancal.history_match(toy_data(), seed=2)
+
+
+@pytest.fixture(scope="session")
+def toy_two_waves():
+    """Two waves of 30 runs after 12: wave 1's proposals lie inside its NROY, so wave 2 has the 10 per
+    dimension of (x, a, b) it needs to refocus."""
+    return stancal.run_waves(toy_data(runs=12), simulator=toy_simulator, waves=2, runs_per_wave=30, seed=1)
+
+
+def direct_theta_trace(cut, theta: np.ndarray, x: np.ndarray, length: float | None = None, step: float = 1e-3) -> float:
+    """The experiments criterion computed directly (stancal.designing.experiments): the mean over ``theta``
+    (unit cube) of trace((12 I + G' V^-1 G)^-1), G by central differences at every value of ``x`` (old and
+    new), V the discrepancy's covariance plus the emulator's variance (mean over ``theta``) and the noise."""
+    from stancal.designing.experiments import DISCREPANCY_LENGTH, discrepancy_covariance
+
+    Q = theta.shape[1]
+    variance = np.mean([cut.emulator.at(x, t[None])[1][0] for t in theta], axis=0)
+    V = discrepancy_covariance(cut, x, x, DISCREPANCY_LENGTH if length is None else length) + np.diag(variance + cut.targets.noise_variance.mean())
+    traces = []
+    for t in theta:
+        up, down = (np.clip(t + step * e, 0, 1) for e in (np.eye(Q), -np.eye(Q)))
+        gradient = np.column_stack([(cut.emulator.at(x, up[q][None])[0] - cut.emulator.at(x, down[q][None])[0])[0]
+                                    / (up[q] - down[q])[q] for q in range(Q)])
+        traces.append(np.trace(np.linalg.inv(12 * np.eye(Q) + gradient.T @ np.linalg.solve(V, gradient))))
+    return float(np.mean(traces))
+
+
 def case_study_module(folder: Path, name: str = "make_data"):
     """A case study's module (make_data.py, reference.py, ...), loaded by
     path under ``<folder>_<name>`` (each case study has its own make_data),

@@ -12,8 +12,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-from conftest import case_study_module
-from scipy.stats import qmc
+from conftest import TOY_TRUTH, case_study_module, direct_theta_trace, toy_data
+from conftest import toy_simulator as simulator
 
 import stancal
 from stancal.designing.emulators import BasisEmulator, GaussianProcess, ScalarEmulator
@@ -23,24 +23,6 @@ from stancal.designing.targets import DesignSettings, Targets, UnitBox, targets_
 from stancal.numerics.scalable_emulator import Hyperparameters
 
 ROOT_CASES = Path(__file__).resolve().parent.parent / "case_studies"
-TRUTH = {"a": 0.6, "b": -0.4}
-BOUNDS = {"a": (0.0, 1.0), "b": (-1.0, 1.0)}
-
-
-def simulator(frame: pd.DataFrame) -> np.ndarray:
-    """A cheap stand-in for an expensive simulator: f(x; a, b) = a sin(3x) + b x."""
-    return (frame["a"] * np.sin(3 * frame["x"]) + frame["b"] * frame["x"]).to_numpy()
-
-
-def toy_data(runs: int = 30, seed: int = 1, noise: float = 0.02) -> stancal.CalibrationData:
-    x = np.linspace(0, 1, 8)
-    physical = pd.DataFrame({"x": x})
-    physical["y"] = simulator(physical.assign(**TRUTH)) + np.random.default_rng(seed).normal(0, noise, len(x))
-    unit = qmc.LatinHypercube(d=3, seed=seed).random(runs)
-    table = pd.DataFrame(qmc.scale(unit, [0, 0, -1], [1, 1, 1]), columns=["x", "a", "b"])
-    table.loc[:1, "x"] = [0.0, 1.0]  # the runs span the physical inputs: no point needs extrapolation
-    table["y"] = simulator(table)
-    return stancal.CalibrationData(physical, ["x"], "y", BOUNDS, runs=table)
 
 
 # ---- implausibility ------------------------------------------------------------------
@@ -130,9 +112,8 @@ def test_the_vector_emulator_agrees_with_stage_ones():
 
 
 # ---- NROY ----------------------------------------------------------------------------
-def test_the_nroy_fraction_matches_brute_force_on_a_two_parameter_problem():
-    data = toy_data()
-    match = stancal.history_match(data, seed=2)
+def test_the_nroy_fraction_matches_brute_force_on_a_two_parameter_problem(toy_match):
+    match = toy_match
     cut = match.cuts[-1]
     brute = np.mean(np.concatenate([cut(chunk) <= 3.0 for chunk in
                                     np.array_split(np.random.default_rng(5).uniform(size=(200_000, 2)), 20)]))
@@ -164,9 +145,9 @@ def test_an_empty_nroy_says_how_close_any_theta_came():
 
 
 # ---- the next runs -------------------------------------------------------------------
-def test_proposed_runs_lie_inside_nroy_and_the_input_range_away_from_the_runs():
-    data = toy_data()
-    match = stancal.history_match(data, seed=2)
+def test_proposed_runs_lie_inside_nroy_and_the_input_range_away_from_the_runs(toy_match):
+    match = toy_match
+    data = match.data
     design = stancal.propose_runs(match, 12, seed=3)
     runs = design.next_runs
     assert list(runs.columns) == ["x", "a", "b"] and len(runs) == 12
@@ -185,21 +166,20 @@ def test_proposed_runs_lie_inside_nroy_and_the_input_range_away_from_the_runs():
     assert min(spread) > min(random_spread)
 
 
-def test_the_posterior_criterion_removes_the_variance_it_says():
+def test_the_posterior_criterion_removes_the_variance_it_says(toy_match):
     """The first pick's gain equals the drop of the emulator's variance,
     summed over the reference points, when the GP is refitted with that run
     added (any output: a GP's variance does not depend on it)."""
     from stancal.designing.proposals import posterior_runs
 
-    data = toy_data()
-    match = stancal.history_match(data, seed=2)
+    match = toy_match
     draws = match.nroy_frame().iloc[:300]  # stands in for theta's posterior
     design = stancal.propose_runs(match, 4, criterion="posterior", posterior=draws, seed=3)
     assert (match.implausibility(design.next_runs) <= 3.0).all()
     gains = design.notes["variance_reduction"]
     assert gains == sorted(gains, reverse=True)
     emulator = match.cuts[-1].emulator
-    unit_draws = (draws[["a", "b"]].to_numpy() - match.box.low[1:]) / match.box.width[1:]
+    unit_draws = match.box.theta_to_unit(draws[["a", "b"]].to_numpy())
     chosen, gain = posterior_runs(emulator.parts(), unit_draws, match.targets.x_unit, 1, seed=3)
     rng = np.random.default_rng(3)  # the references posterior_runs draws, in its order
     thetas = unit_draws[rng.choice(len(unit_draws), 60, replace=False)]
@@ -213,11 +193,8 @@ def test_the_posterior_criterion_removes_the_variance_it_says():
     assert gain[0] == pytest.approx(emulator.scale**2 * (before - after), rel=1e-3)
 
 
-def test_next_experiments_lower_thetas_variance_as_a_direct_computation_says():
-    from stancal.designing.experiments import discrepancy_covariance
-
-    data = toy_data()
-    match = stancal.history_match(data, seed=2)
+def test_next_experiments_lower_thetas_variance_as_a_direct_computation_says(toy_match):
+    match = toy_match
     settings = stancal.propose_experiments(match, 3, seed=4)
     assert list(settings.columns) == ["x"] and settings["x"].between(0, 1).all()
     trace = settings.attrs["theta_variance_trace"]
@@ -227,25 +204,14 @@ def test_next_experiments_lower_thetas_variance_as_a_direct_computation_says():
     rng = np.random.default_rng(4)
     theta = match.nroy.theta_unit[rng.choice(len(match.nroy.theta_unit), 16, replace=False)]
     x = np.vstack([cut.targets.x_unit, settings[["x"]].to_numpy()[:1]])
-    totals = []
-    for t in theta:
-        steps = np.eye(2) * 1e-3
-        gradient = np.column_stack([(cut.emulator.at(x, np.clip(t + s, 0, 1)[None])[0]
-                                     - cut.emulator.at(x, np.clip(t - s, 0, 1)[None])[0])[0]
-                                    / (np.clip(t + s, 0, 1) - np.clip(t - s, 0, 1))[q] for q, s in enumerate(steps)])
-        totals.append(gradient)
-    variance = np.mean([cut.emulator.at(x, t[None])[1][0] for t in theta], axis=0)
-    V = discrepancy_covariance(cut, x, x) + np.diag(variance + cut.targets.noise_variance.mean())
-    direct = np.mean([np.trace(np.linalg.inv(12 * np.eye(2) + g.T @ np.linalg.solve(V, g))) for g in totals])
-    assert trace[0] == pytest.approx(direct, rel=1e-6)
+    assert trace[0] == pytest.approx(direct_theta_trace(cut, theta, x), rel=1e-6)
 
 
 # ---- waves ---------------------------------------------------------------------------
-def test_run_waves_shrinks_nroy_and_keeps_every_waves_cut():
-    data = toy_data(runs=12)
+def test_run_waves_shrinks_nroy_and_keeps_every_waves_cut(toy_two_waves):
     # 30 runs a wave: wave 1's proposals lie inside its NROY, so wave 2 has the 10 per dimension of (x, a, b)
     # it needs to refocus
-    loop = stancal.run_waves(data, simulator=simulator, waves=2, runs_per_wave=30, seed=1)
+    loop = toy_two_waves
     assert len(loop.designs) == 2 and len(loop.data.runs) == 12 + 2 * 30
     fractions = loop.fractions
     assert fractions[-1] < fractions[0]
@@ -254,14 +220,13 @@ def test_run_waves_shrinks_nroy_and_keeps_every_waves_cut():
     assert last.waves[-1].runs_used < last.waves[-1].runs_total  # refocused on the runs inside NROY
     first_cut = last.cuts[0]
     assert (first_cut(last.nroy.theta_unit) <= first_cut.cutoff).all()  # wave 1's cut still holds
-    truth = pd.DataFrame([TRUTH])
+    truth = pd.DataFrame([TOY_TRUTH])
     assert last.implausibility(truth)[0] <= 3.0  # the truth is not ruled out
 
 
-def test_a_wave_with_no_new_runs_is_redone_not_added():
-    data = toy_data()
-    first = stancal.history_match(data, seed=2)
-    again = stancal.history_match(data, waves=first.waves, seed=2)
+def test_a_wave_with_no_new_runs_is_redone_not_added(toy_match):
+    first = toy_match
+    again = stancal.history_match(first.data, waves=first.waves, seed=2)
     assert [w.number for w in again.waves] == [1]
     assert again.nroy_fraction == pytest.approx(first.nroy_fraction)
 

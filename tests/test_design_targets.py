@@ -8,6 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 import pytest
+from conftest import direct_theta_trace
 from scipy.stats import qmc
 
 import stancal
@@ -264,18 +265,17 @@ def test_the_stage_one_emulator_on_the_design_box_is_the_calibrations():
     assert stage_one_emulator(data, box, {}) is None
 
 
-def test_the_posterior_criterion_uses_the_emulator_of_every_run_not_the_waves_refocused_one():
-    from test_design_loop import simulator, toy_data
-
+def test_the_posterior_criterion_uses_the_emulator_of_every_run_not_the_waves_refocused_one(toy_two_waves):
     # 30 runs proposed inside wave 1's NROY: the 10 per dimension of (x, a, b) that wave 2 needs to refocus
-    loop = stancal.run_waves(toy_data(runs=12), simulator=simulator, waves=2, runs_per_wave=30, seed=1)
+    loop = toy_two_waves
     match = loop.designs[-1].match
     assert match.waves[-1].runs_used < match.waves[-1].runs_total  # the wave's emulator is refocused
     draws = match.nroy_frame().iloc[:300]
     design = stancal.propose_runs(match, 1, criterion="posterior", posterior=draws, seed=3)
     assert design.notes["posterior_emulator"] == "fitted to every run, as stage 1"
     from stancal.designing.proposals import posterior_runs
-    from stancal.designing.waves import fit_emulator, run_table
+    from stancal.designing.targets import run_table
+    from stancal.designing.waves import fit_emulator
 
     xt, outputs = run_table(match.data, match.box)  # the runs of the last wave (loop.data holds its runs too)
     every = fit_emulator(match.data, xt, outputs, 3)
@@ -287,17 +287,14 @@ def test_the_posterior_criterion_uses_the_emulator_of_every_run_not_the_waves_re
 
 
 # ---- the experiments criterion's discrepancy length -----------------------------------
-def test_next_experiments_take_the_discrepancy_length_from_a_fit():
+def test_next_experiments_take_the_discrepancy_length_from_a_fit(toy_match):
     """A fit's posterior median length scale (original units), over the
     inputs' range, replaces the default 0.2; the criterion is then the
     direct computation's with that length."""
     import xarray as xr
-    from test_design_loop import toy_data
 
-    from stancal.designing.experiments import discrepancy_covariance
-
-    data = toy_data()
-    match = stancal.history_match(data, seed=2)
+    match = toy_match
+    data = match.data
     default = stancal.propose_experiments(match, 1, seed=4)
     assert default.attrs["discrepancy_length"] == [0.2] and "no fit" in default.attrs["discrepancy_length_source"]
     draws = np.random.default_rng(1).lognormal(np.log(0.5), 0.2, size=(2, 50, 1))  # x's range is 1: 0.5 of it
@@ -314,17 +311,8 @@ def test_next_experiments_take_the_discrepancy_length_from_a_fit():
     cut, rng = match.cuts[-1], np.random.default_rng(4)
     theta = match.nroy.theta_unit[rng.choice(len(match.nroy.theta_unit), 16, replace=False)]
     x = np.vstack([cut.targets.x_unit, settings[["x"]].to_numpy()])
-    step = 1e-3
-    traces = []
-    for t in theta:
-        gradient = np.column_stack([
-            (cut.emulator.at(x, np.clip(t + step * e, 0, 1)[None])[0] - cut.emulator.at(x, np.clip(
-                t - step * e, 0, 1)[None])[0])[0] / (np.clip(t + step * e, 0, 1) - np.clip(t - step * e, 0, 1))[q]
-            for q, e in enumerate(np.eye(2))])
-        variance = np.mean([cut.emulator.at(x, s[None])[1][0] for s in theta], axis=0)
-        V = discrepancy_covariance(cut, x, x, length) + np.diag(variance + cut.targets.noise_variance.mean())
-        traces.append(np.trace(np.linalg.inv(12 * np.eye(2) + gradient.T @ np.linalg.solve(V, gradient))))
-    assert settings.attrs["theta_variance_trace"][0] == pytest.approx(np.mean(traces), rel=1e-6)
+    direct = direct_theta_trace(cut, theta, x, length)
+    assert settings.attrs["theta_variance_trace"][0] == pytest.approx(direct, rel=1e-6)
     assert settings.attrs["theta_variance_trace"][0] != pytest.approx(default.attrs["theta_variance_trace"][0],
                                                                       rel=1e-3)
 

@@ -8,16 +8,17 @@ from dataclasses import replace
 from pathlib import Path
 
 import pytest
-from test_design_loop import toy_data
+from conftest import toy_data
 
-from stancal.designing.loop import design
+from stancal.designing.loop import design, design_of
 from stancal.reporting import design_report
 from stancal.reporting.design_report import write_design
 
 
 @pytest.fixture(scope="module")
-def toy_design():
-    return design(toy_data(), 4, experiments=1, seed=2)
+def toy_design(toy_match):
+    """design(toy_data(), 4, experiments=1, seed=2), on the shared history match."""
+    return design_of(toy_match, 4, experiments=1, seed=2)
 
 
 @pytest.fixture(scope="module")

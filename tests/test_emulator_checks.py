@@ -9,9 +9,7 @@ import json
 import numpy as np
 import pytest
 from scipy.stats import qmc
-from test_design_loop import toy_data
 
-import stancal
 from stancal.designing.emulator_checks import Check, check, checked, k_fold, leave_one_out
 from stancal.designing.emulators import GaussianProcess, ScalarEmulator, emulator_from_dict
 from stancal.designing.implausibility import Cut
@@ -82,11 +80,11 @@ def test_k_fold_refits_the_hyperparameters_without_each_fold():
     assert np.all(np.isfinite(errors))
 
 
-def test_a_waves_cut_uses_its_inflated_variance_and_later_waves_rebuild_it():
+def test_a_waves_cut_uses_its_inflated_variance_and_later_waves_rebuild_it(toy_match):
     """history_match checks its emulator: the wave records each check, and
     the cut rebuilt from waves.json (to_dict, json) has the same inflated
     variance, so the implausibility is |z - m| / sqrt(inflation v + d^2 + e^2)."""
-    match = stancal.history_match(toy_data(), seed=2)
+    match = toy_match
     wave = match.waves[-1]
     assert wave.checks and {"loo_rms", "k_fold_rms", "inflation"} <= set(wave.checks[0])
     stored = Wave(**json.loads(json.dumps(wave.to_dict())))

@@ -1,7 +1,7 @@
 """Writes physical.csv (the real fin, measured with 0.3 deg C of noise) and
-runs.csv (40 simulator runs, a Latin hypercube with corners of the inputs'
-and theta's box... here without corners: 2^7 corners are more runs than the
-budget; a Latin hypercube of all seven)."""
+runs.csv (40 simulator runs: a Latin hypercube of all seven inputs and
+theta (2^7 corners exceed the budget), its first two rows moved to the
+inputs' opposite corners so the runs span the measured range)."""
 
 from __future__ import annotations
 

@@ -27,11 +27,10 @@ WAVES, RUNS_PER_WAVE, STOP_SHRINK = 8, 20, 0.9
 
 
 def main(out: Path = HERE / "out", images: Path | None = HERE.parent.parent / "docs" / "img") -> dict:
-    loop = stancal.run_waves(HERE / "config.toml", simulator=fin_temperature, waves=WAVES,
-                             runs_per_wave=RUNS_PER_WAVE, seed=1, stop_shrink=STOP_SHRINK)
-    last = loop.designs[-1]
-    units = load_config(HERE / "config.toml").units
-    summary = write_design(last, out, units)
+    problem = load_config(HERE / "config.toml")
+    loop = stancal.run_waves(problem, simulator=fin_temperature, waves=WAVES, runs_per_wave=RUNS_PER_WAVE, seed=1,
+                             stop_shrink=STOP_SHRINK)
+    summary = write_design(loop.designs[-1], out, problem.units)
     loop.data.runs.to_csv(out / "all_runs.csv", index=False)  # the initial 40 and every wave's
     if images is not None:
         for name in ("nroy_pairs", "nroy_by_wave", "proposed_runs"):

@@ -13,6 +13,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 from scipy import linalg
 
+from stancal.designing.targets import run_table
 from stancal.numerics.scalable_emulator import (
     Hyperparameters,
     fit_hyperparameters,
@@ -161,10 +162,8 @@ class BasisEmulator:
 
     @classmethod
     def from_dict(cls, d: dict) -> BasisEmulator:
-        b = d["basis"]
-        basis = OutputBasis(np.asarray(b["grid"], float), np.asarray(b["mean"], float), b["scale"],
-                            np.asarray(b["components"], float), np.asarray(b["explained"], float),
-                            b["truncation_variance"], b["interpolation_variance"])
+        # to_dict's inverse: its arrays were written as lists, its floats as they are
+        basis = OutputBasis(**{k: np.asarray(v, float) if isinstance(v, list) else v for k, v in d["basis"].items()})
         xt, outputs = np.asarray(d["xt_runs"], float), np.asarray(d["outputs"], float)
         scores = basis.weights(outputs)
         gps = [GaussianProcess(Hyperparameters.from_stan(c["hyperparameters"]), xt, scores[:, j],
@@ -199,10 +198,11 @@ def stage_one_emulator(data, box, stage_one) -> ScalarEmulator | BasisEmulator |
         if hyperparameters is None or "levels" in hyperparameters:
             return None
         h = on_box(Hyperparameters.from_stan(hyperparameters))
-        gp = GaussianProcess(h, box.to_unit(data.runs), scaling.standardise(data.runs_on_link_scale()))
-        return ScalarEmulator(gp, scaling.y_center, scaling.y_scale)
+        xt, y = run_table(data, box)
+        return ScalarEmulator(GaussianProcess(h, xt, scaling.standardise(y)), scaling.y_center, scaling.y_scale)
     if stage_one is None:
         return None
-    xt, scores = box.to_unit(data.run_settings), stage_one.basis.weights(data.run_outputs)
+    xt, outputs = run_table(data, box)
+    scores = stage_one.basis.weights(outputs)
     gps = [GaussianProcess(on_box(c.hyperparameters), xt, scores[:, j]) for j, c in enumerate(stage_one.components)]
-    return BasisEmulator(stage_one.basis, gps, data.run_outputs)
+    return BasisEmulator(stage_one.basis, gps, outputs)

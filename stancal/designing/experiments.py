@@ -18,10 +18,12 @@ discrepancy that varies smoothly over the settings, as the GP prior's
 length scales in stancal's programs centre on), and P0 = 12 I the precision of theta's
 uniform prior on its unit cube. The criterion is the mean over NROY draws
 of trace(J^-1); settings are added one at a time, each the candidate of a
-Latin hypercube of the inputs' range that lowers it most, J updated by the
-Schur complement of the candidate's values. Censored rows are left out of
-what is known (their information is less than a value's), and counts enter
-on the link scale with the targets' delta-method variances. This is chosen over the IMSPE of
+Latin hypercube of the inputs' range that lowers it most, each candidate's
+information given what is known through the Schur complement of its
+values' covariance (J and V^-1 recomputed from every value after each
+pick). Censored rows are left out of what is known (their information is
+less than a value's), and counts enter on the link scale with the
+targets' delta-method variances. This is chosen over the IMSPE of
 zeta (Leatherman et al. 2017) because the design loop's goal is theta, and
 because it needs only the emulator and the stated variances, not a fitted
 discrepancy GP, so it works at every wave."""
@@ -110,15 +112,15 @@ def next_experiments(cut: Cut, nroy_theta: np.ndarray, count: int, seed: int,
     pool_where = positions(pool_x, pool_groups, index_low, index_width)
     pool_own = pool_variance + noise
     C, S, Q = len(pool), len(theta), theta.shape[1]
+    # each candidate's own covariance: the pool never changes, so once
+    own_blocks = (np.array([discrepancy_covariance(cut, w, w, length) for w in pool_where.reshape(C, m, -1)])
+                  + np.apply_along_axis(np.diag, 1, pool_own.reshape(C, m)))
     chosen, criterion = [], []
     for _ in range(count):
         V_inv = np.linalg.inv(discrepancy_covariance(cut, where, where, length) + np.diag(own))
         known = np.einsum("snq,nk,skr->sqr", gradient, V_inv, gradient) + 12 * np.eye(Q)
         B = discrepancy_covariance(cut, where, pool_where, length)  # (n, C m)
         solved = V_inv @ B
-        blocks = pool_where.reshape(C, m, -1)
-        own_blocks = np.array([discrepancy_covariance(cut, w, w, length) for w in blocks]) + np.apply_along_axis(
-            np.diag, 1, pool_own.reshape(C, m))
         schur = own_blocks - np.einsum("nci,ncj->cij", B.reshape(-1, C, m), solved.reshape(-1, C, m))
         U = (pool_gradient.reshape(S, C, m, Q)
              - np.einsum("nci,snq->sciq", solved.reshape(-1, C, m), gradient))

@@ -63,9 +63,8 @@ class Cut:
 
     def each(self, theta_unit: np.ndarray) -> np.ndarray:
         """I_i(theta): (S, n) at S points of theta's unit cube."""
-        t = self.targets
-        mean, variance = t.emulate(self.emulator, theta_unit)
-        return t.distance(mean) / np.sqrt(variance + t.discrepancy_variance + t.noise_variance)
+        mean, variance = self.targets.emulate(self.emulator, theta_unit)
+        return self.targets.standardised(mean, variance)
 
     def __call__(self, theta_unit: np.ndarray) -> np.ndarray:
         """The combined implausibility (S,)."""
@@ -82,7 +81,7 @@ class Cut:
         if not t.group_theta:
             return self(run_theta)
         mean, variance = self.emulator.at(t.x_unit, run_theta, t.groups)
-        each = t.distance(mean) / np.sqrt(variance + t.discrepancy_variance + t.noise_variance)
+        each = t.standardised(mean, variance)
         return np.min([nth_largest(each[:, values], self.nth) for _, values, _ in t.groups], axis=0)
 
 

@@ -15,8 +15,8 @@ import pandas as pd
 from stancal.designing.emulators import stage_one_emulator
 from stancal.designing.experiments import DISCREPANCY_LENGTH, index_range, next_experiments
 from stancal.designing.proposals import nroy_runs, posterior_runs
-from stancal.designing.targets import DesignSettings
-from stancal.designing.waves import HistoryMatch, Wave, fit_emulator, history_match, run_table
+from stancal.designing.targets import DesignSettings, run_table
+from stancal.designing.waves import HistoryMatch, Wave, fit_emulator, history_match
 from stancal.problem.data import CalibrationData
 from stancal.problem.vector_data import VectorCalibrationData
 from stancal.stan.registry import DESIGN, commands_taking
@@ -101,9 +101,11 @@ def propose_runs(match: HistoryMatch, runs: int, *, criterion: str = "nroy", see
             emulator = stage_one_emulator(match.data, box, fit.emulator)
         else:
             draws = box.theta_to_unit(posterior[box.theta].to_numpy(float))
-        notes["posterior_emulator"] = ("the posterior fit's stage 1" if emulator is not None
-                                       else "fitted to every run, as stage 1")
-        emulator = emulator or fit_emulator(match.data, existing, outputs, seed)
+        if emulator is not None:
+            notes["posterior_emulator"] = "the posterior fit's stage 1"
+        else:
+            emulator = fit_emulator(match.data, existing, outputs, seed)
+            notes["posterior_emulator"] = "fitted to every run, as stage 1"
         unit, gains = posterior_runs(emulator.parts(match.targets.groups), draws, match.targets.x_unit, runs, seed)
         notes["variance_reduction"] = gains
     frame = pd.DataFrame(box.to_original(unit), columns=box.columns)
@@ -147,6 +149,12 @@ def design(data, runs: int, *, criterion: str = "nroy", experiments: int = 0, se
            waves: list[Wave] | None = None, seed: int = 1, **sampler) -> Design:
     """A wave of history matching and its proposals: what `stancal design` writes."""
     match = history_match(data, waves=waves, settings=settings, seed=seed)
+    return design_of(match, runs, criterion=criterion, experiments=experiments, seed=seed, **sampler)
+
+
+def design_of(match: HistoryMatch, runs: int, *, criterion: str = "nroy", experiments: int = 0, seed: int = 1,
+              **sampler) -> Design:
+    """A history match's proposals: its next runs and, with ``experiments``, its next experiments."""
     result = propose_runs(match, runs, criterion=criterion, seed=seed, **sampler)
     if experiments:
         result.next_experiments = propose_experiments(match, experiments, seed, result.posterior_fit)

@@ -102,6 +102,7 @@ class Targets:
     upper: np.ndarray | None = None  # an observed value (the default), a bound open at -inf / +inf
     model_variance: np.ndarray | None = None  # (n,): the count model's part of noise_variance (0 for gaussian)
     group_theta: list[np.ndarray] = field(default_factory=list)
+    noise_estimated: bool = False  # True: the noise variance was estimated (Rice's), so noise_bounded_by may lower it
 
     def __post_init__(self) -> None:
         self.lower = self.z if self.lower is None else self.lower
@@ -116,15 +117,16 @@ class Targets:
     def observed(self) -> np.ndarray:
         return ~np.isnan(self.z)
 
-    @property
-    def noise_estimated(self) -> bool:
-        return self.noise_source.startswith("estimated")
-
     def distance(self, mean: np.ndarray) -> np.ndarray:
         """How far each mean (S, n) lies outside where its value is known to
         lie: |z - mean| for an observed value; beyond the bound, on the
         wrong side, for a censored one (0 inside its range)."""
         return np.maximum(np.maximum(self.lower - mean, mean - self.upper), 0.0)
+
+    def standardised(self, mean: np.ndarray, variance: np.ndarray) -> np.ndarray:
+        """I_i: each distance (S, n) over the sd of the emulator's error
+        (``variance``, S x n) plus the discrepancy's and the noise's."""
+        return self.distance(mean) / np.sqrt(variance + self.discrepancy_variance + self.noise_variance)
 
     def emulate(self, emulator, theta_unit: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The emulator's mean and variance (S, n) at each value, for S points
@@ -167,7 +169,7 @@ def targets_of(data, settings: DesignSettings, box: UnitBox | None = None) -> Ta
     else:
         x_unit, z, values, model, fixed, neighbour = _scalar_values(data, box)
         known = None
-    observed = ~np.isnan(z)
+    observed, estimated = ~np.isnan(z), False
     if settings.noise_sd is not None:
         extra, noise_source = settings.noise_sd**2, "[design] noise_sd" + (f", added to {fixed}" if fixed else "")
     elif known is not None:
@@ -175,7 +177,7 @@ def targets_of(data, settings: DesignSettings, box: UnitBox | None = None) -> Ta
     elif fixed:
         extra, noise_source = 0.0, fixed
     else:
-        extra = max(rice_variance(z[observed], neighbour) - float(np.mean(model[observed])), 0.0)
+        extra, estimated = max(rice_variance(z[observed], neighbour) - float(np.mean(model[observed])), 0.0), True
         noise_source = "estimated from neighbouring observations' differences (Rice 1984)" + (
             ", less the count model's" if model.any() else "")
     if settings.discrepancy_sd is not None:
@@ -186,7 +188,7 @@ def targets_of(data, settings: DesignSettings, box: UnitBox | None = None) -> Ta
     if model.any():  # counts: every variance is on the link scale
         discrepancy_source += ", on the link scale"
     return Targets(x_unit, z, model + extra, discrepancy, noise_source, discrepancy_source, model_variance=model,
-                   **values)
+                   noise_estimated=estimated, **values)
 
 
 def _scalar_values(data, box: UnitBox):
@@ -345,3 +347,12 @@ class UnitBox:
         return {"inputs": self.inputs, "theta": self.theta, "low": self.low.tolist(), "width": self.width.tolist(),
                 **({"experiments": self.experiments, "per_experiment": self.per_experiment}
                    if self.per_experiment else {})}
+
+
+def run_table(data, box: UnitBox) -> tuple[np.ndarray, np.ndarray]:
+    """Every run's (x, theta) on the unit cube and its output (runs,) or
+    (runs, K): a scalar output's on its likelihood's link scale, where the
+    emulator works (the latent programs' stage 1 does so too)."""
+    if isinstance(data, VectorCalibrationData):
+        return box.to_unit(data.run_settings), data.run_outputs
+    return box.to_unit(data.runs), data.runs_on_link_scale()

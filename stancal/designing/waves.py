@@ -1,8 +1,10 @@
 """History matching in waves (Vernon et al. 2010; Williamson et al. 2013,
 "History matching for exploring and reducing climate model parameter
 space", Climate Dynamics 41): each wave fits an emulator to the runs that
-earlier waves did not rule out (refocusing, as hmer's waves do), adds its
-cut, and keeps every earlier cut; NROY is where every cut passes.
+earlier waves did not rule out (refocusing, as hmer's waves do) when at
+least RUNS_PER_DIMENSION per dimension of (x, theta) lie there, else to
+every run; it adds its cut and keeps every earlier cut; NROY is where
+every cut passes.
 
 A wave stores what defines its cut (its emulator's runs, hyperparameters
 and basis; the discrepancy and noise variances; n-th maximum and cutoff):
@@ -21,7 +23,7 @@ from stancal.designing.emulator_checks import checked
 from stancal.designing.emulators import BasisEmulator, ScalarEmulator, emulator_from_dict
 from stancal.designing.implausibility import Cut, combined, nth_maximum_for
 from stancal.designing.nroy import NroySample, sample_nroy
-from stancal.designing.targets import DesignSettings, Targets, UnitBox, targets_of
+from stancal.designing.targets import DesignSettings, Targets, UnitBox, run_table, targets_of
 from stancal.problem.validation import DataError
 from stancal.problem.vector_data import VectorCalibrationData
 
@@ -41,7 +43,7 @@ class Wave:
 
     number: int
     runs_total: int  # the runs the config held at this wave
-    runs_used: int  # the runs its emulator was fitted on (those inside the earlier NROY)
+    runs_used: int  # the runs its emulator was fitted on (those inside the earlier NROY; every run unless refocused)
     refocused: bool  # False: too few runs inside the earlier NROY, so all were used
     emulator: dict  # ScalarEmulator / BasisEmulator .to_dict()
     discrepancy_variance: float
@@ -117,15 +119,6 @@ def run_count(data) -> int:
     return len(data.run_settings) if isinstance(data, VectorCalibrationData) else len(data.runs)
 
 
-def run_table(data, box: UnitBox) -> tuple[np.ndarray, np.ndarray]:
-    """Every run's (x, theta) on the unit cube and its output (runs,) or
-    (runs, K): a scalar output's on its likelihood's link scale, where the
-    emulator works (the latent programs' stage 1 does so too)."""
-    if isinstance(data, VectorCalibrationData):
-        return box.to_unit(data.run_settings), data.run_outputs
-    return box.to_unit(data.runs), data.runs_on_link_scale()
-
-
 def fit_emulator(data, xt: np.ndarray, outputs: np.ndarray, seed: int) -> ScalarEmulator | BasisEmulator:
     if isinstance(data, VectorCalibrationData):
         return BasisEmulator.fit(data.basis, xt, outputs, seed)
@@ -152,7 +145,8 @@ def history_match(data, *, waves: list[Wave] | None = None, settings: DesignSett
                   seed: int = 1) -> HistoryMatch:
     """The next wave of history matching on ``data`` (a CalibrationData or
     VectorCalibrationData with runs), after the earlier ``waves`` (a
-    HistoryMatch's, or design.json's). When the runs are those of the last
+    HistoryMatch's, or waves.json's: load_waves; design.json's lack the
+    emulators). When the runs are those of the last
     wave (nothing was appended since), that wave is redone instead."""
     settings = settings or DesignSettings()
     total = run_count(data)
@@ -163,6 +157,7 @@ def history_match(data, *, waves: list[Wave] | None = None, settings: DesignSett
         earlier = earlier[:-1]
     xt, outputs = run_table(data, box)
     used, refocused = np.arange(total), False
+    previous: list[Cut] = []  # earlier waves' cuts, built once (each rebuilds its emulator's factor)
     if earlier:
         previous = [w.cut(targets) for w in earlier]
         inside = np.flatnonzero(combined(previous, xt[:, len(box.inputs):], at_runs=True) <= previous[-1].cutoff)
@@ -181,7 +176,7 @@ def history_match(data, *, waves: list[Wave] | None = None, settings: DesignSett
     nth = settings.nth_maximum or nth_maximum_for(targets.count, settings.cutoff)
     wave = Wave(len(earlier) + 1, total, len(used), refocused, emulator.to_dict(), targets.discrepancy_variance,
                 targets.noise_variance.tolist(), nth, settings.cutoff, checks=checks)
-    cuts = [*(w.cut(targets) for w in earlier), wave.cut(targets)]
+    cuts = [*previous, wave.cut(targets)]
     nroy = sample_nroy(lambda t: combined(cuts, t), len(box.nroy_names), settings.cutoff, settings.nroy_points, seed)
     wave.nroy_fraction, wave.nroy_fraction_cv, wave.levels = nroy.fraction, nroy.fraction_cv, nroy.levels
     logger.info("design: wave %d, emulator on %d of %d runs; NROY %.3g of theta's box", wave.number,

@@ -22,7 +22,7 @@ import numpy as np
 
 from stancal.designing.implausibility import combined
 from stancal.designing.loop import Design
-from stancal.designing.waves import run_table
+from stancal.designing.targets import run_table
 from stancal.reporting.html import write_html
 from stancal.reporting.plots import finish, pyplot
 from stancal.reporting.series import axis_label
@@ -39,7 +39,8 @@ def pairs_grid(design: Design, seed: int = 0) -> dict:
     (over a uniform sample and the NROY sample), and the optical depth, the
     share of the other theta's box not ruled out, P(NROY | bin) =
     fraction x P(bin | NROY) / P(bin), from the NROY sample (so it stays
-    resolved when NROY is a tiny part of the box)."""
+    resolved when NROY is a tiny part of the box). Each grid only for the
+    panels that show it: ``minimum[i, j]`` for j > i, ``depth[j, i]``."""
     match = design.match
     Q = len(match.box.nroy_names)
     uniform = np.random.default_rng(seed).uniform(size=(UNIFORM_POINTS, Q))
@@ -49,16 +50,14 @@ def pairs_grid(design: Design, seed: int = 0) -> dict:
     nroy_cells = cells[UNIFORM_POINTS:]
     minimum, depth = {}, {}
     for i in range(min(Q, MAX_PAIRS_COLUMNS)):
-        for j in range(min(Q, MAX_PAIRS_COLUMNS)):
-            if i == j:
-                continue
+        for j in range(i + 1, min(Q, MAX_PAIRS_COLUMNS)):  # each grid for its own triangle only
             grid = np.full((BINS, BINS), np.nan)
             np.fmin.at(grid, (cells[:, j], cells[:, i]), value)
             minimum[i, j] = grid
             counts = np.zeros((BINS, BINS))
-            np.add.at(counts, (nroy_cells[:, j], nroy_cells[:, i]), 1.0)
+            np.add.at(counts, (nroy_cells[:, i], nroy_cells[:, j]), 1.0)
             # an estimate, so it can pass 1 where NROY fills a bin: a share is at most 1
-            depth[i, j] = np.minimum(match.nroy_fraction * counts / len(nroy_cells) * BINS**2, 1.0)
+            depth[j, i] = np.minimum(match.nroy_fraction * counts / len(nroy_cells) * BINS**2, 1.0)
     return {"minimum": minimum, "depth": depth}
 
 
