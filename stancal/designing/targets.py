@@ -50,6 +50,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from scipy.spatial import cKDTree
 
+from stancal.numerics.parametrization import model_scale_values
 from stancal.problem.codes import Likelihood
 from stancal.problem.vector_data import VectorCalibrationData
 
@@ -199,11 +200,10 @@ def _scalar_values(data, box: UnitBox):
     observations = data.observations
     y, kind = observations.value, observations.likelihood
     bounds: dict = {}
-    if kind is Likelihood.BINOMIAL:
-        failures = observations.trials - y
-        z, model = np.log((y + 0.5) / (failures + 0.5)), 1 / (y + 0.5) + 1 / (failures + 0.5)
-    elif kind in (Likelihood.POISSON, Likelihood.NEGBINOMIAL):
-        z, model = np.log(y + 0.5), 1 / (y + 0.5)
+    if kind is Likelihood.BINOMIAL:  # the empirical logit, where the latent programs' normal approximation sits
+        z, model = model_scale_values(observations, y), 1 / (y + 0.5) + 1 / (observations.trials - y + 0.5)
+    elif kind in (Likelihood.POISSON, Likelihood.NEGBINOMIAL):  # log(y + 1/2)
+        z, model = model_scale_values(observations, y), 1 / (y + 0.5)
     else:
         observed = observations.observed
         z, model = np.where(observed, y, np.nan), np.zeros(len(y))
