@@ -78,8 +78,9 @@ def top_level_draws(levels: list[Level], seed: int, draws: int = MIXED) -> np.nd
 
     current = np.concatenate([[top.rho], pack(top.hyperparameters)])
     values, vectors = linalg.eigh(hessian(objective, current))
-    # a flat direction (a nugget far below the runs' scale) gets a wide step, not a singular one
-    scale = vectors @ np.diag(1 / np.maximum(values, 1e-2)) @ vectors.T * 2.38**2 / len(current)
+    # a flat direction (a nugget far below the runs' scale) gets a step of sd 2 on the log scale, not a
+    # singular or endless one
+    scale = vectors @ np.diag(1 / np.maximum(values, 0.25)) @ vectors.T * 2.38**2 / len(current)
     steps = np.random.default_rng(seed).multivariate_normal(np.zeros(len(current)), scale, CHAIN)
     uniforms = np.random.default_rng(seed + 1).uniform(size=CHAIN)
     level, chain = energy(current), np.empty((CHAIN, len(current)))
