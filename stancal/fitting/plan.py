@@ -74,7 +74,7 @@ class Plan:
         version = base.latent_version if self.program.latent else (
             base.scalable_version if self.program.approximation == "hsgp" else None)
         chosen = PROGRAMS[version] if version else base
-        return replace(self, program=chosen, simulator=Path(simulator), user_program=None)
+        return replace(self, program=chosen, simulator=Path(simulator), user_program=None, stage_one_result=None)
 
 
 def model_options(discrepancy: str | None = None, kernel: str = "se", estimate_rho: bool = False,
