@@ -210,8 +210,8 @@ def test_the_emulators_90_band_holds_fresh_expensive_runs():
     from four Latin hypercubes (the shipped ones first): the top level's GP
     from 15 runs, plugged in at its mode, held 60, 78, 84, 73 % of 500 fresh
     expensive runs in its 90 % band (mean z^2 5.1, 2.1, 2.6, 2.6); with its
-    variance scaled for its hyperparameters' uncertainty, 76, 89, 88, 87 %
-    (mean z^2 2.3, 1.1, 1.2, 1.2; designs 5 to 6: 92 and 95 %)."""
+    variance scaled for its hyperparameters' uncertainty, 79, 89, 88, 87 %
+    (mean z^2 2.0, 1.1, 1.1, 1.3; designs 5 and 6: 93 and 96 %)."""
     case = case_study_module(ROOT / "case_studies" / "cooling_fidelity")
     shipped = load_config(ROOT / "case_studies" / "cooling_fidelity" / "config.toml").data
     fresh = case.design(500, seed=99)
@@ -224,9 +224,9 @@ def test_the_emulators_90_band_holds_fresh_expensive_runs():
                                        runs=runs)
         z.append(holdout_z(data, truth, fresh))
     coverage = [float(np.mean(np.abs(zs) < stats.norm.ppf(0.95))) for zs in z]
-    # four designs: 0.85 on average (six: 0.88, from 0.76 to 0.95); the plug-in's 0.74
+    # four designs: 0.86 on average (six: 0.89, from 0.79 to 0.96); the plug-in's 0.74
     assert np.mean(coverage) > 0.8, coverage
-    assert np.mean([np.mean(zs**2) for zs in z]) < 2.0  # 1.45 (the plug-in's 3.1)
+    assert np.mean([np.mean(zs**2) for zs in z]) < 2.0  # 1.36 (the plug-in's 3.1)
 
 
 @pytest.mark.slow  # 20 fits, about 4 minutes on two cores
