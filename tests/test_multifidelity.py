@@ -229,24 +229,6 @@ def test_the_emulators_90_band_holds_fresh_expensive_runs():
     assert np.mean([np.mean(zs**2) for zs in z]) < 2.0  # 1.36 (the plug-in's 3.1)
 
 
-@pytest.mark.slow  # 20 fits of 4 x (500 + 1000), about 8 minutes on two cores
-def test_thetas_90_interval_covers_the_truth_over_seeds():
-    """The two-level case above over 20 seeds (runs, readings and the
-    sampler's): theta's 90 % interval covers K_TRUE in about 90 % of them.
-    Under 90 % coverage the count of 20 is 14 or more with probability
-    0.998, so fewer than 14 is a finding."""
-    covered = []
-    for seed in range(20):
-        # four chains: at some seeds a chain finds the small second mode at the top of k's box (weight 0.001)
-        result = fit(problem(seed=seed), method="modular", discrepancy="none", chains=4, warmup=500, draws=1000,
-                     seed=seed + 1)
-        assert_healthy(result)
-        low, high = np.quantile(np.asarray(result.idata["posterior"]["theta"]).reshape(-1), [0.05, 0.95])
-        covered.append(bool(low <= K_TRUE <= high))
-    print(f"theta's 90 % interval covered the truth in {sum(covered)} of 20 seeds")
-    assert sum(covered) >= 14, covered
-
-
 def test_the_gaps_fits_share_one_stage_one(monkeypatch):
     """The gap's baseline and candidates (and their refits) have the same
     runs: stage 1 runs once and every fit reuses it, so no two are compared
