@@ -323,10 +323,12 @@ def diagnose_gap(
                                   calibrate_options.get("backend"))
         clock.lap("compile" if compiled else COMPILED_EARLIER)
         # a theta that carries the constant's level: the constant leaves every fit alike (checked once, here;
-        # from runs, on stage 1's emulator, which each fit then fits again)
+        # from runs, on stage 1's emulator, which every fit then reuses: stage 1 reads the runs alone, which the
+        # fits, refits and formula candidates share, so they are compared on one emulator)
         emulator = run_stage_one(plan.stage_one, data, plan.options, plan.stan_programs(),
                                  backend=stan_backend, seed=seed) if stage_one_emulator(plan) else None
         plan, confounding = resolve_confounding(plan, data, stan_backend, emulator)
+        plan = replace(plan, stage_one_result={**emulator, "fit_s": 0.0}) if emulator else plan  # spent here
         task = functools.partial(_fit_task, vector=vector, plan=plan, seed=seed, sampling=calibrate_options)
 
         def fit_task(c: Candidate | None, start: CalibrationResult | None) -> FitTask:

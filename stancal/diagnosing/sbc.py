@@ -192,7 +192,10 @@ def simulation_based_calibration(
     the draws each truth was ranked among; a rerun with the same ``out_dir``
     reuses the simulations finished there (stancal.fitting.resume).
     ``calibrate_options`` (chains, warmup, discrepancy, ...) go to every fit;
-    ``draws`` per chain of each fit default to 2 x draws_per_fit over the chains."""
+    ``draws`` per chain of each fit default to 2 x draws_per_fit over the chains.
+    Every fit reuses the prior run's stage 1 (the emulator's hyperparameters,
+    from the runs alone, which the simulations share), so it fits the program
+    its data were simulated from, at a fraction of the cost."""
     sampling = _sampling(calibrate_options, seed, draws_per_fit)
     resume = Resume(out_dir, seed)  # a rerun into the same folder reuses the simulations it finished
     seed = resume.seed
@@ -210,6 +213,9 @@ def simulation_based_calibration(
     # one plan for every fit (simulated data sets share the design): its programs' code is part of each
     # fit's fingerprint
     plan = make_plan(data, simulator, method, program, **model_keywords(calibrate_options, vector=False))
+    # the simulations share the runs, so stage 1 (the emulator's hyperparameters, from the runs alone) is the
+    # prior's: each fit then conditions on the hyperparameters its data were simulated with
+    plan = replace(plan, stage_one_result={**prior_fit.emulator, "fit_s": 0.0} if prior_fit.emulator else None)
     prior = {k: _thinned(v, simulations) for k, v in _scalars(prior_fit.idata["prior"].to_dataset()).items()}
     prior_parameters = {k: _thinned(np.asarray(v).reshape(v.shape[0] * v.shape[1], *v.shape[2:]), simulations)
                         for k, v in prior_fit.idata["prior_stan_parameters"].data_vars.items()}

@@ -208,7 +208,8 @@ def calibrate(
     ``prior``: also draw from the prior (same program, ``prior_only = 1``) into
     the ``prior`` and ``prior_predictive`` groups.
     ``plan``: a plan made earlier (stancal.fitting.plan), which then replaces
-    ``simulator``, ``method``, ``program`` and the model's options.
+    ``simulator``, ``method``, ``program`` and the model's options (and
+    stage 1, where the plan holds its result: Plan.stage_one_result).
     ``warm_start``: start the chains from an earlier fit of nearly the same
     model and data (stancal.fitting.warm_start; the gap diagnosis's refits,
     and its candidates, whose parameters the baseline lacks or shapes
@@ -230,8 +231,8 @@ def calibrate(
     compile_s = stan_backend.compile(programs)  # 0.0: compiled earlier
     seed = command_seed(seed)
     new_points, fit_points, quadrature = _prediction_points(data, new_points, plan.l2)
-    emulator = run_stage_one(plan.stage_one, data, plan.options, programs, backend=stan_backend,
-                             seed=seed) or {}
+    emulator = plan.stage_one_result or run_stage_one(plan.stage_one, data, plan.options, programs,
+                                                      backend=stan_backend, seed=seed) or {}
     # theta against the model's own terms (simulator or stage 1's emulator), before any sampling
     plan, confounding = resolve_confounding(plan, data, stan_backend, emulator)
     sampler = replace(sampling, seed=seed).keywords()

@@ -5,7 +5,7 @@ later step, so that no step asks which program it runs."""
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 
 from stancal.numerics.hsgp import first_basis
@@ -45,6 +45,9 @@ class Plan:
     # the latent discrepancy's parametrisation is the user's: never refitted the other way
     parametrization_given: bool = False
     fidelities: int = 1  # simulators with runs: more than 1 with cheaper simulators' runs
+    # stage 1's results, when every fit of this plan has the same runs (an SBC's simulations change y
+    # only): reused, not refitted; stage 1 reads the runs alone, never y
+    stage_one_result: dict | None = field(default=None, compare=False, repr=False)
 
     @property
     def stage_one(self) -> str | None:
@@ -71,7 +74,7 @@ class Plan:
         version = base.latent_version if self.program.latent else (
             base.scalable_version if self.program.approximation == "hsgp" else None)
         chosen = PROGRAMS[version] if version else base
-        return replace(self, program=chosen, simulator=Path(simulator), user_program=None)
+        return replace(self, program=chosen, simulator=Path(simulator), user_program=None, stage_one_result=None)
 
 
 def model_options(discrepancy: str | None = None, kernel: str = "se", estimate_rho: bool = False,

@@ -15,6 +15,7 @@ import numpy as np
 
 from stancal.numerics.kernels import ard_cross_cov
 from stancal.numerics.multifidelity import Level, cheap_runs_value, fit_levels, mean_function
+from stancal.numerics.multifidelity_variance import variance_correction
 from stancal.numerics.scalable_emulator import (
     ERROR_RANK_SHARE,
     NEIGHBOURS,
@@ -181,10 +182,14 @@ def fit_fidelity_emulator(data: CalibrationData, seed: int) -> dict[str, Any]:
     """Stage 1 with runs of cheaper simulators (stancal.numerics.multifidelity):
     each level's GP and scale at their posterior mode, level by level (Le
     Gratiet & Garnier 2014); the top level's leave-one-out error with and
-    without the cheaper runs, and a warning when they do not help."""
+    without the cheaper runs, and a warning when they do not help. The top
+    level's GP, from few runs, has its variance scaled by its plug-in
+    predictor's mean squared error under its hyperparameters' posterior
+    over its own variance (stancal.numerics.multifidelity_variance)."""
     started = time.perf_counter()
     runs = fidelity_runs(data)
-    levels = fit_levels([xt for xt, _ in runs], [y for _, y in runs], seed)
+    correction = variance_correction(fit_levels([xt for xt, _ in runs], [y for _, y in runs], seed), seed)
+    levels = correction.levels
     value = cheap_runs_value(levels, seed)
     seconds = time.perf_counter() - started
     logger.info("stage 1: %d levels of fidelity (%s runs, cheapest first), hyperparameters level by level "
@@ -192,6 +197,9 @@ def fit_fidelity_emulator(data: CalibrationData, seed: int) -> dict[str, Any]:
                 "%.3g with the cheaper runs, %.3g without (standardised units)", len(levels),
                 " + ".join(str(len(y)) for _, y in runs), seconds, ", ".join(f"{r:.3g}" for r in value.rho),
                 value.loo_with, value.loo_without)
+    logger.info("stage 1: the calibrated simulator's own GP has its variance times %.3g: its plug-in's mean squared "
+                "error under its hyperparameters' posterior is %.3g times its variance (its %d runs pin them "
+                "loosely)", correction.applied, correction.factor, len(runs[-1][1]))
     if value.warning():
         logger.warning("%s", value.warning())
     per_level = [{**lv.hyperparameters.as_stan(), "rho": lv.rho} for lv in levels]  # the cheapest's rho: 1, unused
@@ -201,9 +209,11 @@ def fit_fidelity_emulator(data: CalibrationData, seed: int) -> dict[str, Any]:
         "loo_rmse": value.loo_with,
         "loo_rmse_without_low_fidelity": value.loo_without,
         "level_rho": value.rho,
+        "top_level_variance_factor": correction.applied,
         "warning": value.warning(),
         "runs_sd": runs_sd(data),
         "stage1": (f"multi-fidelity: {len(levels)} levels, hyperparameters level by level at their posterior "
-                   f"mode (scipy L-BFGS), co-kriging given every level's runs"),
+                   f"mode (scipy L-BFGS), the top level's variance scaled for their uncertainty, "
+                   f"co-kriging given every level's runs"),
         "fit_s": seconds,
     }

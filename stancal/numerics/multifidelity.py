@@ -141,7 +141,7 @@ def matching_runs(xt: np.ndarray, xt_below: np.ndarray) -> np.ndarray:
     return np.where(distance[np.arange(len(xt)), nearest] < SAME_RUN, nearest, -1)
 
 
-def _objective(v: np.ndarray, xt: np.ndarray, y: np.ndarray, below: np.ndarray) -> tuple[float, np.ndarray]:
+def level_objective(v: np.ndarray, xt: np.ndarray, y: np.ndarray, below: np.ndarray) -> tuple[float, np.ndarray]:
     """negative_log_posterior of g_k on y - rho z, v = (rho, u); rho's
     derivative by a central difference (one more factorisation each side)."""
     value, grad_u = negative_log_posterior(v[1:], xt, y - v[0] * below)
@@ -166,7 +166,7 @@ def fit_level(levels: list[Level], xt: np.ndarray, y: np.ndarray, seed: int) -> 
     below = level_below(levels, xt)
     slope = np.polyfit(below, y, 1)[0] if np.ptp(below) > 0 else 1.0
     start, _ = fit_hyperparameters(xt, y - slope * below, seed)
-    found = optimize.minimize(_objective, np.concatenate([[slope], pack(start)]), args=(xt, y, below),
+    found = optimize.minimize(level_objective, np.concatenate([[slope], pack(start)]), args=(xt, y, below),
                               jac=True, method="L-BFGS-B", options={"maxiter": 500})
     best = found.x if np.isfinite(found.fun) else np.concatenate([[slope], pack(start)])
     return Level(unpack(best[1:]), float(best[0]), xt, y)

@@ -85,6 +85,9 @@ def fidelity_lines(emulator: dict) -> list[str]:
             f"- each level's scale on the one below: {', '.join(f'{r:.3g}' for r in emulator['level_rho'])}",
             (f"- leave-one-out error at the calibrated simulator's runs: {emulator['loo_rmse']:.3g} with the "
              f"cheaper runs, {emulator['loo_rmse_without_low_fidelity']:.3g} without (standardised units)"),
+            *([(f"- the calibrated simulator's own GP: its variance times "
+                f"{emulator['top_level_variance_factor']:.3g} for its hyperparameters' uncertainty "
+                "(docs/multifidelity.md)")] if "top_level_variance_factor" in emulator else []),
             *([f"- **warning**: {emulator['warning']}"] if emulator.get("warning") else [])]
 
 
