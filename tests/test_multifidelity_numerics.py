@@ -117,7 +117,7 @@ def test_the_top_levels_variance_factor_falls_to_one_as_its_runs_pin_it():
     the plug-in's mean squared error under the top level's hyperparameter
     posterior over its variance falls towards 1 as the expensive runs pin
     them (9.4, 1.46, 1.06 at seed 0; the Metropolis chain's seed moves
-    each by about 10 %)."""
+    each by about 10 %; its batch-means sd is stated beside it)."""
     from stancal.numerics.multifidelity_variance import variance_correction
 
     factors = []
@@ -127,7 +127,9 @@ def test_the_top_levels_variance_factor_falls_to_one_as_its_runs_pin_it():
         centre, scale = yh.mean(), yh.std()
         levels = mf.fit_levels([xl, xh], [(yl - centre) / scale, (yh - centre) / scale])
         correction = variance_correction(levels)
-        assert correction.applied == max(1.0, correction.factor)
+        # at least the measured factor: g_K is most of the top level's variance, not all (the fixed point)
+        assert correction.applied >= max(1.0, correction.factor)
+        assert correction.applied < 1.5 * max(1.0, correction.factor)
         assert correction.levels[-1].hyperparameters.sd == pytest.approx(
             levels[-1].hyperparameters.sd * np.sqrt(correction.applied))
         factors.append(correction.factor)

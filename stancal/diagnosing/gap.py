@@ -328,7 +328,7 @@ def diagnose_gap(
         emulator = run_stage_one(plan.stage_one, data, plan.options, plan.stan_programs(),
                                  backend=stan_backend, seed=seed) if stage_one_emulator(plan) else None
         plan, confounding = resolve_confounding(plan, data, stan_backend, emulator)
-        plan = replace(plan, stage_one_result={**emulator, "fit_s": 0.0}) if emulator else plan  # spent here
+        plan = replace(plan, stage_one_result=emulator) if emulator else plan
         task = functools.partial(_fit_task, vector=vector, plan=plan, seed=seed, sampling=calibrate_options)
 
         def fit_task(c: Candidate | None, start: CalibrationResult | None) -> FitTask:

@@ -29,6 +29,7 @@ import numpy as np
 from stancal.diagnosing.sbc_ranks import Uniformity, fractional_ranks, rank_of, uniformity
 from stancal.fitting.calibrate import calibrate
 from stancal.fitting.cluster import FitFailure, FitRunner, FitTask, fit_runner
+from stancal.fitting.confounding import stage_one_emulator
 from stancal.fitting.plan import make_plan, model_keywords
 from stancal.fitting.resume import Resume, keep_whole, write_json
 from stancal.fitting.seeds import fit_seed
@@ -193,9 +194,10 @@ def simulation_based_calibration(
     reuses the simulations finished there (stancal.fitting.resume).
     ``calibrate_options`` (chains, warmup, discrepancy, ...) go to every fit;
     ``draws`` per chain of each fit default to 2 x draws_per_fit over the chains.
-    Every fit reuses the prior run's stage 1 (the emulator's hyperparameters,
-    from the runs alone, which the simulations share), so it fits the program
-    its data were simulated from, at a fraction of the cost."""
+    Every fit reuses the prior run's stage 1 where it reads the runs alone
+    (the emulator's hyperparameters, which the simulations share), so it fits
+    the program its data were simulated from, at a fraction of the cost: the
+    SBC then checks stage 2 given stage 1, not stage 1's own randomness."""
     sampling = _sampling(calibrate_options, seed, draws_per_fit)
     resume = Resume(out_dir, seed)  # a rerun into the same folder reuses the simulations it finished
     seed = resume.seed
@@ -213,9 +215,10 @@ def simulation_based_calibration(
     # one plan for every fit (simulated data sets share the design): its programs' code is part of each
     # fit's fingerprint
     plan = make_plan(data, simulator, method, program, **model_keywords(calibrate_options, vector=False))
-    # the simulations share the runs, so stage 1 (the emulator's hyperparameters, from the runs alone) is the
-    # prior's: each fit then conditions on the hyperparameters its data were simulated with
-    plan = replace(plan, stage_one_result={**prior_fit.emulator, "fit_s": 0.0} if prior_fit.emulator else None)
+    # the simulations share the runs, so a stage 1 from the runs alone (stage_one_emulator: not the scalable
+    # one, which reads y) is the prior's: each fit conditions on the hyperparameters its data were simulated with
+    reused = prior_fit.emulator if stage_one_emulator(plan) and prior_fit.emulator else None
+    plan = replace(plan, stage_one_result=reused)
     prior = {k: _thinned(v, simulations) for k, v in _scalars(prior_fit.idata["prior"].to_dataset()).items()}
     prior_parameters = {k: _thinned(np.asarray(v).reshape(v.shape[0] * v.shape[1], *v.shape[2:]), simulations)
                         for k, v in prior_fit.idata["prior_stan_parameters"].data_vars.items()}

@@ -245,7 +245,8 @@ def calibrate(
         idata=fit.tree, data=data, method=plan.name, backend=stan_backend.name, options=options, program=flat,
         registry_row=plan.program,
         timing={"compile_s": compile_s,
-                "sample_s": fit.sample.load_seconds + fit.sample.sample_seconds + emulator.get("fit_s", 0.0)},
+                "sample_s": fit.sample.load_seconds + fit.sample.sample_seconds
+                + (0.0 if plan.stage_one_result else emulator.get("fit_s", 0.0))},  # a reused stage 1 cost nothing here
         emulator=emulator, confounding=[c.to_json() for c in confounding])
     save_draws(result, out_dir)
     if quadrature is not None:

@@ -46,7 +46,8 @@ class Plan:
     parametrization_given: bool = False
     fidelities: int = 1  # simulators with runs: more than 1 with cheaper simulators' runs
     # stage 1's results, when every fit of this plan has the same runs (an SBC's simulations change y
-    # only): reused, not refitted; stage 1 reads the runs alone, never y
+    # only, a gap's refits drop physical rows only): reused, not refitted; only where stage 1 reads the
+    # runs alone (confounding.stage_one_emulator: the GP and multi-fidelity ones, not the scalable one)
     stage_one_result: dict | None = field(default=None, compare=False, repr=False)
 
     @property

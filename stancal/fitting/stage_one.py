@@ -198,8 +198,9 @@ def fit_fidelity_emulator(data: CalibrationData, seed: int) -> dict[str, Any]:
                 " + ".join(str(len(y)) for _, y in runs), seconds, ", ".join(f"{r:.3g}" for r in value.rho),
                 value.loo_with, value.loo_without)
     logger.info("stage 1: the calibrated simulator's own GP has its variance times %.3g: its plug-in's mean squared "
-                "error under its hyperparameters' posterior is %.3g times its variance (its %d runs pin them "
-                "loosely)", correction.applied, correction.factor, len(runs[-1][1]))
+                "error under its hyperparameters' posterior is %.3g (Monte Carlo sd %.2g) times its variance, "
+                "from %d runs%s", correction.applied, correction.factor, correction.factor_sd, len(runs[-1][1]),
+                " that pin them loosely" if correction.factor > 1 else "")
     if value.warning():
         logger.warning("%s", value.warning())
     per_level = [{**lv.hyperparameters.as_stan(), "rho": lv.rho} for lv in levels]  # the cheapest's rho: 1, unused
@@ -210,6 +211,7 @@ def fit_fidelity_emulator(data: CalibrationData, seed: int) -> dict[str, Any]:
         "loo_rmse_without_low_fidelity": value.loo_without,
         "level_rho": value.rho,
         "top_level_variance_factor": correction.applied,
+        "top_level_variance_error_ratio": [correction.factor, correction.factor_sd],  # measured, its MC sd
         "warning": value.warning(),
         "runs_sd": runs_sd(data),
         "stage1": (f"multi-fidelity: {len(levels)} levels, hyperparameters level by level at their posterior "

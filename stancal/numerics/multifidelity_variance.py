@@ -10,8 +10,10 @@ posterior median of 0.24 (0.53 from 300 runs), and the plug-in's 90 %
 band held 60 % of 500 fresh expensive runs. A predictive that treats
 estimated covariance parameters as known understates its error
 (Zimmerman & Cressie 1992); the Bayesian answer integrates them over their
-posterior (Kennedy & O'Hagan 2000, section 3; Le Gratiet & Garnier 2014,
-section 3), which on the case study held 85 %.
+posterior, which on the case study held 85 %. (Kennedy & O'Hagan 2000,
+section 3, and Le Gratiet & Garnier 2014, section 3, integrate the mean,
+rho and the variance analytically but plug in the correlation lengths,
+whose uncertainty is most of the shortfall here.)
 
 modular.stan takes one set of hyperparameters, so the integrated answer is
 carried into it as a plug-in whose error is honest on average:
@@ -21,12 +23,14 @@ carried into it as a plug-in whose error is honest on average:
   by a random-walk Metropolis chain started at the mode;
 - the plug-in predictor's mean squared error under that posterior at
   points over the input box, E[(f - m_hat)^2] = v_mix + (m_mix - m_hat)^2,
-  against the plug-in's own variance (Zimmerman & Cressie 1992 correct
-  the same quantity by a Taylor expansion instead);
-- g_K's sd and nugget scaled together by the square root of that ratio
-  (never below 1: the mode is kept when it is already as wide), which
-  multiplies the top level's own variance and leaves its correlations, and
-  so its mean, nearly as they were.
+  against the plug-in's own variance (Zimmerman & Cressie 1992 correct an
+  analogous, frequentist quantity by a Taylor expansion instead);
+- g_K's sd and nugget scaled together until the co-kriging variance's box
+  average matches that error (never narrowed: the mode is kept when it is
+  already as wide). The factor is measured on the whole top level's
+  variance, of which g_K's is most but not all, so one fixed-point step
+  rescales g_K by the shortfall left after the first scaling; the
+  correlations, and so the mean, stay nearly as they were.
 """
 
 from __future__ import annotations
@@ -39,8 +43,9 @@ from scipy import linalg
 from stancal.numerics.multifidelity import Level, level_below, level_objective, predict
 from stancal.numerics.scalable_emulator import negative_log_posterior, pack, unpack
 
-CHAIN = 12000  # Metropolis steps for the top level's hyperparameters: the factor's Monte Carlo sd about 8 %
+CHAIN = 12000  # Metropolis steps for the top level's hyperparameters (the factor's Monte Carlo sd: VarianceCorrection)
 MIXED = 150  # draws kept, evenly thinned, whose co-kriging predictives are averaged
+BATCHES = 10  # batch means of the kept draws, for the factor's Monte Carlo sd (Flegal & Jones 2010)
 BOX_POINTS = 256  # points of the unit box at which the errors are averaged
 HESSIAN_STEP = 1e-4  # central differences of the objective's gradient
 
@@ -50,7 +55,8 @@ class VarianceCorrection:
     """How far the plug-in top level understates its error, and the levels that do not."""
 
     factor: float  # the plug-in's mean squared error under the posterior over its variance, box average
-    applied: float  # the factor applied to g_K's variance: max(1, factor)
+    factor_sd: float  # its Monte Carlo sd, by batch means over the chain's kept draws
+    applied: float  # the factor applied to g_K's own variance (at least 1; above factor: see the fixed point)
     levels: list[Level]
 
 
@@ -61,7 +67,7 @@ def hessian(fun, v: np.ndarray, step: float = HESSIAN_STEP) -> np.ndarray:
     return (H + H.T) / 2
 
 
-def top_level_draws(levels: list[Level], seed: int, draws: int = MIXED) -> np.ndarray:
+def top_level_draws(levels: list[Level], rng: np.random.Generator, draws: int = MIXED) -> np.ndarray:
     """Draws of v = (rho_K, pack(g_K's hyperparameters)) from the posterior
     stage 1 maximised (rho_K flat, g_K with emulator.stan's priors, the
     levels below fixed), by a random-walk Metropolis chain from the mode
@@ -78,11 +84,11 @@ def top_level_draws(levels: list[Level], seed: int, draws: int = MIXED) -> np.nd
 
     current = np.concatenate([[top.rho], pack(top.hyperparameters)])
     values, vectors = linalg.eigh(hessian(objective, current))
-    # a flat direction (a nugget far below the runs' scale) gets a step of sd 2 on the log scale, not a
-    # singular or endless one
+    # a flat direction (a nugget far below the runs' scale) gets a bounded step (curvature at least 0.25),
+    # not a singular or endless one
     scale = vectors @ np.diag(1 / np.maximum(values, 0.25)) @ vectors.T * 2.38**2 / len(current)
-    steps = np.random.default_rng(seed).multivariate_normal(np.zeros(len(current)), scale, CHAIN)
-    uniforms = np.random.default_rng(seed + 1).uniform(size=CHAIN)
+    steps = rng.multivariate_normal(np.zeros(len(current)), scale, CHAIN)
+    uniforms = rng.uniform(size=CHAIN)
     level, chain = energy(current), np.empty((CHAIN, len(current)))
     for i in range(CHAIN):
         proposed = current + steps[i]
@@ -90,7 +96,7 @@ def top_level_draws(levels: list[Level], seed: int, draws: int = MIXED) -> np.nd
         if np.log(uniforms[i]) < level - proposed_level:
             current, level = proposed, proposed_level
         chain[i] = current
-    kept = chain[CHAIN // 5:]  # the first fifth leaves the mode's neighbourhood
+    kept = chain[CHAIN // 5:]  # burn-in: the first fifth
     return kept[np.linspace(0, len(kept) - 1, draws).round().astype(int)]
 
 
@@ -102,14 +108,28 @@ def with_top(levels: list[Level], v: np.ndarray) -> list[Level]:
 def variance_correction(levels: list[Level], seed: int = 0) -> VarianceCorrection:
     """The plug-in top level's mean squared error under its hyperparameters'
     posterior, over its own variance, averaged over the unit box; and the
-    levels with g_K's variance scaled by it (at least 1)."""
-    mixed = top_level_draws(levels, seed)
-    points = np.random.default_rng(seed).uniform(size=(BOX_POINTS, levels[-1].xt.shape[1]))
+    levels with g_K's variance scaled until the co-kriging variance matches
+    it there (never narrowed)."""
+    rng = np.random.default_rng(seed)  # one stream: the chain's steps and uniforms, then the points
+    mixed = top_level_draws(levels, rng)
+    points = rng.uniform(size=(BOX_POINTS, levels[-1].xt.shape[1]))
     plug_mean, plug_variance = predict(levels, points)
     means, variances = np.array([predict(with_top(levels, row), points) for row in mixed]).transpose(1, 0, 2)
-    error = variances.mean(0) + means.var(0) + (means.mean(0) - plug_mean) ** 2
-    factor = float(error.mean() / plug_variance.mean())
-    applied = max(1.0, factor)
+    # each draw's box average of E[(f - m_hat)^2 | draw]; their mean is the mixture's error over the box
+    per_draw = (variances + (means - plug_mean) ** 2).mean(1)
+    error = per_draw.mean()
+    batches = np.array([b.mean() for b in np.array_split(per_draw, BATCHES)])
+    factor, factor_sd = error / plug_variance.mean(), batches.std(ddof=1) / np.sqrt(BATCHES) / plug_variance.mean()
+    applied = max(1.0, float(factor))
+    scaled = with_g_scaled(levels, applied)
+    if applied > 1:  # g_K is not the whole variance: one fixed-point step closes the shortfall
+        applied *= max(1.0, float(error / predict(scaled, points)[1].mean()))
+        scaled = with_g_scaled(levels, applied)
+    return VarianceCorrection(float(factor), float(factor_sd), applied, scaled)
+
+
+def with_g_scaled(levels: list[Level], times: float) -> list[Level]:
+    """The levels with g_K's sd and nugget scaled so that its variance is ``times`` as large."""
     h = levels[-1].hyperparameters
-    scaled = replace(h, sd=h.sd * np.sqrt(applied), nugget=h.nugget * np.sqrt(applied))
-    return VarianceCorrection(factor, applied, [*levels[:-1], replace(levels[-1], hyperparameters=scaled)])
+    scaled = replace(h, sd=h.sd * np.sqrt(times), nugget=h.nugget * np.sqrt(times))
+    return [*levels[:-1], replace(levels[-1], hyperparameters=scaled)]
