@@ -23,7 +23,10 @@ information given what is known through the Schur complement of its
 values' covariance (J and V^-1 recomputed from every value after each
 pick). Censored rows are left out of what is known (their information is
 less than a value's), and counts enter on the link scale with the
-targets' delta-method variances. This is chosen over the IMSPE of
+targets' delta-method variances. With per-experiment theta a new
+experiment brings its own theta, unknown: the criterion is then the
+variance of the shared theta, with every experiment's own (the new one's
+too) in J (greedy_settings). This is chosen over the IMSPE of
 zeta (Leatherman et al. 2017) because the design loop's goal is theta, and
 because it needs only the emulator and the stated variances, not a fitted
 discrepancy GP, so it works at every wave."""
