@@ -327,6 +327,28 @@ def test_the_posterior_criterion_with_theta_per_experiment_removes_the_variance_
     assert design.notes["variance_reduction"][0] == pytest.approx(drop, rel=1e-3)
 
 
+def test_a_fits_draws_become_nroys_columns_shared_then_each_experiments_own():
+    """The posterior criterion's draws from a vector fit with per-experiment
+    theta (the posterior as stancal.results.vector_result names it): NROY's
+    order, a, then b[e1], b[e2], b[e3], draw by draw."""
+    import xarray as xr
+
+    from stancal.designing.loop import nroy_draws
+
+    box = UnitBox.of(per_experiment_data(runs=12))
+    chains, draws = 2, 3
+    a = np.arange(chains * draws, dtype=float).reshape(chains, draws, 1)
+    # stored experiment-theta-name last, as the fit's dims say; b[e] = 10 e + the draw's number
+    b = (10 * np.arange(1, 4)[None, None, :] + a).reshape(chains, draws, 3, 1)
+    posterior = xr.Dataset({"theta": (("chain", "draw", "theta_name"), a),
+                            "theta_experiment": (("chain", "draw", "experiment", "experiment_theta_name"), b)},
+                           coords={"theta_name": ["a"], "experiment": ["e1", "e2", "e3"],
+                                   "experiment_theta_name": ["b"]})
+    table = nroy_draws(posterior, box)
+    expected = np.column_stack([np.arange(6.0), *(10 * e + np.arange(6.0) for e in (1, 2, 3))])
+    np.testing.assert_array_equal(table, expected)
+
+
 # ---- the posterior criterion's emulator -----------------------------------------------
 def test_the_stage_one_emulator_on_the_design_box_is_the_calibrations():
     """Stage 1's hyperparameters live on the calibration's unit cube (the
