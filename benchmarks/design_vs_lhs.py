@@ -232,13 +232,13 @@ def plot(rows: list[dict], path: Path) -> None:
     fig, axes = plt.subplots(2, 3, figsize=(11, 6.4), layout="constrained")
     seeds = [r["seed"] for r in rows]
     for ax, name in zip(axes.flat, THETA, strict=False):
-        series = [(r[arm][name]["interval"] for r in rows) for arm, _, _ in ARMS]
+        series = [[r[arm][name]["interval"] for r in rows] for arm, _, _ in ARMS]
         styles = [(colour, label) for _, colour, label in ARMS]
         if name in ACTIVE:  # c_p does not enter the simulator: its exact posterior is its prior
-            series.append(r["designed"]["exact"][name]["interval"] for r in rows)
+            series.append([r["designed"]["exact"][name]["interval"] for r in rows])
             styles.append(("grey", "the simulator itself (no emulator)"))
         for shift, intervals, (colour, label) in zip((-0.22, 0.0, 0.22), series, styles, strict=False):
-            low, mid, high = np.array(list(intervals)).T
+            low, mid, high = np.array(intervals).T
             ax.vlines(np.arange(len(rows)) + shift, low, high, color=colour, lw=2.5, label=f"{label}: 90 % interval")
             ax.plot(np.arange(len(rows)) + shift, mid, "o", color=colour, ms=3.5)
         ax.axhline(TRUTH[name], color="black", ls="--", lw=1, label="truth")
@@ -246,6 +246,7 @@ def plot(rows: list[dict], path: Path) -> None:
                             for (arm, _, _), short in zip(ARMS, ("designed", "LHS"), strict=True))
         ax.set_title(f"{name}: truth covered {covered}", fontsize=9)
         ax.set_ylim(*THETA[name])
+        ax.set_xlim(-0.5, len(rows) - 0.5)
         ax.set_xticks(range(len(rows)), [str(s) for s in seeds])
         ax.set_xlabel("seed")
         ax.set_ylabel(f"{name} [{CONFIG.units.get(name, '–')}]")
@@ -257,6 +258,7 @@ def plot(rows: list[dict], path: Path) -> None:
         ax.plot(np.arange(len(rows)) + shift, [r[arm]["mean_sd"] for r in rows], "x", color=colour,
                 label=f"{label}: its predictive sd")
     ax.set_yscale("log")
+    ax.set_xlim(-0.5, len(rows) - 0.5)
     ax.set_xticks(range(len(rows)), [str(s) for s in seeds])
     ax.set_xlabel("seed (runs: " + ", ".join(str(r["runs"]) for r in rows) + ")")
     ax.set_ylabel("emulator at the true theta [°C]")
