@@ -250,7 +250,7 @@ def plot(rows: list[dict], path: Path) -> None:
         ax.set_xticks(range(len(rows)), [str(s) for s in seeds])
         ax.set_xlabel("seed")
         ax.set_ylabel(f"{name} [{CONFIG.units.get(name, '–')}]")
-    axes[0, 0].legend(fontsize=7, loc="upper right")
+    fig.legend(*axes[0, 0].get_legend_handles_labels(), loc="outside lower center", ncol=4, fontsize=8)
     ax = axes.flat[len(THETA)]
     for shift, (arm, colour, label) in zip((-0.15, 0.15), ARMS, strict=True):
         ax.plot(np.arange(len(rows)) + shift, [r[arm]["rms_error"] for r in rows], "o", color=colour,
