@@ -263,7 +263,9 @@ def plot(rows: list[dict], path: Path) -> None:
     ax.set_xlabel("seed (runs: " + ", ".join(str(r["runs"]) for r in rows) + ")")
     ax.set_ylabel("emulator at the true theta [°C]")
     ax.set_title("the emulator of all the runs near the truth", fontsize=9)
-    ax.legend(fontsize=7)
+    largest = max(max(r[arm]["rms_error"], r[arm]["mean_sd"]) for r in rows for arm, _, _ in ARMS)
+    ax.set_ylim(top=4 * largest)  # room for the legend above the points
+    ax.legend(fontsize=7, loc="upper center")
     finish(fig, path)
 
 
