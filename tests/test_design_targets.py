@@ -232,11 +232,121 @@ def test_theta_per_experiment_runs_waves_and_writes_its_folder(tmp_path):
     first = loop.designs[0].match.cuts[0]
     assert (first(last.match.nroy.theta_unit) <= 3.0).all()
     assert loop.fractions[-1] < loop.fractions[0] * (1 + 3 * last.match.nroy.fraction_cv)
-    with pytest.raises(ValueError, match="--experiments does not take"):
-        stancal.propose_experiments(last.match, 1)
     write_design(last, tmp_path / "design")
     assert list(pd.read_csv(tmp_path / "design" / "nroy.csv").columns) == ["a", "b[e1]", "b[e2]", "b[e3]"]
     assert list(pd.read_csv(tmp_path / "design" / "next_runs.csv").columns) == ["x", "a", "b"]
+
+
+@pytest.fixture(scope="module")
+def per_experiment_match():
+    return stancal.history_match(per_experiment_data(), settings=DesignSettings(discrepancy_sd=0.05, nroy_points=1000),
+                                 seed=1)
+
+
+def per_experiment_gradient(cut, x: np.ndarray, groups, theta: np.ndarray, step: float = 1e-3) -> np.ndarray:
+    """d mean / d theta (values, Q) at one point ``theta`` of the runs' (a, b),
+    by central differences, experiment by experiment."""
+    columns = []
+    for q in range(len(theta)):
+        up, down = theta.copy(), theta.copy()
+        up[q], down[q] = min(theta[q] + step, 1), max(theta[q] - step, 0)
+        means = [np.concatenate([cut.emulator.at(x, t[None], [g])[0][0, g[1]] for g in groups]) for t in (up, down)]
+        columns.append((means[0] - means[1]) / (up[q] - down[q]))
+    return np.column_stack(columns)
+
+
+def test_next_experiments_with_theta_per_experiment_count_the_new_experiments_own_theta(per_experiment_match):
+    """A new experiment brings its own rate b_new: the criterion is the
+    variance of the shared a with every rate, b_new among them, unknown.
+    Computed here directly, for the first pick: J = 12 I + G' V^-1 G over
+    (a, b[e1], b[e2], b[e3], b_new) from every value, old and new, at once
+    (no Schur complements), its inverse's (a, a) entry, averaged over the
+    16 NROY draws. Counting the new values' information on a alone (b_new
+    known) would give a smaller variance: the test tells them apart."""
+    from stancal.designing.experiments import DISCREPANCY_LENGTH, discrepancy_covariance, index_range, positions
+
+    match = per_experiment_match
+    settings = stancal.propose_experiments(match, 2, seed=4)
+    trace = settings.attrs["theta_variance_trace"]
+    assert list(settings.columns) == ["x"] and settings["x"].between(0, 1).all() and trace[1] <= trace[0]
+    cut, t = match.cuts[-1], match.cuts[-1].targets
+    rng = np.random.default_rng(4)  # the draws next_experiments takes, in its order
+    theta = match.nroy.theta_unit[rng.choice(len(match.nroy.theta_unit), 16, replace=False)]
+    qmc.LatinHypercube(d=1, seed=rng).random(300)
+    new_own = theta[np.arange(16), 1 + rng.integers(0, 3, 16)]  # b_new: a random experiment's rate, per draw
+    new_x = match.box.inputs_to_unit(settings.iloc[:1])
+    new_group = [(new_x[0], slice(0, 9), GRID[:, None])]
+    x = np.vstack([t.x_unit, np.repeat(new_x, 9, axis=0)])
+    groups = [*t.groups, (new_x[0], slice(t.count, t.count + 9), GRID[:, None])]
+    low, width = index_range(t)
+    where = positions(x, groups, low, width)
+    known_variance = np.mean([t.emulate(cut.emulator, d)[1][0] for d in theta], axis=0)
+    new_variance = np.mean([cut.emulator.at(new_x.repeat(9, 0), np.array([[d[0], b]]), new_group)[1][0]
+                            for d, b in zip(theta, new_own, strict=True)], axis=0)
+    noise = t.noise_variance.mean()
+    V = discrepancy_covariance(cut, where, where, DISCREPANCY_LENGTH) + np.diag(
+        np.concatenate([known_variance, new_variance]) + noise)
+    with_nuisance, b_new_known = [], []
+    for d, b in zip(theta, new_own, strict=True):
+        G = np.zeros((t.count + 9, 5))
+        for e, group in enumerate(t.groups):  # experiment e's values depend on a and b[e]
+            G[group[1], [0, 1 + e]] = per_experiment_gradient(cut, t.x_unit, [group], d[[0, 1 + e]])
+        G[t.count:, [0, 4]] = per_experiment_gradient(cut, new_x.repeat(9, 0), new_group, np.array([d[0], b]))
+        with_nuisance.append(np.linalg.inv(12 * np.eye(5) + G.T @ np.linalg.solve(V, G))[0, 0])
+        b_new_known.append(np.linalg.inv(12 * np.eye(4) + G[:, :4].T @ np.linalg.solve(V, G[:, :4]))[0, 0])
+    assert trace[0] == pytest.approx(np.mean(with_nuisance), rel=1e-5)
+    assert trace[0] > 1.01 * np.mean(b_new_known)
+
+
+def test_the_posterior_criterion_with_theta_per_experiment_removes_the_variance_it_says(per_experiment_match):
+    """References where calibration uses the emulator: experiment e's inputs at
+    each draw's (a, b[e]). The first pick's gain equals the drop of the
+    variance summed there (each component GP weighted as the criterion
+    weights it) when every GP is refitted with that run added."""
+    from stancal.designing.targets import run_table
+    from stancal.designing.waves import fit_emulator
+
+    match = per_experiment_match
+    draws = match.nroy_frame().iloc[:300]  # NROY's columns: a, b[e1], b[e2], b[e3]; stands in for the posterior
+    design = stancal.propose_runs(match, 2, criterion="posterior", posterior=draws, seed=3)
+    assert list(design.next_runs.columns) == ["x", "a", "b"]
+    assert (match.implausibility_at_runs(design.next_runs) <= 3.0).all()
+    unit = match.box.theta_to_unit(draws.to_numpy())
+    rng = np.random.default_rng(3)  # the references posterior_runs draws, in its order
+    chosen_draws = unit[rng.choice(len(unit), 60, replace=False)]
+    kept = rng.choice(3, 3, replace=False)
+    t = match.targets
+    references = np.vstack([np.column_stack([np.tile(t.groups[e][0], (60, 1)), chosen_draws[:, [0, 1 + e]]])
+                            for e in kept])
+    emulator = fit_emulator(match.data, *run_table(match.data, match.box), 3)
+    run = match.box.to_unit(design.next_runs.iloc[:1])
+    drop = 0.0
+    for gp, weight in emulator.parts(t.groups):
+        grown = GaussianProcess(gp.hyperparameters, np.vstack([gp.xt_runs, run]), np.append(gp.values, 0.3))
+        drop += weight * (gp.predict(references)[1].sum() - grown.predict(references)[1].sum())
+    assert design.notes["variance_reduction"][0] == pytest.approx(drop, rel=1e-3)
+
+
+def test_a_fits_draws_become_nroys_columns_shared_then_each_experiments_own():
+    """The posterior criterion's draws from a vector fit with per-experiment
+    theta (the posterior as stancal.results.vector_result names it): NROY's
+    order, a, then b[e1], b[e2], b[e3], draw by draw."""
+    import xarray as xr
+
+    from stancal.designing.loop import nroy_draws
+
+    box = UnitBox.of(per_experiment_data(runs=12))
+    chains, draws = 2, 3
+    a = np.arange(chains * draws, dtype=float).reshape(chains, draws, 1)
+    # stored experiment-theta-name last, as the fit's dims say; b[e] = 10 e + the draw's number
+    b = (10 * np.arange(1, 4)[None, None, :] + a).reshape(chains, draws, 3, 1)
+    posterior = xr.Dataset({"theta": (("chain", "draw", "theta_name"), a),
+                            "theta_experiment": (("chain", "draw", "experiment", "experiment_theta_name"), b)},
+                           coords={"theta_name": ["a"], "experiment": ["e1", "e2", "e3"],
+                                   "experiment_theta_name": ["b"]})
+    table = nroy_draws(posterior, box)
+    expected = np.column_stack([np.arange(6.0), *(10 * e + np.arange(6.0) for e in (1, 2, 3))])
+    np.testing.assert_array_equal(table, expected)
 
 
 # ---- the posterior criterion's emulator -----------------------------------------------

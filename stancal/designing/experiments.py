@@ -23,12 +23,17 @@ information given what is known through the Schur complement of its
 values' covariance (J and V^-1 recomputed from every value after each
 pick). Censored rows are left out of what is known (their information is
 less than a value's), and counts enter on the link scale with the
-targets' delta-method variances. This is chosen over the IMSPE of
+targets' delta-method variances. With per-experiment theta a new
+experiment brings its own theta, unknown: the criterion is then the
+variance of the shared theta, with every experiment's own (the new one's
+too) in J (greedy_settings). This is chosen over the IMSPE of
 zeta (Leatherman et al. 2017) because the design loop's goal is theta, and
 because it needs only the emulator and the stated variances, not a fitted
 discrepancy GP, so it works at every wave."""
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.stats import qmc
@@ -42,9 +47,10 @@ DISCREPANCY_LENGTH = 0.2  # without a fit: the discrepancy's correlation length,
 # (and output index)
 
 
-def _jacobian(cut: Cut, x_unit: np.ndarray, groups, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """d mean / d theta (S, n, Q) at each draw of theta, and each value's
-    emulator variance averaged over the draws (n,)."""
+def _jacobian(evaluate, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """d mean / d theta (S, n, Q) at each draw of theta (S, Q), by central
+    differences of ``evaluate`` (theta -> the emulator's mean and variance,
+    each (S, n)), and each value's emulator variance averaged over the draws (n,)."""
     S, Q = theta.shape
     shifted = [theta]
     for q in range(Q):
@@ -52,11 +58,22 @@ def _jacobian(cut: Cut, x_unit: np.ndarray, groups, theta: np.ndarray) -> tuple[
             moved = theta.copy()
             moved[:, q] = np.clip(moved[:, q] + sign * STEP, 0, 1)
             shifted.append(moved)
-    mean, variance = cut.emulator.at(x_unit, np.vstack(shifted), groups)
+    mean, variance = evaluate(np.vstack(shifted))
     mean = mean.reshape(1 + 2 * Q, S, -1)
     steps = np.stack([shifted[1 + 2 * q][:, q] - shifted[2 + 2 * q][:, q] for q in range(Q)], axis=-1)  # (S, Q)
     gradient = np.stack([mean[1 + 2 * q] - mean[2 + 2 * q] for q in range(Q)], axis=-1) / steps[:, None, :]
     return gradient, variance[:S].mean(axis=0)
+
+
+def new_experiment_theta(targets, theta: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """The theta a new experiment's values are emulated at (S, Q of the
+    runs): NROY's draws themselves with shared theta only; with
+    per-experiment theta, each draw's shared theta and the own theta of a
+    random experiment of that draw, a value the new experiment's own may take."""
+    if not targets.group_theta:
+        return theta
+    columns = np.array(targets.group_theta)[rng.integers(0, len(targets.group_theta), len(theta))]
+    return np.take_along_axis(theta, columns, axis=1)
 
 
 def index_range(targets) -> tuple[np.ndarray, np.ndarray]:
@@ -87,15 +104,20 @@ def discrepancy_covariance(cut: Cut, a: np.ndarray, b: np.ndarray,
 
 
 def next_experiments(cut: Cut, nroy_theta: np.ndarray, count: int, seed: int,
-                     length: float | np.ndarray = DISCREPANCY_LENGTH) -> tuple[np.ndarray, list[float]]:
+                     length: float | np.ndarray = DISCREPANCY_LENGTH,
+                     shared: int | None = None) -> tuple[np.ndarray, list[float]]:
     """``count`` input settings (count, D), unit cube of the inputs, and the
-    criterion (mean trace of theta's covariance, unit cube) after each pick.
-    ``length``: the discrepancy's length scales on the positions' unit
-    cube (the inputs', then the output index's, index_range)."""
+    criterion (mean trace of the shared theta's covariance, unit cube) after
+    each pick. ``length``: the discrepancy's length scales on the positions'
+    unit cube (the inputs', then the output index's, index_range).
+    ``shared``: with per-experiment theta, how many of NROY's first columns
+    are the shared theta (UnitBox.shared); a new experiment brings its own."""
     targets = cut.targets
     inputs = targets.x_unit.shape[1]
     if not inputs:
         raise ValueError("--experiments needs simulator inputs to choose ([physical] inputs is empty)")
+    if targets.group_theta and shared is None:
+        raise ValueError("with per-experiment theta, next_experiments needs the shared theta's count")
     rng = np.random.default_rng(seed)
     theta = nroy_theta[rng.choice(len(nroy_theta), min(THETA_DRAWS, len(nroy_theta)), replace=False)]
     index_low, index_width = index_range(targets)
@@ -103,37 +125,70 @@ def next_experiments(cut: Cut, nroy_theta: np.ndarray, count: int, seed: int,
     # is not overstated); a vector output's values are all observed
     x_known = targets.x_unit if targets.groups else targets.x_unit[targets.observed]
     noise = float(np.mean(targets.noise_variance[targets.observed]))  # a new value's, as the data's on average
-    gradient, emulator_variance = _jacobian(cut, x_known, targets.groups, theta)
-    where = positions(x_known, targets.groups, index_low, index_width)
-    own = emulator_variance + noise  # each value's own variance
+    gradient, emulator_variance = _jacobian(lambda t: targets.emulate_at(cut.emulator, x_known, t), theta)
+    known = Values(positions(x_known, targets.groups, index_low, index_width), emulator_variance + noise, gradient)
     pool = qmc.LatinHypercube(d=inputs, seed=rng).random(SETTINGS_CANDIDATES)
     pool_x, pool_groups, m = candidate_values(targets, pool)
-    pool_gradient, pool_variance = _jacobian(cut, pool_x, pool_groups, theta)
-    pool_where = positions(pool_x, pool_groups, index_low, index_width)
-    pool_own = pool_variance + noise
-    C, S, Q = len(pool), len(theta), theta.shape[1]
+    pool_gradient, pool_variance = _jacobian(lambda t: cut.emulator.at(pool_x, t, pool_groups),
+                                             new_experiment_theta(targets, theta, rng))
+    candidates = Values(positions(pool_x, pool_groups, index_low, index_width), pool_variance + noise, pool_gradient)
+    chosen, criterion = greedy_settings(cut, known, candidates, m, count, length,
+                                        theta.shape[1] if shared is None else shared)
+    return pool[chosen], criterion
+
+
+@dataclass
+class Values:
+    """Measured values as the criterion sees them: where each one's
+    discrepancy sits (positions), its own variance (noise and emulator),
+    and the emulator mean's derivatives in theta (S, n, parameters)."""
+
+    where: np.ndarray
+    own: np.ndarray
+    gradient: np.ndarray
+
+
+def greedy_settings(cut: Cut, known: Values, pool: Values, m: int, count: int, length: float | np.ndarray,
+                    shared: int) -> tuple[list[int], list[float]]:
+    """``count`` candidates chosen one at a time, each lowering most the
+    mean trace of the shared theta's covariance, (J^-1)'s first ``shared``
+    rows and columns: J is the information on every parameter at once, the
+    shared theta, each experiment's own (known values) and the candidate's
+    own (``pool.gradient``'s columns beyond ``shared``, its prior's
+    precision alone until it is measured), so what a candidate's values
+    teach about its own theta is not counted as teaching the shared one
+    (the Schur complement of J's own block). Without per-experiment theta
+    every parameter is shared. A chosen candidate's own theta stays a
+    parameter; the next candidate brings new ones."""
+    C, S = len(pool.own) // m, known.gradient.shape[0]
+    pool_shared, pool_theta = pool.gradient[..., :shared], pool.gradient[..., shared:]
+    fresh = pool_theta.shape[-1]  # a new experiment's own theta
     # each candidate's own covariance: the pool never changes, so once
-    own_blocks = (np.array([discrepancy_covariance(cut, w, w, length) for w in pool_where.reshape(C, m, -1)])
-                  + np.apply_along_axis(np.diag, 1, pool_own.reshape(C, m)))
+    own_blocks = (np.array([discrepancy_covariance(cut, w, w, length) for w in pool.where.reshape(C, m, -1)])
+                  + np.apply_along_axis(np.diag, 1, pool.own.reshape(C, m)))
+    where, own, gradient = known.where, known.own, known.gradient
     chosen, criterion = [], []
     for _ in range(count):
+        P = gradient.shape[-1] + fresh
+        G = np.concatenate([gradient, np.zeros((S, len(own), fresh))], axis=-1)
+        candidate = np.concatenate([pool_shared, np.zeros((S, C * m, P - shared - fresh)), pool_theta], axis=-1)
         V_inv = np.linalg.inv(discrepancy_covariance(cut, where, where, length) + np.diag(own))
-        known = np.einsum("snq,nk,skr->sqr", gradient, V_inv, gradient) + 12 * np.eye(Q)
-        B = discrepancy_covariance(cut, where, pool_where, length)  # (n, C m)
+        information = np.einsum("snq,nk,skr->sqr", G, V_inv, G) + 12 * np.eye(P)
+        B = discrepancy_covariance(cut, where, pool.where, length)  # (n, C m)
         solved = V_inv @ B
         schur = own_blocks - np.einsum("nci,ncj->cij", B.reshape(-1, C, m), solved.reshape(-1, C, m))
-        U = (pool_gradient.reshape(S, C, m, Q)
-             - np.einsum("nci,snq->sciq", solved.reshape(-1, C, m), gradient))
+        U = candidate.reshape(S, C, m, P) - np.einsum("nci,snq->sciq", solved.reshape(-1, C, m), G)
         added = np.einsum("sciq,cij,scjr->scqr", U, np.linalg.inv(schur), U)
-        trace = np.trace(np.linalg.inv(known[:, None] + added), axis1=-2, axis2=-1).mean(axis=0)
+        covariance = np.linalg.inv(information[:, None] + added)
+        trace = np.trace(covariance[..., :shared, :shared], axis1=-2, axis2=-1).mean(axis=0)
         best = int(np.argmin(trace))
         chosen.append(best)
         criterion.append(float(trace[best]))
         rows = slice(best * m, (best + 1) * m)
-        where = np.vstack([where, pool_where[rows]])
-        own = np.concatenate([own, pool_own[rows]])
-        gradient = np.concatenate([gradient, pool_gradient[:, rows]], axis=1)
-    return pool[chosen], criterion
+        where = np.vstack([where, pool.where[rows]])
+        own = np.concatenate([own, pool.own[rows]])
+        gradient = np.concatenate([G, candidate[:, rows]], axis=1)
+    return chosen, criterion
 
 
 def candidate_values(targets, pool: np.ndarray):

@@ -60,8 +60,20 @@ def posterior_theta(match: HistoryMatch, seed: int, simulator=None, **sampler):
         from stancal.fitting.calibrate import calibrate
 
         result = calibrate(data, simulator=simulator, method=method, **options)
-    draws = np.asarray(result.idata["posterior"]["theta"]).reshape(-1, len(match.box.theta))
-    return match.box.theta_to_unit(draws), result
+    return match.box.theta_to_unit(nroy_draws(result.idata["posterior"], match.box)), result
+
+
+def nroy_draws(posterior, box) -> np.ndarray:
+    """A fit's theta draws (draws, NROY's theta) in original units, in
+    NROY's order (UnitBox.nroy_names): the shared theta, then each
+    experiment's own (``theta_experiment``, experiment by experiment)."""
+    shared = np.asarray(posterior["theta"]).reshape(-1, box.shared)
+    if not box.per_experiment:
+        return shared
+    # the fit's experiments are the data's, in the data's order, as NROY's are
+    own = posterior["theta_experiment"].transpose("chain", "draw", "experiment", "experiment_theta_name")
+    own = own.sel(experiment_theta_name=box.per_experiment)
+    return np.hstack([shared, np.asarray(own).reshape(len(shared), -1)])
 
 
 def propose_runs(match: HistoryMatch, runs: int, *, criterion: str = "nroy", seed: int = 1,
@@ -90,9 +102,6 @@ def propose_runs(match: HistoryMatch, runs: int, *, criterion: str = "nroy", see
         unit, distances = nroy_runs(theta, existing, inputs, runs, seed)
         notes["maximin_distance"] = float(distances.min())
     else:
-        if box.per_experiment:
-            raise ValueError("--criterion posterior does not take [simulator.theta_per_experiment] yet; "
-                             "use --criterion nroy")
         emulator = None
         if posterior is None:
             draws, fit = posterior_theta(match, seed, **sampler)
@@ -100,13 +109,15 @@ def propose_runs(match: HistoryMatch, runs: int, *, criterion: str = "nroy", see
             notes["posterior_diagnostics"] = fit.diagnostics.summary() if fit.diagnostics else None
             emulator = stage_one_emulator(match.data, box, fit.emulator)
         else:
-            draws = box.theta_to_unit(posterior[box.theta].to_numpy(float))
+            draws = box.theta_to_unit(posterior[box.nroy_names].to_numpy(float))
         if emulator is not None:
             notes["posterior_emulator"] = "the posterior fit's stage 1"
         else:
             emulator = fit_emulator(match.data, existing, outputs, seed)
             notes["posterior_emulator"] = "fitted to every run, as stage 1"
-        unit, gains = posterior_runs(emulator.parts(match.targets.groups), draws, match.targets.x_unit, runs, seed)
+        targets = match.targets
+        experiments = [(row, columns) for (row, _, _), columns in zip(targets.groups, targets.group_theta, strict=True)]
+        unit, gains = posterior_runs(emulator.parts(targets.groups), draws, targets.x_unit, runs, seed, experiments)
         notes["variance_reduction"] = gains
     frame = pd.DataFrame(box.to_original(unit), columns=box.columns)
     return Design(match, frame, criterion, notes=notes, posterior_fit=fit)
@@ -133,11 +144,9 @@ def propose_experiments(match: HistoryMatch, count: int, seed: int = 1, fit=None
     ``fit`` (a calibration of the problem) when given (discrepancy_length)."""
     if count < 1:
         raise ValueError(f"--experiments must be at least 1; got {count}")
-    if match.box.per_experiment:
-        raise ValueError("--experiments does not take [simulator.theta_per_experiment] yet (a new experiment "
-                         "brings its own theta)")
     length, source = discrepancy_length(match, fit)
-    unit, criterion = next_experiments(match.cuts[-1], match.nroy.theta_unit, count, seed, length)
+    unit, criterion = next_experiments(match.cuts[-1], match.nroy.theta_unit, count, seed, length,
+                                       shared=match.box.shared)
     frame = pd.DataFrame(match.box.inputs_to_original(unit), columns=match.box.inputs)
     frame.attrs["theta_variance_trace"] = criterion
     frame.attrs["discrepancy_length"] = np.atleast_1d(length).tolist()  # the positions' unit cube

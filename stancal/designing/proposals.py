@@ -96,15 +96,22 @@ def variance_reduction_batch(parts: list[tuple[GaussianProcess, float]], pool: n
 
 
 def posterior_runs(parts: list[tuple[GaussianProcess, float]], posterior_theta: np.ndarray, x_unit: np.ndarray,
-                   count: int, seed: int) -> tuple[np.ndarray, list[float]]:
+                   count: int, seed: int, experiments=()) -> tuple[np.ndarray, list[float]]:
     """``count`` new runs (count, D + Q), unit cube, by the posterior-weighted
     integrated variance: references (x_i, theta_s) at observed inputs and
     posterior draws; candidates pair posterior draws with the observed
-    inputs (half) and a Latin hypercube of the inputs' box (half)."""
+    inputs (half) and a Latin hypercube of the inputs' box (half).
+    ``experiments``, with per-experiment theta: each experiment's inputs
+    (its row of the unit cube) and the columns of ``posterior_theta`` (NROY's
+    theta) its runs take, the shared theta and its own (UnitBox.selection)."""
     rng = np.random.default_rng(seed)
     inputs = x_unit.shape[1]
     draws = posterior_theta[rng.choice(len(posterior_theta), min(REFERENCE_THETA, len(posterior_theta)),
                                        replace=False)]
+    if experiments:
+        references, pool = per_experiment_points(experiments, posterior_theta, draws, inputs, rng)
+        chosen, gains = variance_reduction_batch(parts, pool, references, count)
+        return pool[chosen], gains
     unique_x = np.unique(x_unit, axis=0) if inputs else np.zeros((1, 0))
     xs = unique_x[rng.choice(len(unique_x), min(REFERENCE_POINTS, len(unique_x)), replace=False)]
     references = pairs(xs, draws)
@@ -114,3 +121,25 @@ def posterior_runs(parts: list[tuple[GaussianProcess, float]], posterior_theta: 
         pool[:half, :inputs] = unique_x[rng.integers(0, len(unique_x), half)]
     chosen, gains = variance_reduction_batch(parts, pool, references, count)
     return pool[chosen], gains
+
+
+def per_experiment_points(experiments, posterior_theta: np.ndarray, draws: np.ndarray, inputs: int,
+                          rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """The posterior criterion's references and candidates with per-experiment
+    theta, where calibration uses the emulator: experiment e's inputs at
+    each draw's shared theta and e's own (at most REFERENCE_POINTS
+    experiments); candidates take a random draw's shared theta and a random
+    experiment's own, with that experiment's inputs (half) or a Latin
+    hypercube's (half)."""
+    rows = np.array([row for row, _ in experiments]).reshape(len(experiments), inputs)
+    columns = np.array([c for _, c in experiments])
+    kept = rng.choice(len(experiments), min(REFERENCE_POINTS, len(experiments)), replace=False)
+    references = np.vstack([pairs(rows[e][None, :], draws[:, columns[e]]) for e in kept])
+    which = rng.integers(0, len(experiments), POSTERIOR_CANDIDATES)
+    theta = np.take_along_axis(posterior_theta[rng.integers(0, len(posterior_theta), POSTERIOR_CANDIDATES)],
+                               columns[which], axis=1)
+    x = qmc.LatinHypercube(d=inputs, seed=rng).random(POSTERIOR_CANDIDATES) if inputs \
+        else np.zeros((POSTERIOR_CANDIDATES, 0))
+    half = POSTERIOR_CANDIDATES // 2
+    x[:half] = rows[which[:half]]
+    return references, np.column_stack([x, theta])

@@ -132,9 +132,14 @@ class Targets:
     def emulate(self, emulator, theta_unit: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The emulator's mean and variance (S, n) at each value, for S points
         of theta's NROY space (each experiment's own theta taken out of it)."""
+        return self.emulate_at(emulator, self.x_unit, theta_unit)
+
+    def emulate_at(self, emulator, x_unit: np.ndarray, theta_unit: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The same at the values' inputs ``x_unit`` (all of them, or a
+        scalar output's chosen rows; a vector output's are its groups')."""
         theta_unit = np.atleast_2d(theta_unit)
         by_group = [theta_unit[:, columns] for columns in self.group_theta] or None
-        return emulator.at(self.x_unit, theta_unit, self.groups, by_group)
+        return emulator.at(x_unit, theta_unit, self.groups, by_group)
 
     def noise_bounded_by(self, residual_variance: float) -> Targets:
         """The estimated noise variance, or ``residual_variance`` (the
