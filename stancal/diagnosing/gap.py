@@ -48,10 +48,12 @@ import numpy as np
 import pandas as pd
 
 from stancal.diagnosing.gap_location import GapLocation, interval, locate_gap
+from stancal.diagnosing.moment_match import match_fit
 from stancal.diagnosing.scoring import (
     PARETO_K_LIMIT,
     Score,
     kfold_tests,
+    moment_matched,
     psis_score,
     refit_rows,
     rescored,
@@ -127,6 +129,7 @@ class GapAnalysis:
                 "holdout_rmse": base.holdout_rmse(y),
                 "scheme": base.scheme,
                 "refits": base.refits,
+                "moment_matching": _matching(base),
                 "diagnostics": _sampler(self.baseline),
             },
             "where": self.location.to_json(),
@@ -157,9 +160,17 @@ class GapAnalysis:
                 "scheme": s.scheme,
                 "max_pareto_k": None if np.isnan(s.max_pareto_k) else s.max_pareto_k,
                 "refits": s.refits,
+                "moment_matching": _matching(s),
                 "diagnostics": _sampler(fit.result),
             })
         return out
+
+
+def _matching(score: Score) -> dict[str, Any]:
+    """What moment matching did in one fit: the observations it scored
+    (Pareto k brought to 0.7 or below), and each tried one's k before and after."""
+    return {"points": sum(p.k_after <= PARETO_K_LIMIT for p in score.matched),
+            "tried": [p.to_json() for p in score.matched]}
 
 
 def _sampler(result: CalibrationResult | VectorCalibrationResult) -> dict[str, Any]:
@@ -262,6 +273,7 @@ def diagnose_gap(
     warm_refits: bool = True,
     warm_candidates: bool = False,
     every_candidate: bool = False,
+    moment_matching: bool = True,
     **calibrate_options: Any,
 ) -> GapAnalysis:
     """Fit the baseline (KOH with a GP discrepancy over the inputs and
@@ -287,7 +299,11 @@ def diagnose_gap(
     or the comparison falls back to K-fold (too many unreliable points), a
     candidate that cannot lead whatever its unreliable points' held-out
     densities turn out to be keeps its PSIS scores, unrefitted
-    (scoring.settled; its scheme says so).
+    (scoring.settled; its scheme says so). ``moment_matching``: before any
+    refit, PSIS-LOO with moment matching (Paananen et al. 2021;
+    stancal.diagnosing.moment_match) at each fit's points with Pareto k
+    above 0.7 (scalar outputs); only the points it leaves above 0.7 are
+    refitted.
     """
     SamplerOptions.from_keywords({**calibrate_options, "seed": seed})  # before anything is planned or compiled
     vector = isinstance(data, VectorCalibrationData)
@@ -340,7 +356,11 @@ def diagnose_gap(
                           failed)
         labels, fits = _without_failures(labels, fits, failed)
         clock.lap("fits")
-        scores, skipped, kfold = comparison_scheme(labels, [psis_score(r) for r in fits], kfold, every_candidate)
+        scores = [psis_score(r) for r in fits]
+        if moment_matching and kfold is None and not vector:  # K-fold refits every point; vectors: not yet
+            scores = _moment_matched(runner, labels, fits, scores)
+            clock.lap("moment matching")
+        scores, skipped, kfold = comparison_scheme(labels, scores, kfold, every_candidate)
         tests = [[] if i in skipped else kfold_tests(len(data_for(c).physical), kfold, seed) if kfold is not None
                  else unreliable_tests(s) for i, (c, s) in enumerate(zip(labels, scores, strict=True))]
         # every refit of every fit in one batch
@@ -396,6 +416,26 @@ def _without_failures(labels: list, fits: list, failed: list[FitFailure]) -> tup
                      strict=True))
 
 
+def _moment_matched(runner: FitRunner, labels: list, fits: list, scores: list[Score]) -> list[Score]:
+    """Each fit's observations with Pareto k above 0.7 moment-matched
+    (Paananen et al. 2021; stancal.diagnosing.moment_match), one task per
+    fit on the runner, before any refit: an observation whose k it brings to
+    0.7 or below keeps its moment-matched score and is not refitted. Where
+    it fails (the cmdstanpy backend has no unconstrained log density), the
+    fit's points are refitted as before."""
+    todo = [i for i, score in enumerate(scores) if score.unreliable.size]
+    tasks = [FitTask(f"moment matching of {label_name(labels[i])}", match_fit,
+                     {"result": fits[i], "rows": scores[i].unreliable.tolist()})
+             for i in todo]
+    scores = list(scores)
+    for i, matched in zip(todo, runner.map(tasks), strict=True):
+        if not isinstance(matched, FitFailure):  # a failure is said by the runner; its points are refitted
+            scores[i] = moment_matched(scores[i], matched)
+            logger.info("%s: moment matching scored %d of %d points with Pareto k above %g", label_name(labels[i]),
+                        sum(p.k_after <= PARETO_K_LIMIT for p in matched), len(matched), PARETO_K_LIMIT)
+    return scores
+
+
 def _warm(fit: CalibrationResult, test: np.ndarray, calibrate_options: dict[str, Any], seed: int) -> dict[str, Any]:
     """A refit without the rows ``test``, started from ``fit`` (stancal.fitting.warm_start)."""
     train = np.setdiff1d(np.arange(len(fit.data.physical)), test)
@@ -423,7 +463,7 @@ def comparison_scheme(labels: list, scores: list[Score], kfold: int | None,
     for i in sorted(skipped):
         logger.info("%s cannot lead whatever its %d unreliable points score: its refits are skipped",
                     label_name(labels[i]), scores[i].unreliable.size)
-        scores[i] = replace(scores[i], scheme="psis-loo (settled: refits skipped)")
+        scores[i] = replace(scores[i], scheme=f"{scores[i].scheme} (settled: refits skipped)")
     return scores, skipped, chosen
 
 
