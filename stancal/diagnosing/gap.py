@@ -39,6 +39,7 @@ from __future__ import annotations
 import functools
 import logging
 import re
+import threading
 import warnings
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -358,7 +359,7 @@ def diagnose_gap(
         clock.lap("fits")
         scores = [psis_score(r) for r in fits]
         if moment_matching and kfold is None and not vector:  # K-fold refits every point; vectors: not yet
-            scores = _moment_matched(runner, labels, fits, scores)
+            scores = _moment_matched(labels, fits, scores)
             clock.lap("moment matching")
         scores, skipped, kfold = comparison_scheme(labels, scores, kfold, every_candidate)
         tests = [[] if i in skipped else kfold_tests(len(data_for(c).physical), kfold, seed) if kfold is not None
@@ -416,23 +417,31 @@ def _without_failures(labels: list, fits: list, failed: list[FitFailure]) -> tup
                      strict=True))
 
 
-def _moment_matched(runner: FitRunner, labels: list, fits: list, scores: list[Score]) -> list[Score]:
+def _moment_matched(labels: list, fits: list, scores: list[Score]) -> list[Score]:
     """Each fit's observations with Pareto k above 0.7 moment-matched
-    (Paananen et al. 2021; stancal.diagnosing.moment_match), one task per
-    fit on the runner, before any refit: an observation whose k it brings to
-    0.7 or below keeps its moment-matched score and is not refitted. Where
-    it fails (the cmdstanpy backend has no unconstrained log density), the
-    fit's points are refitted as before."""
-    todo = [i for i, score in enumerate(scores) if score.unreliable.size]
-    tasks = [FitTask(f"moment matching of {label_name(labels[i])}", match_fit,
-                     {"result": fits[i], "rows": scores[i].unreliable.tolist()})
-             for i in todo]
+    (Paananen et al. 2021; stancal.diagnosing.moment_match) before any
+    refit: an observation whose k it brings to 0.7 or below keeps its
+    moment-matched score and is not refitted. It runs here, in the command's
+    main thread, not on the cluster: the log density's autodiff, called from
+    a Dask worker's thread, crashed workers (pystan_backend.start_error).
+    Where it cannot run (another thread; the cmdstanpy backend has no
+    unconstrained log density) every such point is refitted, as before."""
+    if threading.current_thread() is not threading.main_thread():
+        logger.info("moment matching skipped outside the main thread: high Pareto k points are refitted")
+        return scores
     scores = list(scores)
-    for i, matched in zip(todo, runner.map(tasks), strict=True):
-        if not isinstance(matched, FitFailure):  # a failure is said by the runner; its points are refitted
-            scores[i] = moment_matched(scores[i], matched)
-            logger.info("%s: moment matching scored %d of %d points with Pareto k above %g", label_name(labels[i]),
-                        sum(p.k_after <= PARETO_K_LIMIT for p in matched), len(matched), PARETO_K_LIMIT)
+    for i, (label, fit, score) in enumerate(zip(labels, fits, scores, strict=True)):
+        if not score.unreliable.size:
+            continue
+        try:
+            matched = match_fit(fit, score.unreliable.tolist())
+        except NotImplementedError as reason:
+            logger.info("%s: no moment matching (%s): its high Pareto k points are refitted",
+                        label_name(label), reason)
+            continue
+        scores[i] = moment_matched(score, matched)
+        logger.info("%s: moment matching scored %d of %d points with Pareto k above %g", label_name(label),
+                    sum(p.k_after <= PARETO_K_LIMIT for p in matched), len(matched), PARETO_K_LIMIT)
     return scores
 
 
