@@ -6,10 +6,17 @@ decoys (case_studies/source_shield), each target printed beside its figure:
 - the share of each fit's transitions at the maximum tree depth (<= 5 %),
   with its divergences, largest R-hat and mean leapfrog steps;
 - each candidate's ELPD difference against a full K-fold answer's (within one
-  of K-fold's se), with ``--kfold K``.
+  of K-fold's se), with ``--kfold K``;
+- the points moment matching scored (Paananen et al. 2021), their Pareto k
+  before and after, and the refits left.
 
     .venv/bin/python benchmarks/counts_gap.py [--chains 4] [--warmup 500] [--draws 500] [--kfold 5]
-        [--parametrization auto|partial|non_centred|centred] [--seed 1] [--json out.json]
+        [--parametrization auto|partial|non_centred|centred] [--candidates cold|warm|both]
+        [--no-moment-matching] [--seed 1] [--json out.json]
+
+``--candidates both`` runs the diagnosis twice after the one baseline fit,
+candidates cold then warm-started from the baseline (diagnose_gap's
+``warm_candidates``), each with its own ratio.
 
 In one process: the baseline fit alone (calibrate() with the gap's constant
 in the discrepancy mean, which stancal drops: S carries the level), then
@@ -51,6 +58,9 @@ def arguments() -> argparse.Namespace:
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--kfold", type=int, default=None, help="also the K-fold reference with this many folds")
     parser.add_argument("--parametrization", default="auto", help="the latent discrepancy's form (auto: the plan's)")
+    parser.add_argument("--candidates", choices=["cold", "warm", "both"], default="cold",
+                        help="candidates' fits from Stan's inits (cold) or from the baseline's (warm)")
+    parser.add_argument("--no-moment-matching", action="store_true", help="refit every high Pareto k point")
     parser.add_argument("--json", type=Path, default=None)
     return parser.parse_args()
 
@@ -70,7 +80,11 @@ def gap_figures(gap, baseline_s: float, gap_s: float) -> dict:
     """The ratio and every fit's sampler figures from one diagnosis."""
     fits = {"baseline": sampler_figures(gap.baseline)}
     fits.update({c.candidate.name: sampler_figures(c.result) for c in gap.candidates})
-    return {"baseline_fit_s": round(baseline_s, 1), "gap_s": round(gap_s, 1),
+    summary = gap.to_json()
+    named = [("baseline", summary["baseline"]), *((c["name"], c) for c in summary["candidates"])]
+    return {"moment_matching": {name: fit["moment_matching"] for name, fit in named},
+            "refits_left": {name: fit["refits"] for name, fit in named},
+            "baseline_fit_s": round(baseline_s, 1), "gap_s": round(gap_s, 1),
             "ratio": round(gap_s / baseline_s, 2), "gap_timing": {k: round(v, 1) for k, v in gap.timing.items()},
             "baseline_scheme": gap.baseline_score.scheme, "baseline_refits": gap.baseline_score.refits,
             "fits": fits, "candidates": differences(gap)}
@@ -84,6 +98,11 @@ def print_targets(figures: dict) -> None:
         print(f"  {name:10s} {f['parametrization']:12s} at the maximum tree depth {100 * f['saturated']:.1f} % "
               f"(target <= {100 * SATURATED_SHARE:g} %), {f['mean_steps']:.0f} steps, "
               f"{f['divergences']} divergences of {f['draws']}, R-hat {f['max_rhat']:.3f}")
+    for name, m in figures["moment_matching"].items():
+        tried = ", ".join(f"row {p['row']} k {p['k_before']:.2f} -> {p['k_after']:.2f} ({p['maps']} maps)"
+                          for p in m["tried"])
+        print(f"  {name:10s} moment matching scored {m['points']} of {len(m['tried'])} points"
+              f"{': ' + tried if tried else ''}; refits left {figures['refits_left'][name]}")
     for name, c in figures["candidates"].items():
         line = f"  {name:10s} ELPD difference {c['elpd_diff']:+.2f} ± {c['se']:.2f} ({c['scheme']})"
         if "kfold" in figures:
@@ -103,17 +122,23 @@ def main() -> None:
                                  **sampling)
     baseline_s = time.perf_counter() - started
     print(json.dumps({"baseline_alone": sampler_figures(baseline), "s": round(baseline_s, 1)}), flush=True)
-    started = time.perf_counter()
-    gap = diagnose_gap(problem.data, problem.candidates, simulator=problem.simulator, seed=args.seed, **sampling)
-    figures = {"sampling": sampling, **gap_figures(gap, baseline_s, time.perf_counter() - started)}
-    print(json.dumps(figures, indent=1), flush=True)
-    print_targets(figures)
+    runs = {}
+    for kind in ("cold", "warm") if args.candidates == "both" else (args.candidates,):
+        started = time.perf_counter()
+        gap = diagnose_gap(problem.data, problem.candidates, simulator=problem.simulator, seed=args.seed,
+                           warm_candidates=kind == "warm", moment_matching=not args.no_moment_matching,
+                           **sampling)
+        runs[kind] = figures = {"sampling": sampling, "candidates_start": kind,
+                                "moment_matching_on": not args.no_moment_matching,
+                                **gap_figures(gap, baseline_s, time.perf_counter() - started)}
+        print(json.dumps(figures, indent=1), flush=True)
+        print_targets(figures)
     if args.kfold:
         kfold_reference(problem, figures, args.kfold, args.seed, **sampling)
         print(json.dumps(figures["kfold"], indent=1), flush=True)
         print_targets(figures)
     if args.json:
-        args.json.write_text(json.dumps(figures, indent=1))
+        args.json.write_text(json.dumps(runs if len(runs) > 1 else figures, indent=1))
 
 
 if __name__ == "__main__":

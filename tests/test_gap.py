@@ -142,6 +142,11 @@ def test_cooling_report_folder(cooling_gap):
                           "shrinkage", "theta", "holdout_rmse"}
     diffs = [c["elpd_diff"] for c in summary["candidates"]]
     assert diffs == sorted(diffs, reverse=True)
+    for fit in [summary["baseline"], *summary["candidates"]]:  # moment matching before any refit
+        still = [p for p in fit["moment_matching"]["tried"] if p["k_after"] > 0.7]
+        assert fit["moment_matching"]["points"] == len(fit["moment_matching"]["tried"]) - len(still)
+        if "settled" not in fit["scheme"]:
+            assert fit["refits"] == len(still), fit["name"] if "name" in fit else "baseline"
 
 
 # ---- pipe flow: the withheld effect is a formula, fitted with the emulator ---------

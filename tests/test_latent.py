@@ -622,3 +622,21 @@ def test_cli_writes_censoring_and_theta_functions(tmp_path):
     curve = functional["theta_functions"]["E"]
     assert set(curve) == {"inputs", "mean", "q05", "q95"} and len(curve["inputs"]["temperature"]) == 50
     assert (tmp_path / "b" / "theta_functions.png").is_file()
+
+
+def test_moment_matchings_target_is_the_fit_at_its_own_draws(poisson_fit):
+    """What moment matching evaluates at moved draws (stancal.diagnosing.moment_match.fit_target:
+    the backend's log density and write_array at unconstrained points, with no prediction
+    points) is, at the fit's own draws, the sampler's lp__ and the stored log_lik and y_loo_mean."""
+    from stancal.diagnosing.moment_match import fit_target
+
+    target, upars = fit_target(poisson_fit)
+    every = slice(None, None, 40)  # 100 of the 4,000 draws: write_array is one Stan call a draw
+    n = len(poisson_fit.data.physical)
+    np.testing.assert_allclose(target.log_density(upars[every]),
+                               np.asarray(poisson_fit.idata["sample_stats"]["lp"]).reshape(-1)[every], rtol=1e-9)
+    log_lik, loo_mean = target.pointwise(upars[every])
+    np.testing.assert_allclose(log_lik, np.asarray(poisson_fit.idata["log_likelihood"]["y"]).reshape(-1, n)[every],
+                               rtol=1e-9)
+    np.testing.assert_allclose(loo_mean, np.asarray(poisson_fit.idata["at_observations"]["y_loo_mean"])
+                               .reshape(-1, n)[every], rtol=1e-9)

@@ -39,6 +39,7 @@ from __future__ import annotations
 import functools
 import logging
 import re
+import threading
 import warnings
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -48,10 +49,12 @@ import numpy as np
 import pandas as pd
 
 from stancal.diagnosing.gap_location import GapLocation, interval, locate_gap
+from stancal.diagnosing.moment_match import match_fit
 from stancal.diagnosing.scoring import (
     PARETO_K_LIMIT,
     Score,
     kfold_tests,
+    moment_matched,
     psis_score,
     refit_rows,
     rescored,
@@ -127,6 +130,7 @@ class GapAnalysis:
                 "holdout_rmse": base.holdout_rmse(y),
                 "scheme": base.scheme,
                 "refits": base.refits,
+                "moment_matching": _matching(base),
                 "diagnostics": _sampler(self.baseline),
             },
             "where": self.location.to_json(),
@@ -157,9 +161,17 @@ class GapAnalysis:
                 "scheme": s.scheme,
                 "max_pareto_k": None if np.isnan(s.max_pareto_k) else s.max_pareto_k,
                 "refits": s.refits,
+                "moment_matching": _matching(s),
                 "diagnostics": _sampler(fit.result),
             })
         return out
+
+
+def _matching(score: Score) -> dict[str, Any]:
+    """What moment matching did in one fit: the observations it scored
+    (Pareto k brought to 0.7 or below), and each tried one's k before and after."""
+    return {"points": sum(p.k_after <= PARETO_K_LIMIT for p in score.matched),
+            "tried": [p.to_json() for p in score.matched]}
 
 
 def _sampler(result: CalibrationResult | VectorCalibrationResult) -> dict[str, Any]:
@@ -262,6 +274,7 @@ def diagnose_gap(
     warm_refits: bool = True,
     warm_candidates: bool = False,
     every_candidate: bool = False,
+    moment_matching: bool = True,
     **calibrate_options: Any,
 ) -> GapAnalysis:
     """Fit the baseline (KOH with a GP discrepancy over the inputs and
@@ -287,7 +300,11 @@ def diagnose_gap(
     or the comparison falls back to K-fold (too many unreliable points), a
     candidate that cannot lead whatever its unreliable points' held-out
     densities turn out to be keeps its PSIS scores, unrefitted
-    (scoring.settled; its scheme says so).
+    (scoring.settled; its scheme says so). ``moment_matching``: before any
+    refit, PSIS-LOO with moment matching (Paananen et al. 2021;
+    stancal.diagnosing.moment_match) at each fit's points with Pareto k
+    above 0.7 (scalar outputs); only the points it leaves above 0.7 are
+    refitted.
     """
     SamplerOptions.from_keywords({**calibrate_options, "seed": seed})  # before anything is planned or compiled
     vector = isinstance(data, VectorCalibrationData)
@@ -342,7 +359,11 @@ def diagnose_gap(
                           failed)
         labels, fits = _without_failures(labels, fits, failed)
         clock.lap("fits")
-        scores, skipped, kfold = comparison_scheme(labels, [psis_score(r) for r in fits], kfold, every_candidate)
+        scores = [psis_score(r) for r in fits]
+        if moment_matching and kfold is None and not vector:  # K-fold refits every point; vectors: not yet
+            scores = _moment_matched(labels, fits, scores)
+            clock.lap("moment matching")
+        scores, skipped, kfold = comparison_scheme(labels, scores, kfold, every_candidate)
         tests = [[] if i in skipped else kfold_tests(len(data_for(c).physical), kfold, seed) if kfold is not None
                  else unreliable_tests(s) for i, (c, s) in enumerate(zip(labels, scores, strict=True))]
         # every refit of every fit in one batch
@@ -398,6 +419,34 @@ def _without_failures(labels: list, fits: list, failed: list[FitFailure]) -> tup
                      strict=True))
 
 
+def _moment_matched(labels: list, fits: list, scores: list[Score]) -> list[Score]:
+    """Each fit's observations with Pareto k above 0.7 moment-matched
+    (Paananen et al. 2021; stancal.diagnosing.moment_match) before any
+    refit: an observation whose k it brings to 0.7 or below keeps its
+    moment-matched score and is not refitted. It runs here, in the command's
+    main thread, not on the cluster: the log density's autodiff, called from
+    a Dask worker's thread, crashed workers (pystan_backend.start_error).
+    Where it cannot run (another thread; the cmdstanpy backend has no
+    unconstrained log density) every such point is refitted, as before."""
+    if threading.current_thread() is not threading.main_thread():
+        logger.info("moment matching skipped outside the main thread: high Pareto k points are refitted")
+        return scores
+    scores = list(scores)
+    for i, (label, fit, score) in enumerate(zip(labels, fits, scores, strict=True)):
+        if not score.unreliable.size:
+            continue
+        try:
+            matched = match_fit(fit, score.unreliable.tolist())
+        except NotImplementedError as reason:
+            logger.info("%s: no moment matching (%s): its high Pareto k points are refitted",
+                        label_name(label), reason)
+            continue
+        scores[i] = moment_matched(score, matched)
+        logger.info("%s: moment matching scored %d of %d points with Pareto k above %g", label_name(label),
+                    sum(p.k_after <= PARETO_K_LIMIT for p in matched), len(matched), PARETO_K_LIMIT)
+    return scores
+
+
 def _warm(fit: CalibrationResult, test: np.ndarray, calibrate_options: dict[str, Any], seed: int) -> dict[str, Any]:
     """A refit without the rows ``test``, started from ``fit`` (stancal.fitting.warm_start)."""
     train = np.setdiff1d(np.arange(len(fit.data.physical)), test)
@@ -425,7 +474,7 @@ def comparison_scheme(labels: list, scores: list[Score], kfold: int | None,
     for i in sorted(skipped):
         logger.info("%s cannot lead whatever its %d unreliable points score: its refits are skipped",
                     label_name(labels[i]), scores[i].unreliable.size)
-        scores[i] = replace(scores[i], scheme="psis-loo (settled: refits skipped)")
+        scores[i] = replace(scores[i], scheme=f"{scores[i].scheme} (settled: refits skipped)")
     return scores, skipped, chosen
 
 

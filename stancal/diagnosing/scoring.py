@@ -13,6 +13,7 @@ import pandas as pd
 from scipy.special import logsumexp
 
 from stancal.diagnosing.gap_location import discrepancy_parts
+from stancal.diagnosing.moment_match import MatchedPoint
 from stancal.problem.data import CalibrationData
 from stancal.results.result import CalibrationResult
 
@@ -37,6 +38,8 @@ class Score:
     # log predictive density there, at least the lowest log likelihood over its draws
     lowest_i: np.ndarray | None = None
     in_sample_i: np.ndarray | None = None
+    # the observations moment matching tried (stancal.diagnosing.moment_match): Pareto k before and after
+    matched: tuple[MatchedPoint, ...] = ()
 
     @property
     def discrepancy_rms(self) -> np.ndarray:
@@ -97,6 +100,20 @@ def psis_score(result: CalibrationResult) -> Score:
     return Score(np.asarray(loo.elpd_i), (weights * loo_mean).sum(0),
                  np.asarray(loo.pareto_k), "psis-loo", _remaining_discrepancy(result),
                  lowest_i=log_lik.min(0), in_sample_i=logsumexp(log_lik, axis=0) - np.log(len(log_lik)))
+
+
+def moment_matched(score: Score, matched: list[MatchedPoint]) -> Score:
+    """``score`` with moment matching's held-out density and mean at the
+    observations whose Pareto k it brought to 0.7 or below (Paananen et al.
+    2021); every tried observation's Pareto k is its k after, so those still
+    above 0.7 stay unreliable (refitted, or K-fold)."""
+    elpd, mean, k = score.elpd_i.copy(), score.heldout_mean.copy(), score.pareto_k.copy()
+    for point in matched:
+        k[point.row] = point.k_after
+        if point.k_after <= PARETO_K_LIMIT:
+            elpd[point.row], mean[point.row] = point.elpd, point.heldout_mean
+    scheme = score.scheme + ("+moment-matching" if any(p.k_after <= PARETO_K_LIMIT for p in matched) else "")
+    return replace(score, elpd_i=elpd, heldout_mean=mean, pareto_k=k, matched=tuple(matched), scheme=scheme)
 
 
 def settled(scores: list[Score]) -> list[int]:
@@ -176,4 +193,4 @@ def rescored(score: Score, data: CalibrationData, tests: list[np.ndarray], refit
     if kfold:
         return Score(elpd, mean, np.full(len(elpd), np.nan), "kfold", score.remaining, refits=len(tests))
     return replace(score, elpd_i=elpd, heldout_mean=mean, refits=len(tests),
-                   scheme="psis-loo+refits" if tests else score.scheme)
+                   scheme=f"{score.scheme}+refits" if tests else score.scheme)

@@ -214,3 +214,13 @@ class StanBackend(Protocol):
         unconstrained vectors (chain, draw, d), and the log density with its
         Jacobian (as the sampler's lp__) at unconstrained vectors (n, d)."""
         ...
+
+    def unconstrained_quantities_function(
+        self, program: FlatProgram, data: dict[str, Any]
+    ) -> Callable[[np.ndarray], Draws]:
+        """Every variable of the program (parameters, transformed parameters,
+        generated quantities), each (n, ...), at unconstrained vectors (n, d):
+        the pointwise log likelihood at moved draws (moment matching,
+        stancal.diagnosing.moment_match). NaN where Stan fails at a point;
+        NotImplementedError (its reason) where the backend cannot."""
+        ...

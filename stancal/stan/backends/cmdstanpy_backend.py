@@ -204,6 +204,12 @@ class CmdStanPyBackend:
                                   "unconstrained points, which the cmdstanpy backend does not "
                                   "provide; use backend='pystan' to weigh the modes")
 
+    def unconstrained_quantities_function(self, program: FlatProgram, data: dict[str, Any]):
+        # as log_density_functions: no unconstrained points without BridgeStan
+        raise NotImplementedError("moment matching needs the log likelihood at many unconstrained "
+                                  "points, which the cmdstanpy backend does not provide; use "
+                                  "backend='pystan' to score high Pareto k points without refits")
+
 
 def write_stan_csv(path: Path, parameters: Draws, chain: int, seed: int) -> Path:
     """One chain of parameter draws as a Stan CSV file that CmdStan's

@@ -361,3 +361,29 @@ class PyStanBackend:
             return out
 
         return unconstrain, log_density
+
+    def unconstrained_quantities_function(self, program: FlatProgram,
+                                          data: dict[str, Any]) -> Callable[[np.ndarray], Draws]:
+        """Build once, then every variable of the program (generated quantities
+        among them) at unconstrained points (n, d), through the compiled
+        model's write_array in this process; a point where Stan fails (outside
+        the support, a rejected simulator) gives NaN. httpstan's write_array
+        builds the model from the data at each call: give it data without
+        prediction points (P = 0) where they are not needed."""
+        import httpstan.models
+
+        model = self._build(program, data, seed=1)
+        services = httpstan.models.import_services_extension_module(model.model_name)
+        width = sum(int(np.prod(shape)) for shape in model.dims)
+
+        def at(point: np.ndarray) -> list[float]:
+            try:
+                return services.write_array(model.data, point.tolist(), True, True)
+            except (RuntimeError, ValueError):  # Stan's exceptions, domain errors among them
+                return [np.nan] * width
+
+        def run(points: np.ndarray) -> Draws:
+            flat = np.asarray([at(point) for point in points], dtype=float).reshape(len(points), width)
+            return _by_variable(flat, model, (len(points),))
+
+        return run
