@@ -354,6 +354,22 @@ def test_a_vector_output_runs_waves_with_the_basis_emulator():
     assert summary["nth_maximum"] == nth_maximum_for(len(data.physical), 3.0)
 
 
+def test_the_posterior_criterion_on_a_vector_output_with_shared_theta():
+    """cooling_wind (no theta per experiment): the posterior criterion picks
+    runs inside NROY, its gains falling, with the NROY sample standing in
+    for theta's posterior (this path once failed on the per-experiment
+    bookkeeping it does not need)."""
+    from stancal.problem.config import load_config
+
+    data = load_config(ROOT_CASES / "cooling_wind" / "config.toml").data
+    match = stancal.history_match(data, settings=DesignSettings(discrepancy_fraction=0.4, nroy_points=1000), seed=2)
+    design = stancal.propose_runs(match, 3, criterion="posterior", posterior=match.nroy_frame().iloc[:200], seed=3)
+    assert list(design.next_runs.columns) == ["T0", "k", "Ta"]
+    assert (match.implausibility(design.next_runs) <= 3.0).all()
+    gains = design.notes["variance_reduction"]
+    assert gains == sorted(gains, reverse=True) and gains[-1] > 0
+
+
 # ---- the posterior criterion with a real fit (one small modular fit, cached program) ----
 def test_the_posterior_criterion_fits_modular_and_proposes_runs_where_theta_is(tmp_path, capsys):
     from conftest import assert_healthy

@@ -116,7 +116,10 @@ def propose_runs(match: HistoryMatch, runs: int, *, criterion: str = "nroy", see
             emulator = fit_emulator(match.data, existing, outputs, seed)
             notes["posterior_emulator"] = "fitted to every run, as stage 1"
         targets = match.targets
-        experiments = [(row, columns) for (row, _, _), columns in zip(targets.groups, targets.group_theta, strict=True)]
+        # theta per experiment: each experiment's inputs with its own theta columns (else none: a vector output's
+        # groups without their own theta weigh like any other points)
+        experiments = [(row, columns) for (row, _, _), columns in zip(targets.groups, targets.group_theta, strict=True)
+                       ] if targets.group_theta else []
         unit, gains = posterior_runs(emulator.parts(targets.groups), draws, targets.x_unit, runs, seed, experiments)
         notes["variance_reduction"] = gains
     frame = pd.DataFrame(box.to_original(unit), columns=box.columns)
