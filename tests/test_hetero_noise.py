@@ -224,3 +224,20 @@ def test_the_config_names_an_unknown_noise_input(tmp_path):
         load_config(tmp_path / "config.toml")
     assert load_config(CASE / "config.toml").model == {"noise": "heteroscedastic", "noise_inputs": ["t"]}
     assert make_data.noise_sd(60.0) == pytest.approx(10 * make_data.noise_sd(2.0))
+
+
+# ---- with runs: the emulator programs ----------------------------------------------------------------
+
+@pytest.mark.slow
+@pytest.mark.parametrize("method", ["modular", "koh_emulator"])
+def test_heteroscedastic_noise_with_runs_recovers_the_curve_and_k(method):
+    """modular and koh_emulator (one compile each) on the same readings with
+    the cooling case's 60 runs, which span its t and T0."""
+    data = stancal.CalibrationData(pd.read_csv(CASE / "physical.csv"), ["t", "T0"], "temperature", THETA,
+                                   runs=pd.read_csv(COOLING / "runs.csv"))
+    with no_stancal_warnings():
+        result = fit(data, method=method, noise="heteroscedastic", noise_inputs=["t"], seed=4)
+    assert_healthy(result)
+    assert compare.curve_covers_truth(result) >= 0.9
+    mean, low, high = compare.k_interval(result)
+    assert low <= make_data.K_TRUE <= high, (mean, low, high)
