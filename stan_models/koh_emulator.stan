@@ -67,7 +67,7 @@ transformed data {
 parameters {
   vector<lower=0, upper=1>[Q] theta_unit;                // theta rescaled to [0, 1]
   array[S] real<lower=0> noise_sd;                       // standardised units, one per source (S = 1 unless per_source);
-                                                         // heteroscedastic: the sd where its log GP is 0
+                                                         // heteroscedastic: the sd's geometric mean over the settings
   array[noise_id == 3] real<lower=0> nu;                 // Student-t degrees of freedom
   // Student-t scale-mixture weight of each row (the emulator's GP is integrated out)
   vector<lower=0>[noise_id == 3 ? N : 0] noise_weight;
@@ -85,7 +85,7 @@ parameters {
   real<lower=0> emulator_nugget;
 }
 transformed parameters {
-  // heteroscedastic: log(noise sd / noise_sd) at the distinct locations (functions/noise.stan)
+  // heteroscedastic: the log noise sd's GP at the distinct settings, before centring (functions/noise.stan)
   vector[N_loc] noise_log_scale = noise_log_scale_at(x_noise, noise_gp_sd, noise_length_scale, noise_z);
   // the discrepancy's length scales over all its inputs: a covariate's is 1 / relevance
   array[use_discrepancy ? D_delta : 0] real delta_length_scale

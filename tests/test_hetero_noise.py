@@ -44,7 +44,7 @@ def se(x1, x2, sd, length_scale):
 
 def numpy_log_density(d: dict, p: dict) -> float:
     """log p(theta, noise parameters, y) of koh.stan up to a constant, from its
-    written-out model: Newton's law, s_i = noise_sd exp(g[loc_i]) with
+    written-out model: Newton's law, s_i = noise_sd exp(g[loc_i] - mean(g)) with
     g = chol(K + 1e-6 a^2 I) z, and (with a discrepancy) the GP integrated out,
     y ~ N(f, K_delta + diag(s^2) + 1e-6 delta_sd^2 I); the priors of
     functions/priors.stan and noise.stan (the discrepancy's are held fixed)."""
@@ -54,7 +54,7 @@ def numpy_log_density(d: dict, p: dict) -> float:
     x_noise = np.asarray(d["x_noise"])
     a, ls = p["noise_gp_sd"][0], np.asarray(p["noise_length_scale"])
     g = np.linalg.cholesky(se(x_noise, x_noise, a, ls) + 1e-6 * a**2 * np.eye(len(x_noise))) @ p["noise_z"]
-    variance = (p["noise_sd"][0] * np.exp(g[np.asarray(d["noise_loc"]) - 1])) ** 2
+    variance = (p["noise_sd"][0] * np.exp(g[np.asarray(d["noise_loc"]) - 1] - g.mean())) ** 2
     if d["use_discrepancy"]:
         x_delta, delta_sd = np.asarray(d["x_delta"]), p["delta_sd"][0]
         cov = se(x_delta, x_delta, delta_sd, p["delta_input_length_scale"]) + np.diag(variance)

@@ -17,7 +17,9 @@
  * GP the t density is used as it is. A row whose weight is small is one the
  * fit discounts: an outlier (West 1984).
  * Heteroscedastic noise (noise_id 4) has an input-dependent sd,
- *   s_i = noise_sd * exp(g(u_i)),  g ~ GP(0, SE kernel) over the noise inputs u,
+ *   s_i = noise_sd * exp(g(u_i) - mean_k g(u_k)),  g ~ GP(0, SE kernel) over the noise inputs u,
+ * so that noise_sd is the geometric mean of the sd over the K distinct settings u_k (g's own level
+ * would trade with noise_sd along a ridge: tree depth 6.6, 310 s for a fit that takes 13 s without it),
  * the log sd a latent GP (Goldberg, Williams & Bishop 1998; Binois, Gramacy &
  * Ludkovski 2018) sampled with theta, as in the calibration of Sung, Barber &
  * Walker (2022) with replicated experiments (review section 8.1.2). g lives at
@@ -42,7 +44,7 @@ vector noise_variance(array[] real noise_sd, array[] int source, vector known_sd
 /**
  * Heteroscedastic noise: the log noise sd's GP g at the distinct locations of
  * the noise inputs, non-centred: g = chol(K) z, K the squared exponential
- * kernel (with the jitter of add_jitter), z standard normals. log(s_i / noise_sd) = g[loc_i].
+ * kernel (with the jitter of add_jitter), z standard normals. log(s_i / noise_sd) = g[loc_i] - mean(g).
  *
  * @param x_noise the distinct locations, scaled to [0, 1] (none: homoscedastic noise)
  * @param gp_sd the GP's marginal sd, in log sd units (size 1 where there are locations)
@@ -58,9 +60,10 @@ vector noise_log_scale_at(array[] vector x_noise, array[] real gp_sd, array[] re
 
 /**
  * Each row's noise variance: noise_variance's, or with heteroscedastic noise
- * s_i^2 = (noise_sd * exp(g[loc_i]))^2 + known_sd_i^2.
+ * s_i^2 = (noise_sd * exp(g[loc_i] - mean(g)))^2 + known_sd_i^2.
  *
- * @param noise_sd estimated noise sd per source (heteroscedastic: its level where g = 0), standardised units
+ * @param noise_sd estimated noise sd per source (heteroscedastic: its geometric mean over the settings),
+ *        standardised units
  * @param source each row's source, 1..size(noise_sd)
  * @param known_sd each row's stated measurement sd, standardised units (0 = none)
  * @param log_scale g at the distinct locations (noise_log_scale_at; empty: homoscedastic)
@@ -70,7 +73,7 @@ vector noise_log_scale_at(array[] vector x_noise, array[] real gp_sd, array[] re
 vector row_noise_variance(array[] real noise_sd, array[] int source, vector known_sd, vector log_scale,
                           array[] int loc) {
   if (size(loc) == 0) return noise_variance(noise_sd, source, known_sd);
-  return square(noise_sd[1] * exp(log_scale[loc])) + square(known_sd);
+  return square(noise_sd[1] * exp(log_scale[loc] - mean(log_scale))) + square(known_sd);
 }
 
 /**

@@ -117,7 +117,7 @@ def heteroscedastic_lines(noise: dict) -> list[str]:
     column = noise["noise_inputs"][0]
     low, high = int(np.argmin(curve["mean"])), int(np.argmax(curve["mean"]))
     return [(f"- the log noise sd is a GP over {', '.join(noise['noise_inputs'])} "
-             "(noise_sd: its level where the GP is 0)"),
+             "(noise_sd: the sd's geometric mean over the settings)"),
             (f"- replicates: {r['replicate_rows']} of {r['rows']} rows repeat another row's inputs "
              f"({r['replicated_settings']} of {r['settings']} settings measured more than once)"),
             (f"- noise sd from {curve['mean'][low]:.4g} [{curve['q05'][low]:.4g}, {curve['q95'][low]:.4g}] "

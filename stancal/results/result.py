@@ -269,8 +269,9 @@ class CalibrationResult:
                     step: int = 1) -> np.ndarray:
         """Heteroscedastic noise: the noise sd (output units) at ``points``
         per posterior draw (every ``step``-th of each chain), (draws, points):
-        the level noise_sd times exp(g), g the log sd GP's conditional at the
-        points (stancal.numerics.noise_gp: its mean, or a draw with ``rng``)."""
+        noise_sd (the sd's geometric mean over the settings) times exp(g - mean
+        of g at the settings), g the log sd GP's conditional at the points
+        (stancal.numerics.noise_gp: its mean, or a draw with ``rng``)."""
         locations = noise_locations(self.data, self.options)
         assert locations is not None, "noise_sd_at: the fit's noise is not heteroscedastic"
         posterior = self.idata["posterior"].isel(draw=slice(None, None, step))
@@ -281,7 +282,9 @@ class CalibrationResult:
                                  np.asarray(posterior["noise_gp_sd"]).ravel(),
                                  np.asarray(posterior["noise_length_scale"]).reshape(-1, len(widths)) / widths,
                                  rng)
-        return np.asarray(posterior["noise_sd"]).reshape(-1, 1) * np.exp(log_scale)
+        # noise_sd is the sd's geometric mean over the settings: g centred there (functions/noise.stan)
+        centre = values.reshape(-1, values.shape[-1]).mean(axis=1, keepdims=True)
+        return np.asarray(posterior["noise_sd"]).reshape(-1, 1) * np.exp(log_scale - centre)
 
     def noise_curve(self, size: int = 60) -> pd.DataFrame:
         """Heteroscedastic noise: the noise sd's posterior mean and 90 % band
