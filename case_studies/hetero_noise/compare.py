@@ -33,7 +33,7 @@ def _make_data():
 
 K_TRUE, TIMES, noise_sd = _make_data().K_TRUE, _make_data().TIMES, _make_data().noise_sd
 
-SAMPLING = {"chains": 4, "warmup": 500, "draws": 500, "seed": 5}
+SAMPLING = {"chains": 4, "warmup": 400, "draws": 400, "seed": 5, "adapt_delta": 0.95}
 TARGET = (0.75, 0.98)  # the bar for 90 % bands, in each half
 MIDDLE = 0.5 * (TIMES[0] + TIMES[-1])  # min: the quiet half lies below, the noisy half above
 
