@@ -18,8 +18,9 @@
  * fit discounts: an outlier (West 1984).
  * Heteroscedastic noise (noise_id 4) has an input-dependent sd,
  *   s_i = noise_sd * exp(g(u_i) - mean_k g(u_k)),  g ~ GP(0, SE kernel) over the noise inputs u,
- * so that noise_sd is the geometric mean of the sd over the K distinct settings u_k (g's own level
- * would trade with noise_sd along a ridge: tree depth 6.6, 310 s for a fit that takes 13 s without it),
+ * so that noise_sd is the geometric mean of the sd over the K distinct settings u_k (uncentred, g's
+ * own level traded with noise_sd along a ridge: on case_studies/hetero_noise the mean tree depth
+ * fell from 6.6 to 5.0 with the centring; docs/noise.md),
  * the log sd a latent GP (Goldberg, Williams & Bishop 1998; Binois, Gramacy &
  * Ludkovski 2018) sampled with theta, as in the calibration of Sung, Barber &
  * Walker (2022) with replicated experiments (review section 8.1.2). g lives at
