@@ -34,7 +34,7 @@ def _make_data():
 
 K_TRUE, TIMES, noise_sd = _make_data().K_TRUE, _make_data().TIMES, _make_data().noise_sd
 
-SAMPLING = {"chains": 4, "warmup": 400, "draws": 400, "seed": 5, "adapt_delta": 0.95}
+SAMPLING = {"chains": 4, "warmup": 800, "draws": 800, "seed": 5, "adapt_delta": 0.95}
 # the truth has no discrepancy; with a GP discrepancy (the config's default) one heteroscedastic fit of
 # 2 x (400 + 400) took 234 s on the shared 2-core machine, and 4 x (400 + 400) did not finish in 9 min
 # under a load of 13: the comparison runs without one (--discrepancy gp runs it with one)
