@@ -18,6 +18,9 @@ The noise families (docs/noise.md) run on the cooling design with two
 instruments alternating over its rows (one noise sd each), with a known sd
 per row rising from 0.1 to 1 degC, or with Student-t noise (its mixture
 weights sampled beside a GP, its density used as it is without one).
+Heteroscedastic noise runs on case_studies/hetero_noise (80 readings, 4
+replicates at each of 20 settings; the cooling runs for modular), its log sd
+a GP over t.
 """
 
 from __future__ import annotations
@@ -58,6 +61,13 @@ def censored_design() -> stancal.CalibrationData:
     return censored_data(pd.read_csv(CENSORED / "physical.csv").iloc[::3].reset_index(drop=True))
 
 
+def hetero_design() -> stancal.CalibrationData:
+    """The hetero_noise case's replicated readings, with the cooling runs (they span its t and T0)."""
+    data = load_config(ROOT / "case_studies" / "hetero_noise" / "config.toml").data
+    return stancal.CalibrationData(data.source, data.inputs, data.output, bounds_of(data.parameters),
+                                   runs=pd.read_csv(COOLING / "runs.csv"))
+
+
 def noise_design(**columns) -> stancal.CalibrationData:
     """The cooling design, with runs, and the noise columns: instrument (two
     sources, alternating) and sd (a known sd per row, 0.1 to 1 degC)."""
@@ -71,7 +81,7 @@ def noise_design(**columns) -> stancal.CalibrationData:
 DESIGNS = {"counts": lambda: exact_counts("poisson", seed=1), "binomial": binomial_design,
            "censored": censored_design, "beam": beam_data,
            "two_sources": lambda: noise_design(source="instrument"), "known_sd": lambda: noise_design(noise_sd="sd"),
-           "cooling": lambda: cooling_data(seed=7),
+           "cooling": lambda: cooling_data(seed=7), "hetero_noise": hetero_design,
            "cooling_fidelity": lambda: load_config(ROOT / "case_studies" / "cooling_fidelity" / "config.toml").data}
 LATENT = {
     "koh_latent_poisson": ("counts", {"simulator": COUNTS / "simulator.stan", "method": "koh", "discrepancy": "gp"}),
@@ -92,6 +102,12 @@ NOISE = {
     "modular_per_source": ("two_sources", {"method": "modular", "discrepancy": "gp", "noise": "per_source"}),
     "modular_student_t": ("cooling", {"method": "modular", "discrepancy": "gp", "noise": "student_t"}),
     "koh_emulator_known_sd": ("known_sd", {"method": "koh_emulator", "discrepancy": "gp"}),
+    **{f"{method}_heteroscedastic": ("hetero_noise", {**({"simulator": SIMULATOR} if method == "koh" else {}),
+                                                      "method": method, "discrepancy": "gp",
+                                                      "noise": "heteroscedastic", "noise_inputs": ["t"]})
+       for method in ("koh", "modular")},
+    "koh_none_heteroscedastic": ("hetero_noise", {"simulator": SIMULATOR, "method": "koh", "discrepancy": "none",
+                                                  "noise": "heteroscedastic", "noise_inputs": ["t"]}),
 }
 FIDELITY = {"modular_multifidelity": ("cooling_fidelity", {"method": "modular", "discrepancy": "none"})}
 # every family: its design, then its calibrate() options

@@ -47,10 +47,15 @@ data {
   int<lower=1, upper=2> kernel_id;      // discrepancy kernel: 1 = squared exponential, 2 = Matern 5/2
   int<lower=0, upper=1> estimate_rho;   // 1 = estimate the KOH scale rho, 0 = rho fixed at 1
   int<lower=0, upper=1> prior_only;     // 1 = ignore y: draws from the prior
-  int<lower=1, upper=3> noise_id;       // noise model: 1 = iid, 2 = per_source, 3 = student_t (functions/noise.stan)
+  int<lower=1, upper=4> noise_id;       // 1 = iid, 2 = per_source, 3 = student_t, 4 = heteroscedastic (functions/noise.stan)
   int<lower=1> S;                       // number of estimated noise sds: the sources with per_source, else 1
   array[N] int<lower=1, upper=S> source;  // each row's noise sd: its source (all 1 unless per_source)
   vector<lower=0>[N] known_sd;          // each row's known measurement sd, standardised (0 = none)
+  int<lower=0> N_loc;                   // heteroscedastic: distinct locations of the noise inputs (0 otherwise)
+  int<lower=0> D_noise;                 // heteroscedastic: number of noise inputs (simulator inputs)
+  array[N_loc] vector[D_noise] x_noise; // heteroscedastic: the distinct locations, scaled to [0, 1]
+  array[N_loc > 0 ? N : 0] int<lower=1, upper=N_loc> noise_loc;  // heteroscedastic: each row's location
+  vector[2] noise_length_scale_prior;   // heteroscedastic: lognormal location and scale of its length scales
   int<lower=0> P;                       // number of prediction points
   matrix[P, D] X_new;                   // simulator inputs of the prediction points, original units
   array[P] vector[D_delta] x_delta_new; // discrepancy inputs of the prediction points, scaled to [0, 1]
@@ -72,9 +77,13 @@ transformed data {
 }
 parameters {
   vector<lower=0, upper=1>[Q] theta_unit;                // theta rescaled to [0, 1]
-  array[S] real<lower=0> noise_sd;                       // standardised units, one per source (S = 1 unless per_source)
+  array[S] real<lower=0> noise_sd;                       // standardised units, one per source (S = 1 unless per_source);
+                                                         // heteroscedastic: the sd's geometric mean over the settings
   array[noise_id == 3] real<lower=0> nu;                 // Student-t degrees of freedom
   vector<lower=0>[n_weight] noise_weight;                // Student-t scale-mixture weight of each row
+  array[N_loc > 0] real<lower=0> noise_gp_sd;            // heteroscedastic: the log noise sd GP's marginal sd
+  array[N_loc > 0 ? D_noise : 0] real<lower=0> noise_length_scale;  // its length scales: fraction of input range
+  vector[N_loc] noise_z;                                 // its non-centred standard normals at the locations
   array[use_discrepancy] real<lower=0> delta_sd;         // standardised units
   array[use_discrepancy ? D : 0] real<lower=0> delta_input_length_scale;  // simulator inputs: fraction of input range
   array[use_discrepancy ? D_delta - D : 0] real<lower=0> delta_relevance;  // covariates: inverse length scale
@@ -82,6 +91,8 @@ parameters {
   vector[H] beta;                                        // mean-term coefficients, standardised units
 }
 transformed parameters {
+  // heteroscedastic: the log noise sd's GP at the distinct settings, before centring (functions/noise.stan)
+  vector[N_loc] noise_log_scale = noise_log_scale_at(x_noise, noise_gp_sd, noise_length_scale, noise_z);
   // the discrepancy's length scales over all its inputs: a covariate's is 1 / relevance
   array[use_discrepancy ? D_delta : 0] real delta_length_scale
     = discrepancy_length_scales(delta_input_length_scale, delta_relevance);
@@ -93,6 +104,9 @@ model {
   noise_sd ~ observation_noise_sd();                 // half-normal(0, 1)
   nu ~ noise_dof();                                  // gamma(2, 0.1)
   noise_weight ~ noise_weight(nu);                   // gamma(nu / 2, nu / 2)
+  noise_gp_sd ~ noise_gp_sd();                       // half-normal(0, 1)
+  noise_length_scale ~ noise_length_scale(noise_length_scale_prior);  // lognormal
+  noise_z ~ std_normal();
   delta_sd ~ discrepancy_sd();                       // half-normal(0, 0.5)
   delta_input_length_scale ~ discrepancy_length_scale();  // inverse gamma(3, 1)
   delta_relevance ~ covariate_relevance();           // half-normal(0, 2)
@@ -100,7 +114,7 @@ model {
   beta ~ normal(0, beta_prior_sd);
   if (!prior_only) {
     vector[N] resid = y - rho * standardized_simulator(X, theta, y_center, y_scale) - h * beta;
-    vector[N] noise_var = noise_variance(noise_sd, source, known_sd);
+    vector[N] noise_var = row_noise_variance(noise_sd, source, known_sd, noise_log_scale, noise_loc);
     if (use_discrepancy) {
       // the restriction's map A (no rows: unrestricted) and ridge (restricted_gp.stan)
       matrix[U, n_functionals] A = U > 0 ? restriction_map(orthogonal, X_quad, w_quad, theta, theta_lower,
@@ -133,7 +147,7 @@ generated quantities {
     vector[N] f = standardized_simulator(X, theta, y_center, y_scale);
     vector[N] mean_terms = h * beta;
     vector[N] resid = y - rho * f - mean_terms;
-    vector[N] noise_var = noise_variance(noise_sd, source, known_sd);
+    vector[N] noise_var = row_noise_variance(noise_sd, source, known_sd, noise_log_scale, noise_loc);
     vector[N] resid_loo_mean = rep_vector(0, N);
     vector[P] f_new_std = standardized_simulator(X_new, theta, y_center, y_scale);
     vector[N] delta_obs = rep_vector(0, N);

@@ -54,8 +54,9 @@ def edited_koh(folder):
          "  real<lower=0> noise_sd_hot;                            // noise sd of the hot starts, standardised\n")),
         ("  beta ~ normal(0, beta_prior_sd);\n",
          "  beta ~ normal(0, beta_prior_sd);\n  noise_sd_hot ~ normal(0, 1);\n"),
-        ("    vector[N] noise_var = noise_variance(noise_sd, source, known_sd);\n    if (use_discrepancy) {\n",
-         ("    vector[N] noise_var = noise_variance(noise_sd, source, known_sd);\n"
+        (("    vector[N] noise_var = row_noise_variance(noise_sd, source, known_sd, noise_log_scale, noise_loc);\n"
+         "    if (use_discrepancy) {\n"),
+         ("    vector[N] noise_var = row_noise_variance(noise_sd, source, known_sd, noise_log_scale, noise_loc);\n"
           "    for (i in 1:N) if (X[i, 2] > 75) noise_var[i] = square(noise_sd_hot);\n    if (use_discrepancy) {\n")),
     ]
     for old, new in edits:

@@ -73,6 +73,7 @@ COMMENT_NAMES = {
     "RIGHT": "right", "INTERVAL": "interval", "gp": "GP", "orthogonal": "orthogonal GP",
     "scaled": "scaled GP", "known": "known per value", "one": "one sd", "per_experiment": "one per experiment",
     "IID": "iid", "PER_SOURCE": "per_source", "STUDENT_T": "student_t",
+    "HETEROSCEDASTIC": "heteroscedastic",
 }
 _DECLARATION = re.compile(
     r"^\s*(?:array\[[^\]]*\]\s*)?int<lower=(-?\d+),\s*upper=(-?\d+)>\s+(\w+);\s*//(.*)$")

@@ -34,8 +34,8 @@ from stancal.stan.standata import EMULATOR_HYPERPARAMETERS, build_stan_data, def
 
 logger = logging.getLogger("stancal")
 
-_DIAGNOSED = ["theta", "noise_sd", "nu", "delta_sd", "delta_length_scale", "delta_relevance", "rho", "beta", "phi",
-              "theta_function_sd", *EMULATOR_HYPERPARAMETERS]
+_DIAGNOSED = ["theta", "noise_sd", "nu", "noise_gp_sd", "noise_length_scale", "delta_sd", "delta_length_scale",
+              "delta_relevance", "rho", "beta", "phi", "theta_function_sd", *EMULATOR_HYPERPARAMETERS]
 
 
 def _plan_alone(options: ModelOptions, **files) -> None:
@@ -143,6 +143,7 @@ def calibrate(
     boundary_factor: tuple[float, ...] | list[float] = (),
     discrepancy_parametrization: str = "auto",
     noise: str = "iid",
+    noise_inputs: tuple[str, ...] | list[str] = (),
     new_points: pd.DataFrame | None = None,
     chains: int = 4,
     warmup: int = 1000,
@@ -185,9 +186,11 @@ def calibrate(
     the better kept. The summary says which
     ran and why (options.discrepancy_parametrization_reason).
     ``noise``: the measurement noise (docs/noise.md): iid (one sd), per_source
-    (one sd per the data's ``source``) or student_t (robust, its degrees of
-    freedom estimated; Lange, Little & Taylor 1989), on koh, koh_emulator and
-    modular; the data's known ``noise_sd`` adds in quadrature to each.
+    (one sd per the data's ``source``), student_t (robust, its degrees of
+    freedom estimated; Lange, Little & Taylor 1989) or heteroscedastic (the
+    log sd a GP over ``noise_inputs``, by default every simulator input;
+    Binois, Gramacy & Ludkovski 2018; Sung, Barber & Walker 2022), on koh,
+    koh_emulator and modular; the data's known ``noise_sd`` adds in quadrature to each.
     Non-Gaussian (``CalibrationData(likelihood=...)``) or censored outputs and
     functional theta run on the latent-GP programs koh_latent (simulator) and
     koh_latent_emulator (runs).
@@ -221,7 +224,7 @@ def calibrate(
     options = model_options(discrepancy, kernel, estimate_rho, mean_formula, mean_intercept, scaled_lambda,
                             functional, functional_inputs, functional_parametrization, approximation,
                             basis_functions, boundary_factor, mean_centred,
-                            discrepancy_parametrization, noise)
+                            discrepancy_parametrization, noise, noise_inputs)
     if plan is None:
         plan = plan_scalar(data, simulator, method, options, program)
     else:

@@ -12,7 +12,7 @@ from stancal.numerics.hsgp import first_basis
 from stancal.numerics.parametrization import choose_parametrization
 from stancal.problem.data import CalibrationData
 from stancal.problem.functional import check_functional
-from stancal.problem.noise import check_noise
+from stancal.problem.noise import check_noise, check_noise_inputs
 from stancal.problem.options import EXACT_SIZE_LIMIT, RESTRICTED_DISCREPANCIES, ModelOptions, VectorOptions
 from stancal.problem.vector_data import VectorCalibrationData
 from stancal.stan.registry import (
@@ -83,7 +83,7 @@ def model_options(discrepancy: str | None = None, kernel: str = "se", estimate_r
                   scaled_lambda: float | None = None, functional=(), functional_inputs=(),
                   functional_parametrization: str = "centred", approximation: str = "auto",
                   basis_functions=(), boundary_factor=(), mean_centred: bool = False,
-                  discrepancy_parametrization: str = "auto", noise: str = "iid") -> ModelOptions:
+                  discrepancy_parametrization: str = "auto", noise: str = "iid", noise_inputs=()) -> ModelOptions:
     """calibrate()'s model keywords as ModelOptions; the discrepancy defaults
     to gp, or none with functional theta (flexible enough without one,
     review section 8.2)."""
@@ -91,7 +91,7 @@ def model_options(discrepancy: str | None = None, kernel: str = "se", estimate_r
                         estimate_rho, mean_formula, mean_intercept, scaled_lambda, tuple(functional),
                         tuple(functional_inputs), functional_parametrization, approximation,
                         tuple(basis_functions), tuple(boundary_factor), mean_centred,
-                        discrepancy_parametrization, noise=noise)
+                        discrepancy_parametrization, noise=noise, noise_inputs=tuple(noise_inputs))
 
 
 def make_plan(data: CalibrationData | VectorCalibrationData, simulator: str | Path | None = None,
@@ -278,6 +278,7 @@ def _check_noise(chosen: Program, options: ModelOptions, data: CalibrationData) 
     """The noise model against the data's columns and the chosen program
     (the registry's ``noises``), before anything compiles."""
     check_noise(options.noise, data.noise)
+    check_noise_inputs(options.noise, options.noise_inputs, data.inputs)
     if options.noise not in chosen.noises:
         taking = [p.name for p in PROGRAMS.values() if options.noise in p.noises and p.output == "scalar"]
         raise ValueError(f"noise {options.noise!r} runs on the programs {', '.join(taking)}; this problem "

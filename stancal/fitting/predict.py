@@ -9,7 +9,7 @@ import pandas as pd
 
 from stancal.fitting.l2 import reproject
 from stancal.problem.codes import Likelihood
-from stancal.problem.noise import draw_noise, row_noise_sd
+from stancal.problem.noise import HETEROSCEDASTIC, draw_noise, row_noise_sd
 from stancal.results.result import NEW_OBSERVATION, PREDICTED, interval_table
 from stancal.stan.backends import get_backend
 from stancal.stan.standata import build_stan_data, to_stan_json
@@ -64,16 +64,22 @@ def _observe(result, zeta: np.ndarray, points: pd.DataFrame, seed: int, step: in
         return rng.negative_binomial(phi, phi / (phi + zeta)).astype(float)
     if likelihood is Likelihood.BINOMIAL:
         return rng.binomial(result.data.trials_at(points), zeta).astype(float)
-    return zeta + _noise(result, posterior, points, rng, len(zeta))
+    return zeta + _noise(result, posterior, points, rng, len(zeta), step)
 
 
-def _noise(result, posterior, points: pd.DataFrame, rng: np.random.Generator, draws: int) -> np.ndarray:
+def _noise(result, posterior, points: pd.DataFrame, rng: np.random.Generator, draws: int,
+           step: int) -> np.ndarray:
     """Measurement noise at the points with the fit's noise model
     (stancal.problem.noise): a point's source and known sd where the points
     give those columns; without a source, per source noise is that of a
-    source drawn in the physical rows' shares; Student-t with each draw's nu."""
+    source drawn in the physical rows' shares; Student-t with each draw's nu;
+    heteroscedastic: the sd at the points from its log sd GP, one draw of
+    the GP's conditional per posterior draw (CalibrationResult.noise_sd_at)."""
     noise = result.data.noise
     source, known = noise.at(points)
+    if result.options.noise == HETEROSCEDASTIC:
+        scale = np.sqrt(result.noise_sd_at(points, rng, step) ** 2 + known**2)
+        return draw_noise(rng, scale, None)
     shares = noise.rows_per_source / len(noise.source_index)
     scale = row_noise_sd(np.asarray(posterior["noise_sd"]).reshape(draws, -1), source, known, shares, rng)
     return draw_noise(rng, scale, np.asarray(posterior["nu"]).ravel() if "nu" in posterior else None)

@@ -47,3 +47,4 @@ class Noise(IntEnum):
     IID = 1
     PER_SOURCE = 2
     STUDENT_T = 3
+    HETEROSCEDASTIC = 4

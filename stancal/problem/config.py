@@ -13,7 +13,7 @@ from stancal.problem import config_schema
 from stancal.problem.candidates import Candidate, CandidateError
 from stancal.problem.codes import NOISE_MODES
 from stancal.problem.data import CalibrationData
-from stancal.problem.noise import NOISES, check_noise, check_noise_name
+from stancal.problem.noise import NOISES, check_noise, check_noise_inputs, check_noise_name
 from stancal.problem.validation import DataError, read_table
 from stancal.problem.vector_data import VectorCalibrationData
 
@@ -105,7 +105,7 @@ def _problem(raw: dict[str, Any], base: Path) -> Problem:
         return _vector_problem(physical, simulator, theta, runs, stan, model, raw, base)
     if "program" in model:
         model["program"] = base / model["program"]
-    for key in ("functional", "functional_inputs"):  # one name or a list (the schema checked which)
+    for key in ("functional", "functional_inputs", "noise_inputs"):  # one name or a list (the schema checked which)
         if isinstance(model.get(key), str):
             model[key] = [model[key]]
     observation = {key: model.pop(key) for key in _OBSERVATION_KEYS if key in model}
@@ -121,7 +121,7 @@ def _problem(raw: dict[str, Any], base: Path) -> Problem:
         **observation,
         low_fidelity_runs=_low_fidelity_runs(simulator, base),
     )
-    _check_noise(model.get("noise", "iid"), data)
+    _check_noise(model.get("noise", "iid"), data, model.get("noise_inputs", []))
     candidates = _candidates(raw.get("candidates", {}), base)
     return Problem(data=data, simulator=stan, model=model, candidates=candidates, units=dict(raw.get("units", {})),
                    design=dict(raw.get("design", {})))
@@ -134,13 +134,15 @@ def _low_fidelity_runs(simulator: dict[str, Any], base: Path) -> list[pd.DataFra
                                                                              else files)]
 
 
-def _check_noise(noise: str, data: CalibrationData) -> None:
-    """[model] noise against [physical] noise_sd and source, before anything compiles."""
+def _check_noise(noise: str, data: CalibrationData, noise_inputs: list[str]) -> None:
+    """[model] noise against [physical] noise_sd and source, and noise_inputs
+    against the inputs, before anything compiles."""
     if noise in NOISE_MODES:
         raise ConfigError(f"[model] noise applies to a vector output only as {noise!r} (a [physical] output_index); "
                           f"a scalar output's noise is one of {', '.join(NOISES)}")
     try:
         check_noise_name(noise)  # the schema's choices let through only a model not built yet
+        check_noise_inputs(noise, noise_inputs, data.inputs)
     except ValueError as err:
         raise ConfigError(str(err)) from None
     check_noise(noise, data.noise)  # a DataError naming the key and the column

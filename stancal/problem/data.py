@@ -339,14 +339,19 @@ class CalibrationData:
         """What the discrepancy is measured in (output units, or a link scale)."""
         return LINKS[self.observations.likelihood].scale
 
-    def heldout_log_density(self, rows: np.ndarray, zeta: np.ndarray, posterior) -> np.ndarray:
+    def heldout_log_density(self, rows: np.ndarray, zeta: np.ndarray, posterior,
+                            estimated_sd: np.ndarray | None = None) -> np.ndarray:
         """log p(y_row | zeta, the fit's noise or dispersion) per draw (draws, rows):
         each row's noise scale from its source and known sd, Student-t where
-        the fit has degrees of freedom nu (stancal.problem.noise)."""
+        the fit has degrees of freedom nu (stancal.problem.noise);
+        ``estimated_sd``: the estimated sd at the rows per draw (heteroscedastic
+        noise), in place of the posterior's noise_sd."""
         phi = np.asarray(posterior["phi"]).reshape(-1, 1) if "phi" in posterior else None
         nu = np.asarray(posterior["nu"]).reshape(-1, 1) if "nu" in posterior else None
         noise = None
-        if "noise_sd" in posterior:
+        if estimated_sd is not None:
+            noise = np.sqrt(estimated_sd**2 + self.noise.known_sd[rows] ** 2)
+        elif "noise_sd" in posterior:
             sigma = np.asarray(posterior["noise_sd"]).reshape(len(zeta), -1)
             noise = row_noise_sd(sigma, self.noise.source_index[rows], self.noise.known_sd[rows])
         return self.observations.log_density(rows, zeta, noise, phi, nu)

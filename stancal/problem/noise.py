@@ -2,7 +2,9 @@
 stan_models/functions/noise.stan): each row's known measurement sd (a
 ``noise_sd`` column), its measurement source (a ``source`` column), and the
 noise model over them, ``noise``: iid (one estimated sd), per_source (one
-per source) or student_t (Student-t with estimated degrees of freedom). A
+per source), student_t (Student-t with estimated degrees of freedom) or
+heteroscedastic (a log sd that is a GP over the inputs, Binois, Gramacy &
+Ludkovski 2018; Sung, Barber & Walker 2022: stancal.numerics.noise_gp). A
 known sd adds in quadrature to the estimated one (Hogg, Bovy & Lang 2010,
 section 7). The same arithmetic serves new observations and held-out
 scores, so that predictions and `stancal gap` use the fit's own noise."""
@@ -19,9 +21,10 @@ from stancal.problem.advice import config_key
 from stancal.problem.codes import Noise
 from stancal.problem.validation import DataError, numeric_values, row_labels
 
-NOISES = tuple(code.name.lower() for code in Noise)  # iid, per_source, student_t
+NOISES = tuple(code.name.lower() for code in Noise)  # iid, per_source, student_t, heteroscedastic
+HETEROSCEDASTIC = Noise.HETEROSCEDASTIC.name.lower()
 # noise models of issue 33 not built yet: refused by name, never silently replaced
-NOT_BUILT = ("heteroscedastic",)
+NOT_BUILT: tuple[str, ...] = ()
 # a row whose posterior mean Student-t weight is below this counts at most a
 # quarter as much as a row of the prior mean weight, 1: the report lists it as an
 # outlier. Without a GP that is a residual beyond sqrt(3 nu + 4) scales: 3.6 at
@@ -126,6 +129,73 @@ def check_noise(noise: str, measurement: MeasurementNoise) -> None:
         raise DataError(f"the physical data name a measurement source (column '{column}'), which only "
                         f"noise = \"per_source\" uses; set {config_key('model', 'noise', 'per_source')}, or "
                         "leave the source out")
+
+
+def check_noise_inputs(noise: str, noise_inputs: Sequence[str], inputs: Sequence[str] | None = None) -> None:
+    """[model] noise_inputs: given with heteroscedastic noise only, and (with
+    ``inputs``, the simulator inputs) each a simulator input."""
+    if noise_inputs and noise != HETEROSCEDASTIC:
+        raise ValueError(f"{config_key('model', 'noise_inputs', list(noise_inputs))} applies to "
+                         f"noise = \"{HETEROSCEDASTIC}\" only; got noise = {noise!r}")
+    unknown = [name for name in noise_inputs if inputs is not None and name not in inputs]
+    if unknown:
+        raise ValueError(f"{config_key('model', 'noise_inputs', list(noise_inputs))}: {unknown} are not "
+                         f"simulator inputs; choose among {list(inputs)}")
+
+
+@dataclass(frozen=True)
+class NoiseLocations:
+    """Heteroscedastic noise: the distinct settings of the noise inputs,
+    where its log sd GP lives (replicated rows share one), on the unit scale."""
+
+    inputs: tuple[str, ...]
+    unit: np.ndarray  # (locations, inputs), each input scaled to [0, 1]
+    row_location: np.ndarray  # per row, 0-based into unit
+
+    @classmethod
+    def of(cls, unit_values: np.ndarray, inputs: Sequence[str]) -> NoiseLocations:
+        distinct, index = np.unique(np.asarray(unit_values, float).reshape(len(unit_values), -1), axis=0,
+                                    return_inverse=True)
+        return cls(tuple(inputs), distinct, index.ravel())
+
+    def length_scale_prior(self) -> tuple[float, float]:
+        """The lognormal (location, scale) of the log sd GP's length scales
+        (unit scale): 95 % of its mass between the inputs' mean spacing,
+        1 / (distinct values - 1) of the finest input, and their range, 1 (a
+        GP no shorter than the spacing of the settings it is seen at)."""
+        counts = [len(np.unique(self.unit[:, j])) for j in range(self.unit.shape[1])]
+        spacing = 1.0 / (max(counts) - 1)
+        return 0.5 * np.log(spacing), -np.log(spacing) / (2 * 1.959964)
+
+    def stan_data(self) -> dict:
+        """functions/noise.stan's heteroscedastic data."""
+        return {"N_loc": len(self.unit), "D_noise": self.unit.shape[1], "x_noise": self.unit,
+                "noise_loc": self.row_location + 1,
+                "noise_length_scale_prior": [float(v) for v in self.length_scale_prior()]}
+
+
+# the Stan data of a homoscedastic noise: no locations
+NO_LOCATIONS = {"N_loc": 0, "D_noise": 0, "x_noise": np.zeros((0, 0)), "noise_loc": np.zeros(0, dtype=int),
+                "noise_length_scale_prior": [0.0, 1.0]}
+
+
+def check_noise_locations(locations: NoiseLocations) -> None:
+    """Heteroscedastic noise needs each noise input to vary: a GP over one value is only a level."""
+    flat = [name for j, name in enumerate(locations.inputs) if len(np.unique(locations.unit[:, j])) < 2]
+    if flat:
+        raise DataError(f"{config_key('model', 'noise', HETEROSCEDASTIC)}: the noise inputs {flat} take one value "
+                        "in the physical data; the noise sd cannot vary over them: set [model] noise_inputs to "
+                        "inputs that vary, or use noise = \"iid\"")
+
+
+def replicate_counts(inputs: np.ndarray) -> dict[str, int]:
+    """Replicates: rows whose inputs equal another row's, found by exact
+    equality. ``settings``: distinct input settings; ``replicated_settings``:
+    those measured more than once; ``replicate_rows``: the rows beyond each
+    setting's first (rows - settings)."""
+    _, counts = np.unique(np.asarray(inputs).reshape(len(inputs), -1), axis=0, return_counts=True)
+    return {"rows": int(counts.sum()), "settings": len(counts), "replicated_settings": int((counts > 1).sum()),
+            "replicate_rows": int(counts.sum() - len(counts))}
 
 
 def stan_noise_data(noise: str, measurement: MeasurementNoise, y_scale: float) -> dict:

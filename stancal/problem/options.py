@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from stancal.problem.codes import NOISE_MODES, Kernel
-from stancal.problem.noise import check_noise_name
+from stancal.problem.noise import check_noise_inputs, check_noise_name
 
 APPROXIMATIONS = ("auto", "exact", "hsgp")
 KERNELS = ("se", "matern52")
@@ -42,12 +42,15 @@ class ModelOptions:
     # information per point: stancal.numerics.parametrization); the reason says who chose and why
     discrepancy_parametrization: str = "auto"
     discrepancy_parametrization_reason: str = field(default="", metadata={"set_by": "stancal"})  # not a user's key
-    # the measurement noise: iid, per_source or student_t (stancal.problem.noise, functions/noise.stan)
+    # the measurement noise: iid, per_source, student_t or heteroscedastic (stancal.problem.noise,
+    # functions/noise.stan)
     noise: str = "iid"
+    # heteroscedastic noise: the simulator inputs its log sd varies over (empty: all of them)
+    noise_inputs: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         # lists from a config or a saved result
-        for name in ("functional", "functional_inputs", "basis_functions", "boundary_factor"):
+        for name in ("functional", "functional_inputs", "basis_functions", "boundary_factor", "noise_inputs"):
             object.__setattr__(self, name, tuple(getattr(self, name)))
         if self.approximation not in APPROXIMATIONS:
             raise ValueError(f"approximation must be one of {', '.join(APPROXIMATIONS)}; "
@@ -69,6 +72,7 @@ class ModelOptions:
         if self.kernel not in KERNELS:
             raise ValueError(f"kernel must be 'se' or 'matern52'; got {self.kernel!r}")
         check_noise_name(self.noise)
+        check_noise_inputs(self.noise, self.noise_inputs)
         if self.scaled_lambda is not None and not (np.isfinite(self.scaled_lambda) and self.scaled_lambda > 0):
             raise ValueError(f"scaled_lambda must be a positive number; got {self.scaled_lambda!r}")
 

@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from stancal.problem.noise import HETEROSCEDASTIC
 from stancal.reporting.series import Curves, axis_label, fit_curves, series_rows
 from stancal.results.result import CalibrationResult
 
@@ -219,6 +220,37 @@ def plot_theta_functions(result: CalibrationResult, path: str | Path | None = No
     return finish(fig, path)
 
 
+def plot_noise_sd(result: CalibrationResult, path: str | Path | None = None, units: dict[str, str] | None = None):
+    """Heteroscedastic noise: the noise sd's posterior mean and 90 % band
+    along the noise input with the most settings (one band over one input;
+    intervals at the settings of several), with each replicated setting's
+    sample sd of its readings, a model-free check (docs/noise.md)."""
+    plt = pyplot()
+    curve = result.noise_curve()
+    inputs = list(result.options.noise_inputs or result.data.inputs)
+    column = max(inputs, key=lambda c: curve[c].nunique())
+    fig, ax = plt.subplots(figsize=(6, 3.6), layout="constrained")
+    if len(inputs) == 1:
+        ax.fill_between(curve[column], curve["q05"], curve["q95"], color="C1", alpha=0.3, lw=0,
+                        label=f"noise sd, {LEVEL} band")
+        ax.plot(curve[column], curve["mean"], color="C1", label="noise sd, posterior mean")
+    else:
+        ax.errorbar(curve[column], curve["mean"], yerr=[curve["mean"] - curve["q05"], curve["q95"] - curve["mean"]],
+                    fmt="o", color="C1", ms=3, label=f"noise sd at each setting, mean and {LEVEL} interval")
+    physical = result.data.physical
+    spread = physical.groupby(list(result.data.discrepancy_inputs))[result.data.output].agg(["std", "count"])
+    spread = spread[spread["count"] > 1].reset_index()
+    if len(spread):
+        ax.scatter(spread[column], spread["std"], color="0.3", s=12, zorder=3,
+                   label="sample sd of each setting's replicates")
+    ax.set_xlabel(axis_label(column, units))
+    ax.set_ylabel(axis_label(result.data.output, units).replace(result.data.output, "noise sd", 1))
+    ax.set_ylim(bottom=0)
+    ax.legend(fontsize=8)
+    ax.set_title("measurement noise sd (heteroscedastic)", fontsize=10)
+    return finish(fig, path)
+
+
 def finish(fig, path):
     """Save ``fig`` to ``path`` and close it; without a path, return it open."""
     if path is not None:
@@ -228,8 +260,8 @@ def finish(fig, path):
 
 
 def write_plots(result: CalibrationResult, folder: str | Path, units: dict[str, str] | None = None) -> list[Path]:
-    """theta.png, fit.png, and discrepancy.png and theta_functions.png where
-    the model has them; ``units``: the config's [units] (name -> unit)."""
+    """theta.png, fit.png, and discrepancy.png, theta_functions.png and
+    noise_sd.png (heteroscedastic noise) where the model has them; ``units``: the config's [units] (name -> unit)."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     paths = [folder / "theta.png", folder / "fit.png"]
@@ -242,6 +274,9 @@ def write_plots(result: CalibrationResult, folder: str | Path, units: dict[str, 
     if result.options.functional:
         paths.append(folder / "theta_functions.png")
         plot_theta_functions(result, paths[-1], units)
+    if result.options.noise == HETEROSCEDASTIC:
+        paths.append(folder / "noise_sd.png")
+        plot_noise_sd(result, paths[-1], units)
     return paths
 
 

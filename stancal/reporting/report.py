@@ -6,6 +6,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
+
 from stancal.reporting.html import write_html
 from stancal.results.vector_result import VectorCalibrationResult
 
@@ -103,11 +105,28 @@ def noise_lines(noise: dict, table) -> list[str]:
     if noise["model"] == "per_source":
         lines.append("- rows per source (column '{}'): {}".format(
             noise["source_column"], ", ".join(f"{k} {v}" for k, v in noise["rows_per_source"].items())))
+    if "sd_curve" in noise:  # heteroscedastic
+        lines += heteroscedastic_lines(noise)
     if noise["model"] == "student_t":
         rows = noise["outliers"]
         lines.append(f"- outliers ({noise['outlier_rule']}): " + (", ".join(
             f"row {r['row']} (weight {r['weight']:.2f})" for r in rows) if rows else "none"))
     return lines
+
+
+def heteroscedastic_lines(noise: dict) -> list[str]:
+    """The replicates found and the noise sd curve's range (the curve and its band: noise_sd.png)."""
+    r, curve = noise["replicates"], noise["sd_curve"]
+    column = noise["noise_inputs"][0]
+    low, high = int(np.argmin(curve["mean"])), int(np.argmax(curve["mean"]))
+    return [(f"- the log noise sd is a GP over {', '.join(noise['noise_inputs'])} "
+             "(noise_sd: the sd's geometric mean over the settings)"),
+            (f"- replicates: {r['replicate_rows']} of {r['rows']} rows repeat another row's inputs "
+             f"({r['replicated_settings']} of {r['settings']} settings measured more than once)"),
+            (f"- noise sd from {curve['mean'][low]:.4g} [{curve['q05'][low]:.4g}, {curve['q95'][low]:.4g}] "
+             f"at {column} = {curve[column][low]:.4g} to {curve['mean'][high]:.4g} "
+             f"[{curve['q05'][high]:.4g}, {curve['q95'][high]:.4g}] at {column} = {curve[column][high]:.4g} "
+             f"(posterior mean, {noise['band']} band; the curve: noise_sd.png, summary.json noise.sd_curve)")]
 
 
 def _report(summary: dict, table, plots: list[Path]) -> str:

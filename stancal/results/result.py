@@ -12,9 +12,10 @@ import numpy as np
 import pandas as pd
 import xarray as xr
 
+from stancal.numerics.noise_gp import log_scale_at
 from stancal.problem.data import CalibrationData
 from stancal.problem.functional import functional_grid
-from stancal.problem.noise import OUTLIER_WEIGHT, outlier_rows
+from stancal.problem.noise import OUTLIER_WEIGHT, outlier_rows, replicate_counts
 from stancal.problem.options import ModelOptions
 from stancal.results.diagnostics import Diagnostics
 from stancal.results.modes import Mode
@@ -22,7 +23,7 @@ from stancal.results.summaries import band, summary_by_mode, theta_function_summ
 from stancal.stan.backends.base import Draws, SampleOutput
 from stancal.stan.registry import Program, program
 from stancal.stan.source import FlatProgram
-from stancal.stan.standata import EMULATOR_HYPERPARAMETERS, mean_terms_of
+from stancal.stan.standata import EMULATOR_HYPERPARAMETERS, mean_terms_of, noise_locations
 
 # Stan program variables -> names in the posterior group (original units)
 _REPORTED = {
@@ -32,12 +33,16 @@ _REPORTED = {
     "rho": "rho",
     "phi": "phi",
     "nu": "nu",
+    "noise_gp_sd": "noise_gp_sd",
 }
 # some programs declare these as arrays: of size 0 or 1 (present or not; delta_sd,
 # phi, nu), or noise_sd of size S (koh, koh_emulator, modular: one per measurement
 # source with noise = "per_source", kept per source then; size 1 becomes a scalar)
-_OPTIONAL_SCALARS = ("noise_sd", "delta_sd", "phi", "nu")
+_OPTIONAL_SCALARS = ("noise_sd", "delta_sd", "phi", "nu", "noise_gp_sd")
 ROW_WEIGHT = "row_weight"  # Student-t noise: each row's weight in the fit (functions/noise.stan)
+# heteroscedastic noise: log(noise sd / noise_sd) at the distinct settings of its inputs
+NOISE_LOCATIONS = "noise_locations"
+NOISE_BAND = "90 %"  # the noise sd curve's band: 5 % to 95 % quantiles
 PREDICTED = ("f_new", "delta_new", "zeta_new")
 NEW_OBSERVATION = "y_new"  # latent programs: a new observation from the likelihood
 # per physical point: the GP part of delta (a draw, and its mean given the
@@ -47,7 +52,7 @@ AT_OBSERVATIONS = ("delta_gp", "delta_gp_mean", "y_loo_mean")
 # form (original units, or not at all: latent standard normals); any other
 # parameter of a program goes into the posterior group as it is
 _REEXPRESSED = {"theta_unit", "noise_sd", "delta_sd", "delta_input_length_scale", "delta_relevance",
-                "rho_free", "beta", "noise_weight",
+                "rho_free", "beta", "noise_weight", "noise_z", "noise_log_scale", "noise_length_scale",
                 "inv_sqrt_phi", "delta_raw", "emulator_z", "theta_function_sd",
                 "theta_function_length_scale", "theta_function_logit", "theta_function_raw"}
 
@@ -75,6 +80,9 @@ def build_datatree(sample: SampleOutput, data: CalibrationData,
         sampled["at_observations"][ROW_WEIGHT] = d[ROW_WEIGHT]
     if options.functional:
         sampled["theta_functions"] = {"theta_function": d["theta_function_grid"]}
+    locations = noise_locations(data, options)
+    if locations is not None:
+        sampled[NOISE_LOCATIONS] = {"log_scale": d["noise_log_scale"]}
     if "delta_basis_weights" in d and d["delta_basis_weights"].shape[-1]:  # the Hilbert-space discrepancy's
         sampled["discrepancy_basis"] = {"weights": d["delta_basis_weights"]}
     grid = functional_grid(data, options.functional_inputs)
@@ -84,6 +92,10 @@ def build_datatree(sample: SampleOutput, data: CalibrationData,
     if options.functional:  # the grid's input values, for plotting theta(x)
         tree["theta_functions"] = xr.DataTree(tree["theta_functions"].to_dataset().assign_coords(
             {c: ("grid_point", grid[c].to_numpy()) for c in grid.columns}))
+    if locations is not None:  # each setting's input values, original units
+        tree[NOISE_LOCATIONS] = xr.DataTree(tree[NOISE_LOCATIONS].to_dataset().assign_coords(
+            {c: ("noise_location", data.scaling.low[c] + data.scaling.width[c] * locations.unit[:, j])
+             for j, c in enumerate(locations.inputs)}))
     _add_data_groups(tree, data, new_points)
     tree["stan_parameters"] = xr.DataTree(ab.dict_to_dataset({k: d[k] for k in parameter_names}))
     if sample.inv_metric is not None:  # the adapted metric, for warm-started refits (stancal.fitting.warm_start)
@@ -112,6 +124,9 @@ def _posterior(d: Draws, data: CalibrationData, parameter_names: list[str], opti
         widths = np.array([data.scaling.width[c] for c in options.functional_inputs])
         posterior["theta_function_sd"] = d["theta_function_sd"]
         posterior["theta_function_length_scale"] = d["theta_function_length_scale"] * widths
+    if "noise_length_scale" in d and d["noise_length_scale"].shape[-1]:  # heteroscedastic: original units
+        inputs = options.noise_inputs or data.inputs
+        posterior["noise_length_scale"] = d["noise_length_scale"] * np.array([data.scaling.width[c] for c in inputs])
     if not options.estimate_rho:
         posterior.pop("rho", None)
     for name in EMULATOR_HYPERPARAMETERS:
@@ -134,6 +149,7 @@ _DIMS = {
     "theta_function_length_scale": ["functional_theta", "functional_input"],
     "theta_function": ["grid_point", "functional_theta"],
     "weights": ["basis_function"], ROW_WEIGHT: ["obs"],
+    "noise_length_scale": ["noise_input"], "log_scale": ["noise_location"],
 }
 
 
@@ -147,6 +163,7 @@ def _coords(data: CalibrationData, new_points: pd.DataFrame, options: ModelOptio
         "mean_term": terms.names if terms else [],
         "functional_theta": list(options.functional), "functional_input": list(options.functional_inputs),
         "grid_point": np.arange(len(grid)), "source": list(data.noise.sources),
+        "noise_input": list(options.noise_inputs or data.inputs),
     }
 
 
@@ -232,14 +249,59 @@ class CalibrationResult:
         return table.join(physical[[*self.data.inputs, self.data.output]], on="row")
 
     def noise_summary(self) -> dict[str, Any]:
-        """The noise model: its name, each source's rows, the known-sd column
-        and (Student-t) the outliers, for summary.json and the report."""
+        """The noise model: its name, each source's rows, the known-sd column,
+        (Student-t) the outliers and (heteroscedastic) the replicates and the
+        noise sd curve, for summary.json and the report."""
         noise = self.data.noise
-        return {"model": self.options.noise, "known_sd_column": noise.noise_sd_column,
-                "source_column": noise.source_column,
-                "rows_per_source": dict(zip(noise.sources, noise.rows_per_source.tolist(), strict=True)),
-                "outlier_rule": f"posterior mean Student-t weight < {OUTLIER_WEIGHT}",
-                "outliers": json.loads(self.outliers().to_json(orient="records"))}
+        out = {"model": self.options.noise, "known_sd_column": noise.noise_sd_column,
+               "source_column": noise.source_column,
+               "rows_per_source": dict(zip(noise.sources, noise.rows_per_source.tolist(), strict=True)),
+               "outlier_rule": f"posterior mean Student-t weight < {OUTLIER_WEIGHT}",
+               "outliers": json.loads(self.outliers().to_json(orient="records"))}
+        if NOISE_LOCATIONS in self.idata.children:
+            curve = self.noise_curve()
+            out.update(noise_inputs=list(self.options.noise_inputs or self.data.inputs), band=NOISE_BAND,
+                       replicates=replicate_counts(self.data.physical[self.data.discrepancy_inputs].to_numpy()),
+                       sd_curve={c: curve[c].tolist() for c in curve.columns})
+        return out
+
+    def noise_sd_at(self, points: pd.DataFrame, rng: np.random.Generator | None = None,
+                    step: int = 1) -> np.ndarray:
+        """Heteroscedastic noise: the noise sd (output units) at ``points``
+        per posterior draw (every ``step``-th of each chain), (draws, points):
+        noise_sd (the sd's geometric mean over the settings) times exp(g - mean
+        of g at the settings), g the log sd GP's conditional at the points
+        (stancal.numerics.noise_gp: its mean, or a draw with ``rng``)."""
+        locations = noise_locations(self.data, self.options)
+        assert locations is not None, "noise_sd_at: the fit's noise is not heteroscedastic"
+        posterior = self.idata["posterior"].isel(draw=slice(None, None, step))
+        values = np.asarray(self.idata[NOISE_LOCATIONS]["log_scale"])[:, ::step]
+        widths = np.array([self.data.scaling.width[c] for c in locations.inputs])
+        log_scale = log_scale_at(self.data.scaling.to_unit(points, locations.inputs), locations.unit,
+                                 values.reshape(-1, values.shape[-1]),
+                                 np.asarray(posterior["noise_gp_sd"]).ravel(),
+                                 np.asarray(posterior["noise_length_scale"]).reshape(-1, len(widths)) / widths,
+                                 rng)
+        # noise_sd is the sd's geometric mean over the settings: g centred there (functions/noise.stan)
+        centre = values.reshape(-1, values.shape[-1]).mean(axis=1, keepdims=True)
+        return np.asarray(posterior["noise_sd"]).reshape(-1, 1) * np.exp(log_scale - centre)
+
+    def noise_curve(self, size: int = 60) -> pd.DataFrame:
+        """Heteroscedastic noise: the noise sd's posterior mean and 90 % band
+        (output units; the estimated part, without any known sd) over its one
+        input (``size`` points across the physical data's range), or at the
+        distinct settings of its several inputs; a draw of the GP between them."""
+        locations = noise_locations(self.data, self.options)
+        assert locations is not None, "noise_curve: the fit's noise is not heteroscedastic"
+        physical = self.data.physical
+        if len(locations.inputs) == 1:
+            column = locations.inputs[0]
+            points = pd.DataFrame({column: np.linspace(physical[column].min(), physical[column].max(), size)})
+        else:
+            points = physical[list(locations.inputs)].drop_duplicates().sort_values(list(locations.inputs))
+        sd = self.noise_sd_at(points.reset_index(drop=True), np.random.default_rng(0))
+        summary = band(sd)
+        return points.reset_index(drop=True).assign(**{k: summary[k] for k in ("mean", "q05", "q50", "q95")})
 
     def theta_draws(self) -> pd.DataFrame:
         theta = self.idata["posterior"]["theta"]

@@ -17,7 +17,7 @@ from stancal.problem.codes import DISCREPANCY_PARAMETRIZATION_CODES
 from stancal.problem.data import CalibrationData
 from stancal.problem.functional import functional_grid
 from stancal.problem.mean_terms import MeanTerms, build_mean_terms
-from stancal.problem.noise import stan_noise_data
+from stancal.problem.noise import HETEROSCEDASTIC, NO_LOCATIONS, NoiseLocations, check_noise_locations, stan_noise_data
 from stancal.problem.options import DISCREPANCIES, ModelOptions
 
 EMULATOR_HYPERPARAMETERS = ("emulator_mean", "emulator_sd", "emulator_length_scale", "emulator_nugget")
@@ -116,8 +116,22 @@ def gaussian_outputs(inputs: StanInputs) -> dict[str, Any]:
 
 
 def noise_model(inputs: StanInputs) -> dict[str, Any]:
-    """The measurement noise of the exact Gaussian programs (functions/noise.stan)."""
-    return stan_noise_data(inputs.options.noise, inputs.data.noise, inputs.data.scaling.y_scale)
+    """The measurement noise of the exact Gaussian programs (functions/noise.stan):
+    with heteroscedastic noise, the locations of its log sd GP too."""
+    locations = noise_locations(inputs.data, inputs.options)
+    return {**stan_noise_data(inputs.options.noise, inputs.data.noise, inputs.data.scaling.y_scale),
+            **(locations.stan_data() if locations else NO_LOCATIONS)}
+
+
+def noise_locations(data: CalibrationData, options: ModelOptions) -> NoiseLocations | None:
+    """Heteroscedastic noise: the distinct settings of its inputs (by default
+    every simulator input) among the physical rows, checked; else None."""
+    if options.noise != HETEROSCEDASTIC:
+        return None
+    inputs = list(options.noise_inputs or data.inputs)
+    locations = NoiseLocations.of(data.scaling.to_unit(data.physical, inputs), inputs)
+    check_noise_locations(locations)
+    return locations
 
 
 def latent_outputs(inputs: StanInputs) -> dict[str, Any]:
