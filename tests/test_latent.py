@@ -640,3 +640,7 @@ def test_moment_matchings_target_is_the_fit_at_its_own_draws(poisson_fit):
                                rtol=1e-9)
     np.testing.assert_allclose(loo_mean, np.asarray(poisson_fit.idata["at_observations"]["y_loo_mean"])
                                .reshape(-1, n)[every], rtol=1e-9)
+    # a draw moved where Stan throws (a NaN parameter: a domain error, which arrives as ValueError) weighs 0
+    nowhere = np.full((1, upars.shape[1]), np.nan)
+    assert target.log_density(nowhere)[0] == -np.inf
+    assert np.isnan(target.pointwise(nowhere)[0]).all()

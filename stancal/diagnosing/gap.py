@@ -15,8 +15,8 @@ sampling (stancal.fitting.confounding) and the constant is then dropped
 from every fit alike, the candidates' terms staying centred, so the
 comparison stays fair: the parameter is the level in every fit. Candidates
 are ranked by the ELPD difference to the baseline
-(PSIS-LOO on the exact conditional, with exact refits where Pareto k is
-high, or K-fold).
+(PSIS-LOO on the exact conditional, with moment matching, then exact refits,
+where Pareto k stays high; or K-fold).
 
 A vector output (stancal.problem.vector_data) is diagnosed the same way
 (koh_vector.stan, or modular_vector.stan from runs; variants run
@@ -58,6 +58,7 @@ from stancal.diagnosing.scoring import (
     psis_score,
     refit_rows,
     rescored,
+    scored,
     settled,
     unreliable_tests,
 )
@@ -170,7 +171,7 @@ class GapAnalysis:
 def _matching(score: Score) -> dict[str, Any]:
     """What moment matching did in one fit: the observations it scored
     (Pareto k brought to 0.7 or below), and each tried one's k before and after."""
-    return {"points": sum(p.k_after <= PARETO_K_LIMIT for p in score.matched),
+    return {"points": len(scored(score.matched)),
             "tried": [p.to_json() for p in score.matched]}
 
 
@@ -443,7 +444,7 @@ def _moment_matched(labels: list, fits: list, scores: list[Score]) -> list[Score
             continue
         scores[i] = moment_matched(score, matched)
         logger.info("%s: moment matching scored %d of %d points with Pareto k above %g", label_name(label),
-                    sum(p.k_after <= PARETO_K_LIMIT for p in matched), len(matched), PARETO_K_LIMIT)
+                    len(scored(matched)), len(matched), PARETO_K_LIMIT)
     return scores
 
 

@@ -215,8 +215,9 @@ def fit_target(result) -> tuple[Target, np.ndarray]:
                                              result.data.source.iloc[:0],
                                              emulator_hyperparameters=result.emulator.get("hyperparameters")))
     backend = get_backend(result.backend)
-    unconstrain, log_density = backend.log_density_functions(result.program, stan_data)
+    # the quantities first: a backend without them (cmdstanpy) says so in its own words
     quantities = backend.unconstrained_quantities_function(result.program, stan_data)
+    unconstrain, log_density = backend.log_density_functions(result.program, stan_data)
 
     def pointwise(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         values = quantities(points)
@@ -239,16 +240,16 @@ def relative_efficiency(result) -> float:
     return float(np.mean(np.hstack([np.ravel(ess[v].values) for v in ess.data_vars])) / draws)
 
 
-def match_fit(result, rows: list[int], k_target: float | None = None) -> list[MatchedPoint]:
+def match_fit(result, rows: list[int], k_target: float = MATCH_K_TARGET) -> list[MatchedPoint]:
     """Moment-matched PSIS-LOO of a scalar fit's observations ``rows``
-    (those with a high Pareto k), from its stored draws, log
-    likelihood and held-out means; a module-level function, so that a
-    cluster's worker can run it (stancal.fitting.cluster)."""
+    (those with a high Pareto k), from its stored draws, log density,
+    log likelihood and held-out means. Run it in a process's main thread:
+    the model's log density called from a worker thread crashed the process."""
     target, upars = fit_target(result)
     n = len(result.data.physical)
     log_lik = np.asarray(result.idata["log_likelihood"]["y"]).reshape(-1, n)
     loo_mean = np.asarray(result.idata["at_observations"][LOO_MEAN]).reshape(-1, n)
-    lp = target.log_density(upars)
+    lp = np.asarray(result.idata["sample_stats"]["lp"]).reshape(-1)  # the sampler's, at these draws (test_latent)
     r_eff = relative_efficiency(result)
-    return [match_point(i, upars, lp, log_lik, loo_mean, target, r_eff, k_target=k_target or MATCH_K_TARGET)
+    return [match_point(i, upars, lp, log_lik, loo_mean, target, r_eff, k_target=k_target)
             for i in rows]

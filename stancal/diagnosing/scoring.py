@@ -32,7 +32,8 @@ class Score:
     elpd_i: np.ndarray  # pointwise held-out log predictive density
     heldout_mean: np.ndarray  # held-out predictive mean of each observation
     pareto_k: np.ndarray  # PSIS's Pareto k per observation; NaN under K-fold
-    scheme: str  # "psis-loo", "psis-loo+refits" or "kfold"
+    # "psis-loo", then "+moment-matching" and "+refits" as used, and " (settled: refits skipped)"; or "kfold"
+    scheme: str
     remaining: np.ndarray  # draws (draws, N): the discrepancy GP plus its constant at the physical points
     refits: int = 0  # fits beyond the main one: one per refitted observation, or K under K-fold
     # per observation, what log p(y_i | y_-i) can be (settled()): at most the full fit's own
@@ -103,6 +104,11 @@ def psis_score(result: CalibrationResult) -> Score:
                  lowest_i=log_lik.min(0), in_sample_i=logsumexp(log_lik, axis=0) - np.log(len(log_lik)))
 
 
+def scored(matched) -> list[MatchedPoint]:
+    """The moment-matched observations whose Pareto k it brought to 0.7 or below."""
+    return [p for p in matched if p.k_after <= PARETO_K_LIMIT]
+
+
 def moment_matched(score: Score, matched: list[MatchedPoint]) -> Score:
     """``score`` with moment matching's held-out density and mean at the
     observations whose Pareto k it brought to 0.7 or below (Paananen et al.
@@ -111,9 +117,9 @@ def moment_matched(score: Score, matched: list[MatchedPoint]) -> Score:
     elpd, mean, k = score.elpd_i.copy(), score.heldout_mean.copy(), score.pareto_k.copy()
     for point in matched:
         k[point.row] = point.k_after
-        if point.k_after <= PARETO_K_LIMIT:
-            elpd[point.row], mean[point.row] = point.elpd, point.heldout_mean
-    scheme = score.scheme + ("+moment-matching" if any(p.k_after <= PARETO_K_LIMIT for p in matched) else "")
+    for point in scored(matched):
+        elpd[point.row], mean[point.row] = point.elpd, point.heldout_mean
+    scheme = score.scheme + ("+moment-matching" if scored(matched) else "")
     return replace(score, elpd_i=elpd, heldout_mean=mean, pareto_k=k, matched=tuple(matched), scheme=scheme)
 
 

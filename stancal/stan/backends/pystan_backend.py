@@ -326,7 +326,7 @@ class PyStanBackend:
             try:
                 lp = services.log_prob(model.data, point.tolist(), True)
                 gradient = services.log_prob_grad(model.data, point.tolist(), True)
-            except RuntimeError:  # outside the support: L-BFGS's line search backs off
+            except (RuntimeError, ValueError):  # outside the support (Stan's domain errors arrive as ValueError)
                 return np.inf, np.zeros(dimension)
             return -lp, -np.asarray(gradient)
 
@@ -356,7 +356,7 @@ class PyStanBackend:
             for i, point in enumerate(points):
                 try:
                     out[i] = services.log_prob(model.data, point.tolist(), True)
-                except RuntimeError:  # outside the support, or the simulator rejected it
+                except (RuntimeError, ValueError):  # outside the support, a domain error, a rejected simulator
                     out[i] = -np.inf
             return out
 
