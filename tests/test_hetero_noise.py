@@ -249,3 +249,20 @@ def test_heteroscedastic_noise_with_runs_recovers_the_curve_and_k(method):
     assert compare.curve_covers_truth(result) >= 0.9
     mean, low, high = compare.k_interval(result)
     assert low <= make_data.K_TRUE <= high, (mean, low, high)
+
+
+def test_the_length_scale_prior_spans_the_settings_own_spacing_and_range():
+    """95 % of the lognormal's mass between the finest input's spacing and its
+    range, both measured on the settings (runs may stretch the unit scale
+    beyond them); with two values a proper prior around their distance."""
+    from scipy import stats
+
+    from stancal.problem.noise import NoiseLocations
+
+    spread = NoiseLocations.of(np.linspace(0.2, 0.6, 5)[:, None], ["x"])
+    location, scale = spread.length_scale_prior()
+    lower, upper = stats.lognorm(scale, scale=np.exp(location)).ppf([0.025, 0.975])
+    assert lower == pytest.approx(0.1) and upper == pytest.approx(0.4)
+    two = NoiseLocations.of(np.array([[0.0], [1.0], [0.0], [1.0]]), ["T0"])
+    location, scale = two.length_scale_prior()
+    assert scale > 0 and np.exp(location) == pytest.approx(1.0)

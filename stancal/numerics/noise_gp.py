@@ -1,7 +1,8 @@
 """Heteroscedastic noise's log sd GP away from its locations, in numpy: the
 measurement noise sd at new points, per posterior draw (docs/noise.md).
 
-The programs sample g, log(noise sd / its level), at the distinct settings of
+The programs sample g, the log noise sd GP (log(sd / noise_sd) = g − mean g
+over the settings), at the distinct settings of
 the noise inputs only (functions/noise.stan's noise_log_scale_at: squared
 exponential kernel, jitter 1e-6 of its variance). At a new point g is the
 GP's conditional given those values (Rasmussen & Williams 2006, eq. 2.19),

@@ -143,6 +143,15 @@ def check_noise_inputs(noise: str, noise_inputs: Sequence[str], inputs: Sequence
                          f"simulator inputs; choose among {list(inputs)}")
 
 
+def noise_input_names(options, data) -> list[str]:
+    """The inputs heteroscedastic noise varies over: [model] noise_inputs, by default every simulator input."""
+    return list(options.noise_inputs or data.inputs)
+
+
+# the log sd GP's length-scale prior's smallest lognormal scale: 95 % within a factor of 2 of its median
+LENGTH_SCALE_FLOOR = float(np.log(2) / 1.959964)
+
+
 @dataclass(frozen=True)
 class NoiseLocations:
     """Heteroscedastic noise: the distinct settings of the noise inputs,
@@ -160,12 +169,16 @@ class NoiseLocations:
 
     def length_scale_prior(self) -> tuple[float, float]:
         """The lognormal (location, scale) of the log sd GP's length scales
-        (unit scale): 95 % of its mass between the inputs' mean spacing,
-        1 / (distinct values - 1) of the finest input, and their range, 1 (a
-        GP no shorter than the spacing of the settings it is seen at)."""
+        (unit scale): 95 % of its mass between the finest input's spacing
+        and its range, both measured on the settings (runs may stretch the
+        unit scale beyond them): a GP no shorter than the spacing of the
+        settings it is seen at. With two values (spacing = range) the scale
+        is LENGTH_SCALE_FLOOR, a proper prior around their distance."""
         counts = [len(np.unique(self.unit[:, j])) for j in range(self.unit.shape[1])]
-        spacing = 1.0 / (max(counts) - 1)
-        return 0.5 * np.log(spacing), -np.log(spacing) / (2 * 1.959964)
+        finest = int(np.argmax(counts))
+        span = float(np.ptp(self.unit[:, finest]))
+        spacing = span / (counts[finest] - 1)
+        return 0.5 * np.log(spacing * span), max(np.log(span / spacing) / (2 * 1.959964), LENGTH_SCALE_FLOOR)
 
     def stan_data(self) -> dict:
         """functions/noise.stan's heteroscedastic data."""

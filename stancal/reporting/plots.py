@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from stancal.problem.noise import HETEROSCEDASTIC
+from stancal.problem.noise import HETEROSCEDASTIC, noise_input_names
 from stancal.reporting.series import Curves, axis_label, fit_curves, series_rows
 from stancal.results.result import CalibrationResult
 
@@ -227,7 +227,7 @@ def plot_noise_sd(result: CalibrationResult, path: str | Path | None = None, uni
     sample sd of its readings, a model-free check (docs/noise.md)."""
     plt = pyplot()
     curve = result.noise_curve()
-    inputs = list(result.options.noise_inputs or result.data.inputs)
+    inputs = noise_input_names(result.options, result.data)
     column = max(inputs, key=lambda c: curve[c].nunique())
     fig, ax = plt.subplots(figsize=(6, 3.6), layout="constrained")
     if len(inputs) == 1:

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
+from stancal.problem.noise import HETEROSCEDASTIC
 from stancal.reporting.html import write_html
 from stancal.results.vector_result import VectorCalibrationResult
 
@@ -105,7 +106,7 @@ def noise_lines(noise: dict, table) -> list[str]:
     if noise["model"] == "per_source":
         lines.append("- rows per source (column '{}'): {}".format(
             noise["source_column"], ", ".join(f"{k} {v}" for k, v in noise["rows_per_source"].items())))
-    if "sd_curve" in noise:  # heteroscedastic
+    if noise["model"] == HETEROSCEDASTIC:
         lines += heteroscedastic_lines(noise)
     if noise["model"] == "student_t":
         rows = noise["outliers"]
@@ -117,15 +118,17 @@ def noise_lines(noise: dict, table) -> list[str]:
 def heteroscedastic_lines(noise: dict) -> list[str]:
     """The replicates found and the noise sd curve's range (the curve and its band: noise_sd.png)."""
     r, curve = noise["replicates"], noise["sd_curve"]
-    column = noise["noise_inputs"][0]
     low, high = int(np.argmin(curve["mean"])), int(np.argmax(curve["mean"]))
+
+    def at(i: int) -> str:  # the setting, every noise input's value
+        return ", ".join(f"{c} = {curve[c][i]:.4g}" for c in noise["noise_inputs"])
     return [(f"- the log noise sd is a GP over {', '.join(noise['noise_inputs'])} "
              "(noise_sd: the sd's geometric mean over the settings)"),
             (f"- replicates: {r['replicate_rows']} of {r['rows']} rows repeat another row's inputs "
              f"({r['replicated_settings']} of {r['settings']} settings measured more than once)"),
             (f"- noise sd from {curve['mean'][low]:.4g} [{curve['q05'][low]:.4g}, {curve['q95'][low]:.4g}] "
-             f"at {column} = {curve[column][low]:.4g} to {curve['mean'][high]:.4g} "
-             f"[{curve['q05'][high]:.4g}, {curve['q95'][high]:.4g}] at {column} = {curve[column][high]:.4g} "
+             f"at {at(low)} to {curve['mean'][high]:.4g} "
+             f"[{curve['q05'][high]:.4g}, {curve['q95'][high]:.4g}] at {at(high)} "
              f"(posterior mean, {noise['band']} band; the curve: noise_sd.png, summary.json noise.sd_curve)")]
 
 

@@ -15,7 +15,7 @@ import xarray as xr
 from stancal.numerics.noise_gp import log_scale_at
 from stancal.problem.data import CalibrationData
 from stancal.problem.functional import functional_grid
-from stancal.problem.noise import OUTLIER_WEIGHT, outlier_rows, replicate_counts
+from stancal.problem.noise import OUTLIER_WEIGHT, noise_input_names, outlier_rows, replicate_counts
 from stancal.problem.options import ModelOptions
 from stancal.results.diagnostics import Diagnostics
 from stancal.results.modes import Mode
@@ -40,7 +40,8 @@ _REPORTED = {
 # source with noise = "per_source", kept per source then; size 1 becomes a scalar)
 _OPTIONAL_SCALARS = ("noise_sd", "delta_sd", "phi", "nu", "noise_gp_sd")
 ROW_WEIGHT = "row_weight"  # Student-t noise: each row's weight in the fit (functions/noise.stan)
-# heteroscedastic noise: log(noise sd / noise_sd) at the distinct settings of its inputs
+# heteroscedastic noise: g, the log noise sd GP before its mean over the settings is taken off, at the
+# distinct settings of its inputs (log(sd / noise_sd) = g - mean g)
 NOISE_LOCATIONS = "noise_locations"
 NOISE_BAND = "90 %"  # the noise sd curve's band: 5 % to 95 % quantiles
 PREDICTED = ("f_new", "delta_new", "zeta_new")
@@ -125,7 +126,7 @@ def _posterior(d: Draws, data: CalibrationData, parameter_names: list[str], opti
         posterior["theta_function_sd"] = d["theta_function_sd"]
         posterior["theta_function_length_scale"] = d["theta_function_length_scale"] * widths
     if "noise_length_scale" in d and d["noise_length_scale"].shape[-1]:  # heteroscedastic: original units
-        inputs = options.noise_inputs or data.inputs
+        inputs = noise_input_names(options, data)
         posterior["noise_length_scale"] = d["noise_length_scale"] * np.array([data.scaling.width[c] for c in inputs])
     if not options.estimate_rho:
         posterior.pop("rho", None)
@@ -163,7 +164,7 @@ def _coords(data: CalibrationData, new_points: pd.DataFrame, options: ModelOptio
         "mean_term": terms.names if terms else [],
         "functional_theta": list(options.functional), "functional_input": list(options.functional_inputs),
         "grid_point": np.arange(len(grid)), "source": list(data.noise.sources),
-        "noise_input": list(options.noise_inputs or data.inputs),
+        "noise_input": noise_input_names(options, data),
     }
 
 
@@ -260,7 +261,7 @@ class CalibrationResult:
                "outliers": json.loads(self.outliers().to_json(orient="records"))}
         if NOISE_LOCATIONS in self.idata.children:
             curve = self.noise_curve()
-            out.update(noise_inputs=list(self.options.noise_inputs or self.data.inputs), band=NOISE_BAND,
+            out.update(noise_inputs=noise_input_names(self.options, self.data), band=NOISE_BAND,
                        replicates=replicate_counts(self.data.physical[self.data.discrepancy_inputs].to_numpy()),
                        sd_curve={c: curve[c].tolist() for c in curve.columns})
         return out

@@ -17,7 +17,14 @@ from stancal.problem.codes import DISCREPANCY_PARAMETRIZATION_CODES
 from stancal.problem.data import CalibrationData
 from stancal.problem.functional import functional_grid
 from stancal.problem.mean_terms import MeanTerms, build_mean_terms
-from stancal.problem.noise import HETEROSCEDASTIC, NO_LOCATIONS, NoiseLocations, check_noise_locations, stan_noise_data
+from stancal.problem.noise import (
+    HETEROSCEDASTIC,
+    NO_LOCATIONS,
+    NoiseLocations,
+    check_noise_locations,
+    noise_input_names,
+    stan_noise_data,
+)
 from stancal.problem.options import DISCREPANCIES, ModelOptions
 
 EMULATOR_HYPERPARAMETERS = ("emulator_mean", "emulator_sd", "emulator_length_scale", "emulator_nugget")
@@ -128,7 +135,7 @@ def noise_locations(data: CalibrationData, options: ModelOptions) -> NoiseLocati
     every simulator input) among the physical rows, checked; else None."""
     if options.noise != HETEROSCEDASTIC:
         return None
-    inputs = list(options.noise_inputs or data.inputs)
+    inputs = noise_input_names(options, data)
     locations = NoiseLocations.of(data.scaling.to_unit(data.physical, inputs), inputs)
     check_noise_locations(locations)
     return locations
