@@ -65,17 +65,6 @@ def _jacobian(evaluate, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return gradient, variance[:S].mean(axis=0)
 
 
-def new_experiment_theta(targets, theta: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """The theta a new experiment's values are emulated at (S, Q of the
-    runs): NROY's draws themselves with shared theta only; with
-    per-experiment theta, each draw's shared theta and the own theta of a
-    random experiment of that draw, a value the new experiment's own may take."""
-    if not targets.group_theta:
-        return theta
-    columns = np.array(targets.group_theta)[rng.integers(0, len(targets.group_theta), len(theta))]
-    return np.take_along_axis(theta, columns, axis=1)
-
-
 def index_range(targets) -> tuple[np.ndarray, np.ndarray]:
     """The observed output indices' low end and width per column (a
     vector output's; empty for a scalar one), the unit the discrepancy's
@@ -105,19 +94,21 @@ def discrepancy_covariance(cut: Cut, a: np.ndarray, b: np.ndarray,
 
 def next_experiments(cut: Cut, nroy_theta: np.ndarray, count: int, seed: int,
                      length: float | np.ndarray = DISCREPANCY_LENGTH,
-                     shared: int | None = None) -> tuple[np.ndarray, list[float]]:
+                     box=None) -> tuple[np.ndarray, list[float]]:
     """``count`` input settings (count, D), unit cube of the inputs, and the
     criterion (mean trace of the shared theta's covariance, unit cube) after
     each pick. ``length``: the discrepancy's length scales on the positions'
     unit cube (the inputs', then the output index's, index_range).
-    ``shared``: with per-experiment theta, how many of NROY's first columns
-    are the shared theta (UnitBox.shared); a new experiment brings its own."""
+    ``box``: NROY's UnitBox (needed with per-experiment theta: its shared
+    columns, and run_theta, the theta a new experiment's values are emulated
+    at: each draw's shared theta and a random experiment's own, a value the
+    new experiment's own may take); a new experiment brings its own theta."""
     targets = cut.targets
     inputs = targets.x_unit.shape[1]
     if not inputs:
         raise ValueError("--experiments needs simulator inputs to choose ([physical] inputs is empty)")
-    if targets.group_theta and shared is None:
-        raise ValueError("with per-experiment theta, next_experiments needs the shared theta's count")
+    if targets.group_theta and box is None:
+        raise ValueError("with per-experiment theta, next_experiments needs NROY's box (its shared theta)")
     rng = np.random.default_rng(seed)
     theta = nroy_theta[rng.choice(len(nroy_theta), min(THETA_DRAWS, len(nroy_theta)), replace=False)]
     index_low, index_width = index_range(targets)
@@ -130,10 +121,10 @@ def next_experiments(cut: Cut, nroy_theta: np.ndarray, count: int, seed: int,
     pool = qmc.LatinHypercube(d=inputs, seed=rng).random(SETTINGS_CANDIDATES)
     pool_x, pool_groups, m = candidate_values(targets, pool)
     pool_gradient, pool_variance = _jacobian(lambda t: cut.emulator.at(pool_x, t, pool_groups),
-                                             new_experiment_theta(targets, theta, rng))
+                                             theta if box is None else box.run_theta(theta, rng))
     candidates = Values(positions(pool_x, pool_groups, index_low, index_width), pool_variance + noise, pool_gradient)
     chosen, criterion = greedy_settings(cut, known, candidates, m, count, length,
-                                        theta.shape[1] if shared is None else shared)
+                                        theta.shape[1] if box is None else box.shared)
     return pool[chosen], criterion
 
 

@@ -149,7 +149,7 @@ def propose_experiments(match: HistoryMatch, count: int, seed: int = 1, fit=None
         raise ValueError(f"--experiments must be at least 1; got {count}")
     length, source = discrepancy_length(match, fit)
     unit, criterion = next_experiments(match.cuts[-1], match.nroy.theta_unit, count, seed, length,
-                                       shared=match.box.shared)
+                                       box=match.box)
     frame = pd.DataFrame(match.box.inputs_to_original(unit), columns=match.box.inputs)
     frame.attrs["theta_variance_trace"] = criterion
     frame.attrs["discrepancy_length"] = np.atleast_1d(length).tolist()  # the positions' unit cube
