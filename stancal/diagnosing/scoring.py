@@ -15,8 +15,7 @@ from scipy.special import logsumexp
 from stancal.diagnosing.gap_location import discrepancy_parts
 from stancal.diagnosing.moment_match import MatchedPoint
 from stancal.problem.data import CalibrationData
-from stancal.problem.noise import HETEROSCEDASTIC
-from stancal.results.result import CalibrationResult
+from stancal.results.result import NOISE_LOCATIONS, CalibrationResult
 
 PARETO_K_LIMIT = 0.7  # above it PSIS-LOO is unreliable (Vehtari et al. 2024)
 # a candidate that trails the leader by more than this many ses, even with the
@@ -185,9 +184,10 @@ def held_out(data: CalibrationData, test: np.ndarray, result) -> tuple[np.ndarra
     from a fit to the other rows whose predictions are at the test rows."""
     predictions = result.idata["predictions"]
     zeta = np.asarray(predictions["zeta_new" if "zeta_new" in predictions else "zeta"]).reshape(-1, len(test))
-    # heteroscedastic noise: the sd at the held-out rows from the fit's log sd GP (one draw of it per draw)
+    # heteroscedastic noise (the fit sampled its log sd GP at the settings): the sd at the held-out rows from that
+    # GP, one draw of it per posterior draw
     estimated_sd = (result.noise_sd_at(data.source.iloc[test].reset_index(drop=True), np.random.default_rng(0))
-                    if result.options.noise == HETEROSCEDASTIC else None)
+                    if NOISE_LOCATIONS in result.idata.children else None)
     log_density = data.heldout_log_density(test, zeta, result.idata["posterior"], estimated_sd)
     return logsumexp(log_density, axis=0) - np.log(len(zeta)), zeta.mean(0)
 

@@ -155,10 +155,14 @@ class VectorCalibrationData:
     def discrepancy_scale(self) -> str:
         return "output units"
 
-    def heldout_log_density(self, rows: np.ndarray, zeta: np.ndarray, posterior) -> np.ndarray:
+    def heldout_log_density(self, rows: np.ndarray, zeta: np.ndarray, posterior,
+                            estimated_sd: np.ndarray | None = None) -> np.ndarray:
         """log p(y_row | zeta, noise) per draw (draws, rows) for held-out
         values: their known sd, or the fit's noise sd (one, or their
-        experiment's)."""
+        experiment's). ``estimated_sd``: as CalibrationData's; a vector
+        output has no heteroscedastic noise, so it is always None here."""
+        if estimated_sd is not None:
+            raise ValueError("a vector output's noise has no sd curve (heteroscedastic noise is for scalar outputs)")
         y = self.physical[self.output].to_numpy()[rows]
         if self.noise_sd:
             sd = np.broadcast_to(self.physical[self.noise_sd].to_numpy()[rows], zeta.shape)
