@@ -26,6 +26,7 @@ a GP over t.
 from __future__ import annotations
 
 import argparse
+import collections
 import json
 import sys
 import time
@@ -127,17 +128,24 @@ def main() -> None:
     parser.add_argument("--sims", type=int, default=200)
     parser.add_argument("--draws-per-fit", type=int, default=100)
     parser.add_argument("--scheduler", default=None, help="a Dask address; default: a local cluster")
+    parser.add_argument("--seed", type=int, default=1, help="the SBC's seed (another seed: chance or a fault?)")
     args = parser.parse_args()
     path = Path(__file__).parent / "sbc.json"
     rows = json.loads(path.read_text()) if path.is_file() else {}
     for family in args.family:
         started = time.perf_counter()
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
+        # the fits' warnings (sampler trouble in some simulations) are counted into the row, not hidden
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
             design, options = FAMILIES[family]
             result = simulation_based_calibration(DESIGNS[design](), simulations=args.sims, scheduler=args.scheduler,
-                                                  draws_per_fit=args.draws_per_fit, seed=1, warmup=300, **options)
-        rows[family] = {"simulations": args.sims, "draws_per_fit": args.draws_per_fit,
+                                                  draws_per_fit=args.draws_per_fit, seed=args.seed, warmup=300,
+                                                  **options)
+        kinds = collections.Counter(type(w.message).__name__ for w in caught)  # SamplerWarning: a fit's trouble
+        print(f"{family}: warnings {dict(kinds) or 'none'}")
+        rows[family + ("" if args.seed == 1 else f"_seed{args.seed}")] = {
+            "simulations": args.sims, "draws_per_fit": args.draws_per_fit, "seed": args.seed,
+            "warnings": dict(kinds),
                         "p_values": {n: t.p_value for n, t in result.tests.items()},
                         "rejected": [n for n, t in result.tests.items() if t.rejected],
                         "failed_simulations": len(result.failed), "seconds": time.perf_counter() - started}
