@@ -234,8 +234,10 @@ def calibrate(
     compile_s = stan_backend.compile(programs)  # 0.0: compiled earlier
     seed = command_seed(seed)
     new_points, fit_points, quadrature = _prediction_points(data, new_points, plan.l2)
+    # a stage 1 the plan holds (reused by a gap's or an SBC's fits) cost nothing here
     emulator = plan.stage_one_result or run_stage_one(plan.stage_one, data, plan.options, programs,
                                                       backend=stan_backend, seed=seed) or {}
+    stage_one_s = 0.0 if plan.stage_one_result else emulator.get("fit_s", 0.0)
     # theta against the model's own terms (simulator or stage 1's emulator), before any sampling
     plan, confounding = resolve_confounding(plan, data, stan_backend, emulator)
     sampler = replace(sampling, seed=seed).keywords()
@@ -249,7 +251,7 @@ def calibrate(
         registry_row=plan.program,
         timing={"compile_s": compile_s,
                 "sample_s": fit.sample.load_seconds + fit.sample.sample_seconds
-                + (0.0 if plan.stage_one_result else emulator.get("fit_s", 0.0))},  # a reused stage 1 cost nothing here
+                + stage_one_s},
         emulator=emulator, confounding=[c.to_json() for c in confounding])
     save_draws(result, out_dir)
     if quadrature is not None:

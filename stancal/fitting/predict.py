@@ -9,7 +9,7 @@ import pandas as pd
 
 from stancal.fitting.l2 import reproject
 from stancal.problem.codes import Likelihood
-from stancal.problem.noise import HETEROSCEDASTIC, draw_noise, row_noise_sd
+from stancal.problem.noise import HETEROSCEDASTIC, draw_noise, row_noise_sd, with_known_sd
 from stancal.results.result import NEW_OBSERVATION, PREDICTED, interval_table
 from stancal.stan.backends import get_backend
 from stancal.stan.standata import build_stan_data, to_stan_json
@@ -78,7 +78,7 @@ def _noise(result, posterior, points: pd.DataFrame, rng: np.random.Generator, dr
     noise = result.data.noise
     source, known = noise.at(points)
     if result.options.noise == HETEROSCEDASTIC:
-        scale = np.sqrt(result.noise_sd_at(points, rng, step) ** 2 + known**2)
+        scale = with_known_sd(result.noise_sd_at(points, rng, step), known)
         return draw_noise(rng, scale, None)
     shares = noise.rows_per_source / len(noise.source_index)
     scale = row_noise_sd(np.asarray(posterior["noise_sd"]).reshape(draws, -1), source, known, shares, rng)

@@ -16,9 +16,8 @@ from __future__ import annotations
 import numpy as np
 
 from stancal.numerics.kernels import ard_cross_cov
+from stancal.numerics.scalable_emulator import JITTER  # add_jitter: 1e-6 of the GP variance on the diagonal
 from stancal.problem.codes import Kernel
-
-JITTER = 1e-6  # gp_kernels.stan's add_jitter: 1e-6 of the GP's variance on the diagonal
 
 
 def log_scale_at(points: np.ndarray, locations: np.ndarray, log_scale: np.ndarray, gp_sd: np.ndarray,

@@ -11,7 +11,7 @@ import numpy as np
 import pandas as pd
 
 from stancal.problem.categories import covariate_columns, covariate_levels, one_hot
-from stancal.problem.noise import MeasurementNoise, read_measurement_noise, row_noise_sd
+from stancal.problem.noise import MeasurementNoise, read_measurement_noise, row_noise_sd, with_known_sd
 from stancal.problem.observations import LINKS, read_observations
 from stancal.problem.validation import DataError, described, numeric_values, require_whole, source_file
 from stancal.problem.validation import row_labels as _rows
@@ -350,7 +350,7 @@ class CalibrationData:
         nu = np.asarray(posterior["nu"]).reshape(-1, 1) if "nu" in posterior else None
         noise = None
         if estimated_sd is not None:
-            noise = np.sqrt(estimated_sd**2 + self.noise.known_sd[rows] ** 2)
+            noise = with_known_sd(estimated_sd, self.noise.known_sd[rows])
         elif "noise_sd" in posterior:
             sigma = np.asarray(posterior["noise_sd"]).reshape(len(zeta), -1)
             noise = row_noise_sd(sigma, self.noise.source_index[rows], self.noise.known_sd[rows])

@@ -220,6 +220,11 @@ def stan_noise_data(noise: str, measurement: MeasurementNoise, y_scale: float) -
             "known_sd": measurement.known_sd / y_scale}
 
 
+def with_known_sd(sd: np.ndarray, known_sd: np.ndarray) -> np.ndarray:
+    """An estimated noise sd and a known one in quadrature (noise.stan's noise_variance)."""
+    return np.sqrt(sd**2 + known_sd**2)
+
+
 def row_noise_sd(noise_sd: np.ndarray, source_index: np.ndarray | None, known_sd: np.ndarray,
                  shares: Sequence[float] = (), rng: np.random.Generator | None = None) -> np.ndarray:
     """Each draw's noise scale at each row, (draws, rows): sqrt(sigma[source]^2
@@ -234,8 +239,8 @@ def row_noise_sd(noise_sd: np.ndarray, source_index: np.ndarray | None, known_sd
         else:
             assert rng is not None, "drawing the sources of new points needs a generator"
             chosen = rng.choice(sigma.shape[1], size=(len(sigma), len(known_sd)), p=np.asarray(shares))
-            return np.sqrt(np.take_along_axis(sigma, chosen, axis=1) ** 2 + known_sd ** 2)
-    return np.sqrt(sigma[:, source_index] ** 2 + known_sd ** 2)
+            return with_known_sd(np.take_along_axis(sigma, chosen, axis=1), known_sd)
+    return with_known_sd(sigma[:, source_index], known_sd)
 
 
 def draw_noise(rng: np.random.Generator, scale: np.ndarray, nu: np.ndarray | None) -> np.ndarray:

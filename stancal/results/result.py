@@ -15,7 +15,7 @@ import xarray as xr
 from stancal.numerics.noise_gp import log_scale_at
 from stancal.problem.data import CalibrationData
 from stancal.problem.functional import functional_grid
-from stancal.problem.noise import OUTLIER_WEIGHT, noise_input_names, outlier_rows, replicate_counts
+from stancal.problem.noise import OUTLIER_WEIGHT, NoiseLocations, noise_input_names, outlier_rows, replicate_counts
 from stancal.problem.options import ModelOptions
 from stancal.results.diagnostics import Diagnostics
 from stancal.results.modes import Mode
@@ -267,13 +267,14 @@ class CalibrationResult:
         return out
 
     def noise_sd_at(self, points: pd.DataFrame, rng: np.random.Generator | None = None,
-                    step: int = 1) -> np.ndarray:
+                    step: int = 1, locations: NoiseLocations | None = None) -> np.ndarray:
         """Heteroscedastic noise: the noise sd (output units) at ``points``
         per posterior draw (every ``step``-th of each chain), (draws, points):
         noise_sd (the sd's geometric mean over the settings) times exp(g - mean
         of g at the settings), g the log sd GP's conditional at the points
-        (stancal.numerics.noise_gp: its mean, or a draw with ``rng``)."""
-        locations = noise_locations(self.data, self.options)
+        (stancal.numerics.noise_gp: its mean, or a draw with ``rng``);
+        ``locations``: the fit's settings, where the caller has them already."""
+        locations = locations or noise_locations(self.data, self.options)
         assert locations is not None, "noise_sd_at: the fit's noise is not heteroscedastic"
         posterior = self.idata["posterior"].isel(draw=slice(None, None, step))
         values = np.asarray(self.idata[NOISE_LOCATIONS]["log_scale"])[:, ::step]
@@ -300,7 +301,7 @@ class CalibrationResult:
             points = pd.DataFrame({column: np.linspace(physical[column].min(), physical[column].max(), size)})
         else:
             points = physical[list(locations.inputs)].drop_duplicates().sort_values(list(locations.inputs))
-        sd = self.noise_sd_at(points.reset_index(drop=True), np.random.default_rng(0))
+        sd = self.noise_sd_at(points.reset_index(drop=True), np.random.default_rng(0), locations=locations)
         summary = band(sd)
         return points.reset_index(drop=True).assign(**{k: summary[k] for k in ("mean", "q05", "q50", "q95")})
 
