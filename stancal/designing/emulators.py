@@ -175,7 +175,7 @@ def emulator_from_dict(d: dict) -> ScalarEmulator | BasisEmulator:
     return ScalarEmulator.from_dict(d) if d["kind"] == "scalar" else BasisEmulator.from_dict(d)
 
 
-def stage_one_emulator(data, box, stage_one) -> ScalarEmulator | BasisEmulator | None:
+def calibration_emulator(data, box, stage_one) -> ScalarEmulator | BasisEmulator | None:
     """The emulator a modular calibration of ``data`` used (its stage 1:
     every run, its hyperparameters; Liu, Bayarri & Berger 2009), on the
     design's unit box ``box`` (a UnitBox), or None without a stage 1. The

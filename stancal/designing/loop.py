@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from stancal.designing.emulators import stage_one_emulator
+from stancal.designing.emulators import calibration_emulator
 from stancal.designing.experiments import DISCREPANCY_LENGTH, index_range, next_experiments
 from stancal.designing.proposals import nroy_runs, posterior_runs
 from stancal.designing.targets import DesignSettings, run_table
@@ -86,7 +86,7 @@ def propose_runs(match: HistoryMatch, runs: int, *, criterion: str = "nroy", see
 
     The posterior criterion's variance is that of the emulator the
     calibration uses, the one theta's posterior came from: the fit's stage 1
-    (every run; stage_one_emulator) when the fit is made here, else one
+    (every run; calibration_emulator) when the fit is made here, else one
     fitted to every run as stage 1 fits it; not the wave's own, which is
     refocused on NROY's runs."""
     if criterion not in CRITERIA:
@@ -107,7 +107,7 @@ def propose_runs(match: HistoryMatch, runs: int, *, criterion: str = "nroy", see
             draws, fit = posterior_theta(match, seed, **sampler)
             notes["posterior_method"] = fit.method
             notes["posterior_diagnostics"] = fit.diagnostics.summary() if fit.diagnostics else None
-            emulator = stage_one_emulator(match.data, box, fit.emulator)
+            emulator = calibration_emulator(match.data, box, fit.emulator)
         else:
             draws = box.theta_to_unit(posterior[box.nroy_names].to_numpy(float))
         if emulator is not None:

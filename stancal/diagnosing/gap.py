@@ -39,7 +39,6 @@ from __future__ import annotations
 import functools
 import logging
 import re
-import threading
 import warnings
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -427,11 +426,9 @@ def _moment_matched(labels: list, fits: list, scores: list[Score]) -> list[Score
     moment-matched score and is not refitted. It runs here, in the command's
     main thread, not on the cluster: the log density's autodiff, called from
     a Dask worker's thread, crashed workers (pystan_backend.start_error).
-    Where it cannot run (another thread; the cmdstanpy backend has no
-    unconstrained log density) every such point is refitted, as before."""
-    if threading.current_thread() is not threading.main_thread():
-        logger.info("moment matching skipped outside the main thread: high Pareto k points are refitted")
-        return scores
+    Where it cannot run (PyStan outside the main thread; the cmdstanpy
+    backend has no unconstrained log density: each backend says why) every
+    such point is refitted, as before."""
     scores = list(scores)
     for i, (label, fit, score) in enumerate(zip(labels, fits, scores, strict=True)):
         if not score.unreliable.size:

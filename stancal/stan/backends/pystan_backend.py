@@ -139,6 +139,14 @@ def _program_info(code: str) -> dict[str, Any]:
     return json.loads(done.stdout)
 
 
+def in_worker_thread() -> bool:
+    """Not the process's main thread (a Dask worker's): httpstan's model
+    services called there crashed stock workers (signal 11, httpstan 4.17)."""
+    import threading
+
+    return threading.current_thread() is not threading.main_thread()
+
+
 class PyStanBackend:
     name = "pystan"
 
@@ -186,11 +194,9 @@ class PyStanBackend:
                     inits: list[dict[str, Any]] | None) -> str | None:
         """In this process, through the compiled model's services module:
         no HTTP round trip and none of httpstan's log lines."""
-        import threading
-
         import httpstan.models
 
-        if threading.current_thread() is not threading.main_thread():
+        if in_worker_thread():
             # a Dask worker's thread: this call before sampling crashed stock workers (signal 11,
             # httpstan 4.17, tests/test_cluster.py); there the sampler's own failure is explained
             # instead (stancal.fitting.simulator_check.explained)
@@ -372,6 +378,8 @@ class PyStanBackend:
         prediction points (P = 0) where they are not needed."""
         import httpstan.models
 
+        if in_worker_thread():  # the model's log density there crashed the process (start_error)
+            raise NotImplementedError("the model's log density runs only in a process's main thread here")
         model = self._build(program, data, seed=1)
         services = httpstan.models.import_services_extension_module(model.model_name)
         width = sum(int(np.prod(shape)) for shape in model.dims)
