@@ -147,11 +147,11 @@ def ridge_profile(data: stancal.CalibrationData, result, hyper: dict, exact: dic
     box allows on the ridge to 0.95 times the highest."""
     from scipy import linalg
 
-    from stancal.designing.emulators import pairs, stage_one_emulator
+    from stancal.designing.emulators import calibration_emulator, pairs
     from stancal.numerics.kernels import ard_cross_cov
 
     box = UnitBox.of(data)
-    emulator = stage_one_emulator(data, box, result.emulator)
+    emulator = calibration_emulator(data, box, result.emulator)
     x, y = data.physical[data.inputs], data.physical[data.output].to_numpy(float)
     fixed = ard_cross_cov(x.to_numpy(float), x.to_numpy(float), 1, hyper["delta_sd"],
                           np.array(hyper["delta_length_scale"])) + hyper["noise_sd"] ** 2 * np.eye(len(y))

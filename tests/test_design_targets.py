@@ -12,7 +12,7 @@ from conftest import direct_theta_trace
 from scipy.stats import qmc
 
 import stancal
-from stancal.designing.emulators import GaussianProcess, ScalarEmulator, stage_one_emulator
+from stancal.designing.emulators import GaussianProcess, ScalarEmulator, calibration_emulator
 from stancal.designing.implausibility import Cut
 from stancal.designing.targets import DesignSettings, UnitBox, targets_of
 from stancal.numerics.scalable_emulator import Hyperparameters
@@ -364,7 +364,7 @@ def test_the_stage_one_emulator_on_the_design_box_is_the_calibrations():
     hyper = {"emulator_mean": 0.1, "emulator_sd": 1.2, "emulator_length_scale": [0.4, 0.6, 0.5],
              "emulator_nugget": 0.02}
     box = UnitBox.of(data)
-    emulator = stage_one_emulator(data, box, {"hyperparameters": hyper})
+    emulator = calibration_emulator(data, box, {"hyperparameters": hyper})
     points = data.physical[["x"]]
     theta_unit = np.array([[0.3, 0.7], [0.6, 0.2]])
     theirs = emulator_mean_function(data, hyper, kernel_id=1)(points, theta_unit)
@@ -372,7 +372,7 @@ def test_the_stage_one_emulator_on_the_design_box_is_the_calibrations():
     # the GPs differ by the jitter on the runs' diagonal alone (1e-6 sd^2 here, not there): 3e-5 at most;
     # the two cubes' widths differ by 40 %, so an unscaled length scale would be off by far more
     np.testing.assert_allclose(ours, theirs, rtol=1e-4)
-    assert stage_one_emulator(data, box, {}) is None
+    assert calibration_emulator(data, box, {}) is None
 
 
 def test_the_posterior_criterion_uses_the_emulator_of_every_run_not_the_waves_refocused_one(toy_two_waves):
