@@ -278,17 +278,24 @@ def vector_problem():
 
 
 @pytest.fixture(scope="session")
-def vector_reference(vector_problem):
+def vector_stage_one(vector_problem):
+    """Stage 1 of vector_problem at seed 3 (the fits' below)."""
+    from stancal.fitting.stage_one import fit_vector_emulator
+
+    return fit_vector_emulator(vector_problem, seed=3)
+
+
+@pytest.fixture(scope="session")
+def vector_reference(vector_problem, vector_stage_one):
     """The modular density of vector_problem with stage 1 at seed 3 (the
     fits' below), and theta's posterior mean and sd on the unit box by grid
     quadrature in numpy: a coarse grid over the box, then finer ones about
     the mode."""
-    from stancal.fitting.stage_one import fit_vector_emulator
     from stancal.fitting.vector_calibrate import prediction_rows
     from stancal.problem.options import VectorOptions
     from stancal.stan.vector_standata import modular_vector_data
 
-    emulator = fit_vector_emulator(vector_problem, seed=3)
+    emulator = vector_stage_one
     stan_data = modular_vector_data(vector_problem, VectorOptions("none", "known"), emulator,
                                     prediction_rows(vector_problem))
     best, _, _ = _grid_moments(stan_data, emulator, [0.5, 0.5], [0.5, 0.5], points=41)
@@ -469,3 +476,41 @@ def test_the_joint_vector_fit_starts_at_the_modular_mode(vector_problem, vector_
     assert stan_data["joint"] == 1
     start = joint_start(get_backend(None), plan.main_program(), stan_data, seed=3)
     assert np.all(np.abs(np.asarray(start["theta_unit"]) - mean) <= 0.5 * sd), (start, mean, sd)
+
+
+def test_the_joint_vector_density_at_stage_ones_hyperparameters_is_the_quadratures(vector_problem,
+                                                                                     vector_stage_one):
+    """koh_emulator_vector (Higdon et al. 2008: the weight GPs'
+    hyperparameters sampled with theta, the runs' weights in the
+    likelihood) with its hyperparameters held at stage 1's: its log density
+    over theta is the numpy density the modular quadrature integrates
+    (log_density_reference), up to a constant, to 1e-8 at seven theta, so
+    the joint posterior given those hyperparameters is that quadrature's.
+    The runs' marginal likelihood and the hyperparameters' priors are the
+    constant; the weights at the experiments condition on every run. A
+    default-run check of the joint program against the reference; the slow
+    test above samples it."""
+    from stancal.fitting.plan import plan_vector
+    from stancal.fitting.vector_calibrate import prediction_rows
+    from stancal.problem.options import VectorOptions
+    from stancal.stan.backends import get_backend
+    from stancal.stan.standata import to_stan_json
+    from stancal.stan.vector_standata import build_vector_stan_data
+
+    data, emulator = vector_problem, vector_stage_one  # vector_reference's stage 1, without its quadrature
+    assert len(emulator.variance_runs) == len(emulator.xt_runs)  # the reference conditions on every run too
+    plan = plan_vector(data, None, "koh_emulator", VectorOptions("none", "known"))
+    stan_data = build_vector_stan_data(data, plan.program.data, plan.options, prediction_rows(data), emulator)
+    assert stan_data["joint"] == 1
+    unconstrain, log_density = get_backend().log_density_functions(plan.main_program(), to_stan_json(stan_data))
+    hyper = [gp.hyperparameters for gp in emulator.components]
+    theta = np.random.default_rng(5).uniform(0.05, 0.95, size=(7, 2))
+    at_stage_one = {"theta_unit": theta[None], "theta_exp_unit": np.zeros((1, 7, 0)),
+                    "weight_gp_mean_free": np.tile([h.mean for h in hyper], (1, 7, 1)),
+                    "weight_gp_sd_free": np.tile([h.sd for h in hyper], (1, 7, 1)),
+                    "weight_gp_length_scale_free": np.tile([h.length_scale for h in hyper], (1, 7, 1, 1)),
+                    "weight_gp_nugget_free": np.tile([h.nugget for h in hyper], (1, 7, 1))}
+    stan = log_density(unconstrain(at_stage_one)[0]) - np.log(theta * (1 - theta)).sum(axis=1)  # no Jacobian
+    reference = np.array([log_density_reference(stan_data, emulator, t) for t in theta])
+    assert np.ptp(reference) > 10  # theta matters: the check is not between flat densities
+    np.testing.assert_allclose(np.diff(stan), np.diff(reference), rtol=1e-8, atol=1e-8)

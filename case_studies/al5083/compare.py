@@ -9,8 +9,9 @@ and the per-shot features against the predictive bands (shots.png).
 ``--reference``: a CSV with columns name, mean, sd (theta in the config's
 units): the posterior to compare with. SEPIA's example (Al_5083_calibration.py:
 11 principal components, no discrepancy, 10,000 MCMC iterations) writes its
-samples to a pickle that is not in SEPIA's repository, nor is its notebook's
-output; run that example and summarise its theta to make this file. The
+samples to a pickle that is not in SEPIA's repository, and no version of its
+notebook there stores the posterior's output (docs/al5083.md says what was
+searched); run that example and summarise its theta to make this file. The
 method is Higdon et al. (2008, JASA 103) with the modular stage 2 of Liu,
 Bayarri & Berger (2009, Bayesian Analysis 4).
 """
