@@ -47,6 +47,9 @@ class ModelOptions:
     noise: str = "iid"
     # heteroscedastic noise: the simulator inputs its log sd varies over (empty: all of them)
     noise_inputs: tuple[str, ...] = ()
+    # a stochastic simulator: its replicated runs' scatter is its own variance, which the emulator of
+    # its mean carries (stochastic kriging, Ankenman, Nelson & Staum 2010; docs/noise.md)
+    stochastic: bool = False
 
     def __post_init__(self) -> None:
         # lists from a config or a saved result
