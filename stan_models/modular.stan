@@ -83,8 +83,9 @@ transformed data {
   matrix[N, L] w_obs = rep_matrix(w_top, N);
   // each run's own variance: its level's nugget and, for a stochastic simulator, its intrinsic variance
   vector[M] run_nugget_sd = sqrt(square(to_vector(emulator_nugget)[run_level]) + square(run_intrinsic_sd));
-  // the emulator's misfit at the physical points: the top level's nugget, not the intrinsic variance
-  real top_nugget_var = square(emulator_nugget[L]);
+  // the emulator's misfit at the physical points: the top level's nugget where two points are one
+  // (Higdon et al. 2008), not the intrinsic variance
+  matrix[N, N] nugget_obs = square(emulator_nugget[L]) * same_point(x);
   real top_mean = w_top * to_vector(emulator_mean);
   real top_variance = fidelity_variance(w_top, emulator_sd);
   matrix[M, M] L_sim = cholesky_decompose(
@@ -155,7 +156,7 @@ model {
     }
     matrix[M, N] A = mdivide_left_tri_low(L_sim, K_obs_sim');
     vector[N] emulator_mean_obs = top_mean + K_obs_sim * alpha_sim;
-    matrix[N, N] K = square(rho) * add_diag(K_obs - crossprod(A), top_nugget_var);
+    matrix[N, N] K = square(rho) * (K_obs - crossprod(A) + nugget_obs);
     if (use_discrepancy) {
       K += ard_cov(x_delta, kernel_id, delta_sd[1], delta_length_scale);
     }
@@ -185,8 +186,8 @@ generated quantities {
       = koh_joint_quantities_rng(y_sim, y, xt_sim, x, theta_unit, x_delta, h, beta, x_new, x_delta_new,
                                  h_new, normals_new, prior_only, kernel_id, w_sim, w_top, emulator_mean,
                                  emulator_sd, emulator_length_scale, run_nugget_sd, rho, delta_sd,
-                                 delta_length_scale,
-                                 weighted_noise_variance(noise_var, noise_weight) + square(rho) * top_nugget_var,
+                                 delta_length_scale, weighted_noise_variance(noise_var, noise_weight),
+                                 square(rho) * nugget_obs,
                                  y_center, y_scale);
     log_lik = q.1;
     y_loo_mean = q.2;

@@ -134,9 +134,10 @@ def test_the_emulator_mean_is_stochastic_krigings_on_the_averages(small):
 
 def test_modular_stan_density_is_stochastic_krigings(small):
     """modular.stan's log density at several theta against a numpy reference
-    built on the settings' averages: y ~ N(m(theta), MSE(theta) + nugget^2 I +
-    sigma^2 I): the intrinsic variance on the runs only, the nugget (the
-    emulator's misfit) at the physical points too; to 1e-8, up to a constant."""
+    built on the settings' averages: y ~ N(m(theta), MSE(theta) + nugget^2 S +
+    sigma^2 I), S_ij = 1 where x_i = x_j: the intrinsic variance on the runs
+    only, the nugget (the emulator's misfit, one value at one point) at the
+    physical points too; to 1e-8, up to a constant."""
     from stancal.stan.backends import get_backend
 
     data, replicates, surface, hyper = small
@@ -149,6 +150,8 @@ def test_modular_stan_density_is_stochastic_krigings(small):
     jitter = 1e-6 * 1.2**2  # functions/gp_kernels.stan's add_jitter: on the runs and on the points
     y = stan_data["y"]
     x = data.scaling.to_unit(data.physical, data.inputs)
+    same = (x[:, None, :] == x[None, :, :]).all(axis=2)
+    assert same.sum() > len(x)  # two readings at one point share the emulator's misfit
     stan, reference = [], []
     for theta in (0.2, 0.45, 0.7, 0.9):
         stan.append(log_density(np.array([[np.log(theta / (1 - theta)), np.log(sigma)]]))[0]
@@ -156,7 +159,7 @@ def test_modular_stan_density_is_stochastic_krigings(small):
         mean, mse = stochastic_kriging(replicates.settings, replicates.means, replicates.counts,
                                        surface.at(replicates.settings), np.hstack([x, np.full((len(x), 1), theta)]),
                                        0.3, 1.2, np.array([0.5, 0.9, 0.7]), 0.02**2 + jitter)
-        covariance = mse + (0.02**2 + sigma**2 + jitter) * np.eye(len(y))
+        covariance = mse + 0.02**2 * same + (sigma**2 + jitter) * np.eye(len(y))
         reference.append(stats.multivariate_normal(mean, covariance).logpdf(y))
     np.testing.assert_allclose(np.diff(stan), np.diff(reference), rtol=1e-8, atol=1e-8)
 
@@ -210,7 +213,7 @@ def test_the_stochastic_fit_recovers_k_and_the_measurement_sd(case):
     docs/noise.md), the noise sd is the measurement's."""
     make_data = case_study_module(CASE)
     with no_stancal_warnings():
-        result = fit(case, method="modular", discrepancy="none", stochastic=True, warmup=250, draws=250)
+        result = fit(case, method="modular", discrepancy="none", stochastic=True)
     assert_healthy(result)
     k = np.asarray(result.idata["posterior"]["theta"]).ravel()
     low, high = np.quantile(k, [0.05, 0.95])
@@ -219,3 +222,54 @@ def test_the_stochastic_fit_recovers_k_and_the_measurement_sd(case):
     assert np.quantile(noise, 0.05) < make_data.MEASUREMENT_SD < np.quantile(noise, 0.95)
     assert result.emulator["replicated_runs"]["replicated_settings"] == 60
     assert "replicated_runs" in result.to_summary_json()["emulator"]
+
+
+def test_the_scalable_emulator_is_stochastic_krigings_too(small):
+    """modular_hsgp's stage 1 (stancal.numerics.scalable_emulator) with the
+    intrinsic variance: its mean and its local-GP variance at the points (all
+    runs are neighbours in this small case) are stochastic kriging's."""
+    from stancal.numerics.scalable_emulator import JITTER, ScalableEmulator, exact_mean
+    from stancal.stan.standata import emulator_run_data
+
+    data, replicates, surface, hyper = small
+    runs = emulator_run_data(data)
+    stored = {**hyper, "theta_degrees": [4]}
+    emulator = ScalableEmulator.of(runs["x_sim"], runs["theta_sim"], runs["y_sim"], stored,
+                                   run_intrinsic_variance(data, hyper))
+    x = data.scaling.to_unit(data.physical, data.inputs)
+    theta = np.array([0.4])
+    mean = 0.3 + exact_mean(x, runs["x_sim"], runs["theta_sim"], emulator.alpha, emulator.hyperparameters,
+                            theta[None, :])[:, 0]
+    reference, mse = stochastic_kriging(replicates.settings, replicates.means, replicates.counts,
+                                        surface.at(replicates.settings), np.hstack([x, np.full((len(x), 1), 0.4)]),
+                                        0.3, 1.2, np.array([0.5, 0.9, 0.7]), 0.02**2 + JITTER * 1.2**2)
+    np.testing.assert_allclose(mean, reference, rtol=1e-8, atol=1e-8)
+    np.testing.assert_allclose(emulator.variance(x, theta), np.diag(mse), rtol=1e-6, atol=1e-10)
+
+
+@pytest.mark.slow
+def test_the_scalable_path_takes_a_stochastic_simulator(case):
+    """modular_hsgp with the intrinsic variance on its precomputed-weight
+    emulator's runs: a healthy fit whose k interval holds the truth."""
+    make_data = case_study_module(CASE)
+    with no_stancal_warnings():
+        result = fit(case, method="modular", approximation="hsgp", discrepancy="none", stochastic=True)
+    assert result.method == "modular_hsgp"
+    assert_healthy(result)
+    assert result.emulator["hyperparameters"]["intrinsic_variance"]["hyperparameters"] is not None
+    k = np.asarray(result.idata["posterior"]["theta"]).ravel()
+    assert np.quantile(k, 0.05) <= make_data.K_TRUE <= np.quantile(k, 0.95)
+
+
+@pytest.mark.slow
+def test_the_case_studys_comparison(tmp_path):
+    """compare.py at 2 x (800 + 800): both fits healthy and covering k; the
+    deterministic emulator's k interval and bands at least twice the
+    stochastic one's; the stochastic fit's noise sd interval holds 0.1 deg C."""
+    compare = case_study_module(CASE, "compare")
+    table = compare.main(tmp_path, draws=800, chains=2).set_index("emulator")
+    assert (table["max_rhat"] <= 1.01).all() and (table["divergences"] == 0).all()
+    assert table["k_covers_truth"].all()
+    assert table.loc["deterministic", "k_width_90"] > 2 * table.loc["stochastic", "k_width_90"]
+    assert table.loc["deterministic", "band_width_quiet"] > 2 * table.loc["stochastic", "band_width_quiet"]
+    assert table.loc["stochastic", "noise_sd_q05"] < compare.MEASUREMENT_SD < table.loc["stochastic", "noise_sd_q95"]

@@ -8,7 +8,8 @@ over the run, sd(t) = 0.2 * 10^(t / 60 min) deg C. Its mean is Newton's law, so
 the simulator's mean at the true k = 0.05 1/min is the truth, with no
 discrepancy. runs.csv: 60 Latin-hypercube settings of (t, T0, k), each run
 5 times (300 runs). physical.csv: the true process measured at 10 times
-from 2 to 60 min from two start temperatures, sd 0.1 deg C; heldout.csv
+from 2 to 60 min from two start temperatures, two cups each, sd 0.1 deg C
+(40 readings); heldout.csv
 holds as many readings again, never fitted (compare.py scores the bands there).
 """
 
@@ -26,6 +27,7 @@ SETTINGS, REPLICATES = 60, 5  # run settings, runs of each
 TIMES = np.linspace(2, 60, 10)  # min
 STARTS = (60.0, 90.0)  # deg C
 MEASUREMENT_SD = 0.1  # deg C
+READINGS = 2  # cups per (t, T0): their spread tells the measurement noise from the emulator's error
 
 
 def newton(t, T0, k):
@@ -46,7 +48,7 @@ def runs(rng: np.random.Generator) -> pd.DataFrame:
 
 
 def readings(rng: np.random.Generator) -> pd.DataFrame:
-    t, T0 = (a.ravel() for a in np.meshgrid(TIMES, STARTS))
+    t, T0 = (np.repeat(a.ravel(), READINGS) for a in np.meshgrid(TIMES, STARTS))
     temperature = newton(t, T0, K_TRUE) + MEASUREMENT_SD * rng.standard_normal(t.size)
     return pd.DataFrame({"t": t.round(3), "T0": T0, "temperature": temperature.round(4)})
 
