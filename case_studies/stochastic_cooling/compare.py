@@ -43,7 +43,7 @@ def row(name: str, result: stancal.CalibrationResult, heldout: pd.DataFrame, y_s
     posterior = result.idata["posterior"]
     k = np.asarray(posterior["theta"]).ravel()
     low, high = np.quantile(k, [0.05, 0.95])
-    noise = np.asarray(posterior["noise_sd"]).ravel() * y_scale
+    noise = np.asarray(posterior["noise_sd"]).ravel()  # the posterior is in original units
     bands = result.predict(heldout[["t", "T0"]], seed=3)
     inside = (heldout["temperature"] >= bands["y_q05"]) & (heldout["temperature"] <= bands["y_q95"])
     width = bands["y_q95"] - bands["y_q05"]
@@ -52,7 +52,7 @@ def row(name: str, result: stancal.CalibrationResult, heldout: pd.DataFrame, y_s
     return {"emulator": name, "k_mean": k.mean(), "k_q05": low, "k_q95": high, "k_covers_truth": low <= K_TRUE <= high,
             "k_width_90": high - low, "noise_sd_mean": noise.mean(),
             "noise_sd_q05": np.quantile(noise, 0.05), "noise_sd_q95": np.quantile(noise, 0.95),
-            "delta_sd_mean": float(np.asarray(posterior["delta_sd"]).mean() * y_scale),
+            "delta_sd_mean": float(np.asarray(posterior["delta_sd"]).mean()),
             "coverage_quiet": inside[quiet].mean(), "coverage_noisy": inside[~quiet].mean(),
             "band_width_quiet": width[quiet].mean(), "band_width_noisy": width[~quiet].mean(),
             "emulator_nugget": result.emulator["hyperparameters"]["emulator_nugget"] * y_scale,
