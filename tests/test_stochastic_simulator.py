@@ -206,7 +206,7 @@ def test_the_deterministic_emulator_takes_the_simulators_noise_for_its_misfit(ca
     assert nuggets[True] < 0.1 * nuggets[False]
 
 
-def test_the_stochastic_fit_recovers_k_and_the_measurement_sd(case):
+def test_the_stochastic_fit_recovers_k_and_the_measurement_sd(case, tmp_path):
     """A small fit of the case study (truth k = 0.05 1/min, measurement sd
     0.1 deg C): k's 90 % interval holds the truth and is narrow (the
     deterministic emulator's was 2.6 times as wide at 2 x (300 + 300):
@@ -221,7 +221,11 @@ def test_the_stochastic_fit_recovers_k_and_the_measurement_sd(case):
     noise = np.asarray(result.idata["posterior"]["noise_sd"]).ravel()  # original units
     assert np.quantile(noise, 0.05) < make_data.MEASUREMENT_SD < np.quantile(noise, 0.95)
     assert result.emulator["replicated_runs"]["replicated_settings"] == 60
-    assert "replicated_runs" in result.to_summary_json()["emulator"]
+    summary = stancal.write_calibration(result, tmp_path)
+    assert summary["emulator"]["replicated_runs"]["runs_per_replicated_setting"] == [5, 5.0, 5]
+    report = (tmp_path / "report.md").read_text()
+    assert "## Replicated simulator runs" in report and "60 of 60 run settings" in report
+    assert "stochastic simulator: the emulator of its mean carries its own sd" in report
 
 
 def test_the_scalable_emulator_is_stochastic_krigings_too(small):
