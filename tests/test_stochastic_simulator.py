@@ -284,3 +284,12 @@ def test_the_case_studys_comparison(tmp_path):
     halves = ["coverage_quiet", "coverage_noisy"]
     assert (table.loc["deterministic", halves] > 0.98).all()
     assert table.loc["stochastic", halves].between(0.75, 0.98).all()
+
+
+def test_the_gap_diagnosis_plans_with_the_stochastic_emulator(case):
+    """`stancal gap` passes [simulator] stochastic on as a calibrate option;
+    its baseline's plan (make_plan of the options' model keywords) keeps it."""
+    from stancal.fitting.plan import make_plan, model_keywords
+
+    plan = make_plan(case, None, None, None, **model_keywords({"stochastic": True, "chains": 2}, False))
+    assert plan.name == "modular" and plan.options.stochastic
