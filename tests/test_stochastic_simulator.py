@@ -21,6 +21,7 @@ from stancal.numerics.intrinsic_variance import IntrinsicVariance, log_variance_
 from stancal.numerics.kernels import ard_cross_cov
 from stancal.problem.config import load_config
 from stancal.problem.run_replicates import RunReplicates
+from stancal.reporting.report import replicated_run_lines
 from stancal.stan.standata import build_stan_data, run_intrinsic_variance, to_stan_json
 
 CASE = Path(__file__).parents[1] / "case_studies" / "stochastic_cooling"
@@ -222,11 +223,16 @@ def test_the_stochastic_fit_recovers_k_and_the_measurement_sd(case, tmp_path):
     noise = np.asarray(result.idata["posterior"]["noise_sd"]).ravel()  # original units
     assert np.quantile(noise, 0.05) < make_data.MEASUREMENT_SD < np.quantile(noise, 0.95)
     assert result.emulator["replicated_runs"]["replicated_settings"] == 60
-    summary = stancal.write_calibration(result, tmp_path)
+    summary = result.to_summary_json()  # report.md's lines from summary.json's entry (a whole report takes minutes)
     assert summary["emulator"]["replicated_runs"]["runs_per_replicated_setting"] == [5, 5.0, 5]
-    report = (tmp_path / "report.md").read_text()
+    report = "\n".join(replicated_run_lines(summary["emulator"]))
     assert "## Replicated simulator runs" in report and "60 of 60 run settings" in report
     assert "stochastic simulator: the emulator of its mean carries its own sd" in report
+    # saved and loaded, the fit keeps its option and its intrinsic variance surface
+    loaded = stancal.CalibrationResult.load(result.save(tmp_path / "fit.nc"))
+    assert loaded.options.stochastic
+    np.testing.assert_allclose(run_intrinsic_variance(case, loaded.emulator["hyperparameters"]),
+                               run_intrinsic_variance(case, result.emulator["hyperparameters"]))
 
 
 def test_the_scalable_emulator_is_stochastic_krigings_too(small):
