@@ -10,6 +10,12 @@
 // The runs may come from simulators of several fidelities, cheapest first
 // (Kennedy & O'Hagan 2000; fidelity.stan): the emulator of the calibrated,
 // top level then learns from the cheaper runs too.
+// The emulator's nugget (the part of the runs a smooth GP misses) is part of
+// its uncertainty at the physical points too (Higdon et al. 2008). A
+// stochastic simulator's runs add their own intrinsic variance on the runs'
+// diagonal only: the emulator is of the simulator's MEAN (stochastic kriging,
+// Ankenman, Nelson & Staum 2010), and reality's own scatter is the noise
+// model's job (Baker et al. 2022).
 functions {
 #include gp_kernels.stan
 #include gp_conditional.stan
@@ -60,6 +66,7 @@ data {
   array[L] real<lower=0> emulator_sd;   // see emulator_mean
   array[L, D + Q] real<lower=0> emulator_length_scale;  // inputs first, then theta; unit-cube units
   array[L] real<lower=0> emulator_nugget;  // see emulator_mean
+  vector<lower=0>[M] run_intrinsic_sd;  // stochastic simulator: each run's intrinsic sd, standardised (0 = deterministic)
   int<lower=0> P;                       // number of prediction points
   array[P] vector[D] x_new;             // simulator inputs of the prediction points, scaled to [0, 1]
   array[P] vector[D_delta] x_delta_new; // discrepancy inputs of the prediction points, scaled to [0, 1]
@@ -74,7 +81,11 @@ transformed data {
   matrix[M, L] w_sim = weights[run_level, :];
   row_vector[L] w_top = weights[L, :];
   matrix[N, L] w_obs = rep_matrix(w_top, N);
-  vector[M] run_nugget_sd = to_vector(emulator_nugget)[run_level];
+  // each run's own variance: its level's nugget and, for a stochastic simulator, its intrinsic variance
+  vector[M] run_nugget_sd = sqrt(square(to_vector(emulator_nugget)[run_level]) + square(run_intrinsic_sd));
+  // the emulator's misfit at the physical points: the top level's nugget where two points are one
+  // (Higdon et al. 2008), not the intrinsic variance
+  matrix[N, N] nugget_obs = square(emulator_nugget[L]) * same_point(x);
   real top_mean = w_top * to_vector(emulator_mean);
   real top_variance = fidelity_variance(w_top, emulator_sd);
   matrix[M, M] L_sim = cholesky_decompose(
@@ -145,7 +156,7 @@ model {
     }
     matrix[M, N] A = mdivide_left_tri_low(L_sim, K_obs_sim');
     vector[N] emulator_mean_obs = top_mean + K_obs_sim * alpha_sim;
-    matrix[N, N] K = square(rho) * (K_obs - crossprod(A));
+    matrix[N, N] K = square(rho) * (K_obs - crossprod(A) + nugget_obs);
     if (use_discrepancy) {
       K += ard_cov(x_delta, kernel_id, delta_sd[1], delta_length_scale);
     }
@@ -176,6 +187,7 @@ generated quantities {
                                  h_new, normals_new, prior_only, kernel_id, w_sim, w_top, emulator_mean,
                                  emulator_sd, emulator_length_scale, run_nugget_sd, rho, delta_sd,
                                  delta_length_scale, weighted_noise_variance(noise_var, noise_weight),
+                                 square(rho) * nugget_obs,
                                  y_center, y_scale);
     log_lik = q.1;
     y_loo_mean = q.2;

@@ -171,6 +171,7 @@ def run_gap(args: argparse.Namespace) -> dict:
                                 **({} if vector else {"approximation": args.approximation
                                                       or model.get("approximation", "auto")}),
                                 **sampler_options(args), backend=args.backend,
+                                **({"stochastic": True} if model.get("stochastic") else {}),  # [simulator] stochastic
                                 out_dir=args.out, kfold=args.kfold, scheduler=args.scheduler)
     summary = write_gap_report(analysis, args.out, problem.units)
     write_calibration(analysis.baseline, args.out / "baseline",

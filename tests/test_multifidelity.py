@@ -51,9 +51,10 @@ def problem(seed: int = 0, low: int = 40, high: int = 6, **extra) -> stancal.Cal
 
 def quadrature_posterior(data: stancal.CalibrationData, levels: list[mf.Level]) -> tuple[float, float]:
     """theta's posterior mean and sd under modular.stan's model with no
-    discrepancy: y ~ N(m(theta), V(theta) + noise_sd^2 I) on the standardised
-    scale, m and V the co-kriging of the top level at the points given every
-    run; theta uniform, noise_sd half-normal(0, 1); on a grid."""
+    discrepancy: y ~ N(m(theta), V(theta) + nugget^2 I + noise_sd^2 I) on the
+    standardised scale, m and V the co-kriging of the top level at the points
+    given every run, the nugget the top level's (its misfit at the distinct
+    points); theta uniform, noise_sd half-normal(0, 1); on a grid."""
     x = data.scaling.to_unit(data.physical, data.inputs)
     y = data.scaling.standardise(data.physical[data.output].to_numpy())
     theta = np.linspace(0, 1, 241)
@@ -61,6 +62,7 @@ def quadrature_posterior(data: stancal.CalibrationData, levels: list[mf.Level]) 
     log_post = np.empty((len(theta), len(noise)))
     for i, th in enumerate(theta):
         mean, cov = mf.predictive(levels, np.hstack([x, np.full((len(x), 1), th)]))
+        cov = cov + levels[-1].hyperparameters.nugget ** 2 * np.eye(len(x))
         values, vectors = np.linalg.eigh(cov)
         projected = vectors.T @ (y - mean)
         variance = np.maximum(values, 0)[:, None] + noise[None, :] ** 2

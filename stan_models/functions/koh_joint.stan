@@ -20,12 +20,15 @@
  * @param delta_length_scale discrepancy GP hyperparameters
  *        (empty arrays for no discrepancy)
  * @param noise_var each physical point's noise variance (noise.stan's weighted_noise_variance)
+ * @param point_cov the emulator's misfit among the physical points: its nugget where two
+ *        points are one (Higdon et al. 2008), times rho^2; zeros where the program has none
  * @return covariance matrix of size M + N, with the jitter (add_jitter) of the top level's variance
  */
 matrix koh_joint_cov(array[] vector xt_sim, matrix w_sim, array[] vector xt_obs, row_vector w_top,
                      array[] vector x_delta, int kernel_id, array[] real level_sd,
                      array[,] real level_length_scale, vector run_nugget_sd, real rho,
-                     array[] real delta_sd, array[] real delta_length_scale, vector noise_var) {
+                     array[] real delta_sd, array[] real delta_length_scale, vector noise_var,
+                     matrix point_cov) {
   int m = size(xt_sim);
   int n = size(xt_obs);
   matrix[n, cols(w_sim)] w_obs = rep_matrix(w_top, n);
@@ -35,12 +38,44 @@ matrix koh_joint_cov(array[] vector xt_sim, matrix w_sim, array[] vector xt_obs,
   K[1:m, (m + 1):(m + n)] = rho * fidelity_cross_cov(xt_sim, w_sim, xt_obs, w_obs, kernel_id, level_sd,
                                                      level_length_scale);
   K[(m + 1):(m + n), 1:m] = K[1:m, (m + 1):(m + n)]';
-  matrix[n, n] K_obs = square(rho) * fidelity_cov(xt_obs, w_obs, kernel_id, level_sd, level_length_scale);
+  matrix[n, n] K_obs = square(rho) * fidelity_cov(xt_obs, w_obs, kernel_id, level_sd, level_length_scale)
+                       + point_cov;
   if (size(delta_sd) > 0) {
     K_obs += ard_cov(x_delta, kernel_id, delta_sd[1], delta_length_scale);
   }
   K[(m + 1):(m + n), (m + 1):(m + n)] = add_diag(K_obs, noise_var);
   return add_jitter(K, fidelity_variance(w_top, level_sd));
+}
+
+/**
+ * koh_joint_cov without an emulator misfit at the physical points.
+ */
+matrix koh_joint_cov(array[] vector xt_sim, matrix w_sim, array[] vector xt_obs, row_vector w_top,
+                     array[] vector x_delta, int kernel_id, array[] real level_sd,
+                     array[,] real level_length_scale, vector run_nugget_sd, real rho,
+                     array[] real delta_sd, array[] real delta_length_scale, vector noise_var) {
+  return koh_joint_cov(xt_sim, w_sim, xt_obs, w_top, x_delta, kernel_id, level_sd, level_length_scale,
+                       run_nugget_sd, rho, delta_sd, delta_length_scale, noise_var,
+                       rep_matrix(0, size(xt_obs), size(xt_obs)));
+}
+
+/**
+ * Where two points are one: 1 where x_i == x_j, else 0. The emulator's
+ * nugget, the part of the simulator a smooth GP misses, is one value at one
+ * point and independent between points (Higdon et al. 2008).
+ *
+ * @param x the points
+ * @return matrix of size(x) x size(x)
+ */
+matrix same_point(array[] vector x) {
+  int n = size(x);
+  matrix[n, n] same = rep_matrix(0, n, n);
+  for (i in 1:n) {
+    for (j in 1:n) {
+      if (max(abs(x[i] - x[j])) == 0) same[i, j] = 1;
+    }
+  }
+  return same;
 }
 
 /**
@@ -169,6 +204,7 @@ matrix koh_joint_draw(vector resid, matrix L_joint, int prior_only,
  * @param delta_length_scale the discrepancy GP's length scales, one per discrepancy input
  * @param noise_var each point's noise variance, given the Student-t mixture weights where there are
  *        some (noise.stan's weighted_noise_variance), standardised units
+ * @param point_cov the emulator's misfit among the physical points (koh_joint_cov); y_rep draws it
  * @param y_center original-scale y = y_center + y_scale * y: the centre
  * @param y_scale original-scale y = y_center + y_scale * y: the scale
  * @return (log_lik, y_loo_mean, y_rep, delta_gp, delta_gp_mean at the physical
@@ -180,14 +216,14 @@ tuple(vector, vector, vector, vector, vector, vector, vector, vector) koh_joint_
     array[] vector x_delta_new, matrix h_new, matrix normals_new, int prior_only,
     int kernel_id, matrix w_sim, row_vector w_top, array[] real level_mean, array[] real level_sd,
     array[,] real level_length_scale, vector run_nugget_sd, real rho, array[] real delta_sd,
-    array[] real delta_length_scale, vector noise_var, real y_center, real y_scale) {
+    array[] real delta_length_scale, vector noise_var, matrix point_cov, real y_center, real y_scale) {
   int m = size(xt_sim);
   int n = size(x);
   int p = size(x_new);
   array[n] vector[num_elements(xt_sim[1])] xt_obs = append_theta(x, theta_unit);
   matrix[m + n, m + n] L = cholesky_decompose(
     koh_joint_cov(xt_sim, w_sim, xt_obs, w_top, x_delta, kernel_id, level_sd, level_length_scale,
-                  run_nugget_sd, rho, delta_sd, delta_length_scale, noise_var));
+                  run_nugget_sd, rho, delta_sd, delta_length_scale, noise_var, point_cov));
   real top_mean = w_top * to_vector(level_mean);
   vector[m + n] resid = append_row(y_sim, y) - append_row(w_sim * to_vector(level_mean),
                                                           rho * top_mean + h * beta);
@@ -212,10 +248,28 @@ tuple(vector, vector, vector, vector, vector, vector, vector, vector) koh_joint_
   }
   return (loo.1[(m + 1):(m + n)] - log(y_scale),
           y_center + y_scale * (y - resid[(m + 1):(m + n)] + loo.2[(m + 1):(m + n)]),
-          y_center + y_scale * to_vector(normal_rng(zeta_obs, sqrt(noise_var))),
+          y_center + y_scale * (max(abs(point_cov)) > 0
+                                ? multi_normal_cholesky_rng(zeta_obs, cholesky_decompose(add_diag(point_cov, noise_var)))
+                                : to_vector(normal_rng(zeta_obs, sqrt(noise_var)))),
           y_scale * f_delta_obs[:, 2],
           y_scale * delta_gp_mean,
           y_center + y_scale * f_new,
           y_scale * delta_new,
           y_center + y_scale * (rho * f_new + delta_new));
+}
+
+/**
+ * koh_joint_quantities_rng without an emulator misfit at the physical points.
+ */
+tuple(vector, vector, vector, vector, vector, vector, vector, vector) koh_joint_quantities_rng(
+    vector y_sim, vector y, array[] vector xt_sim, array[] vector x, vector theta_unit,
+    array[] vector x_delta, matrix h, vector beta, array[] vector x_new,
+    array[] vector x_delta_new, matrix h_new, matrix normals_new, int prior_only,
+    int kernel_id, matrix w_sim, row_vector w_top, array[] real level_mean, array[] real level_sd,
+    array[,] real level_length_scale, vector run_nugget_sd, real rho, array[] real delta_sd,
+    array[] real delta_length_scale, vector noise_var, real y_center, real y_scale) {
+  return koh_joint_quantities_rng(y_sim, y, xt_sim, x, theta_unit, x_delta, h, beta, x_new, x_delta_new, h_new,
+                                  normals_new, prior_only, kernel_id, w_sim, w_top, level_mean, level_sd,
+                                  level_length_scale, run_nugget_sd, rho, delta_sd, delta_length_scale, noise_var,
+                                  rep_matrix(0, size(x), size(x)), y_center, y_scale);
 }

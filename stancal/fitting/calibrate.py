@@ -144,6 +144,7 @@ def calibrate(
     discrepancy_parametrization: str = "auto",
     noise: str = "iid",
     noise_inputs: tuple[str, ...] | list[str] = (),
+    stochastic: bool = False,
     new_points: pd.DataFrame | None = None,
     chains: int = 4,
     warmup: int = 1000,
@@ -194,6 +195,11 @@ def calibrate(
     Non-Gaussian (``CalibrationData(likelihood=...)``) or censored outputs and
     functional theta run on the latent-GP programs koh_latent (simulator) and
     koh_latent_emulator (runs).
+    ``stochastic``: the simulator's runs scatter at equal inputs and theta
+    (agent-based, Monte Carlo): its own variance, smoothed over the inputs
+    from the replicated runs, sits on the emulator runs' diagonal and not at
+    the physical points (stochastic kriging, Ankenman, Nelson & Staum 2010;
+    docs/noise.md); on modular and modular_hsgp, the default with it.
     ``mean_formula``: terms h(x, z) of a discrepancy mean h' beta, a formula
     over the physical data's columns such as ``"I(v**2) + C(batch)"``;
     ``mean_intercept`` adds a constant term ``Intercept``; it is dropped when a
@@ -224,7 +230,7 @@ def calibrate(
     options = model_options(discrepancy, kernel, estimate_rho, mean_formula, mean_intercept, scaled_lambda,
                             functional, functional_inputs, functional_parametrization, approximation,
                             basis_functions, boundary_factor, mean_centred,
-                            discrepancy_parametrization, noise, noise_inputs)
+                            discrepancy_parametrization, noise, noise_inputs, stochastic)
     if plan is None:
         plan = plan_scalar(data, simulator, method, options, program)
     else:

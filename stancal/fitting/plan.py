@@ -8,6 +8,7 @@ import logging
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 
+from stancal.fitting.run_variance import run_replicates
 from stancal.numerics.hsgp import first_basis
 from stancal.numerics.parametrization import choose_parametrization
 from stancal.problem.data import CalibrationData
@@ -23,6 +24,7 @@ from stancal.stan.registry import (
     default_program,
     fidelity_programs,
     for_method,
+    stochastic_programs,
 )
 from stancal.stan.source import FlatProgram, flatten
 
@@ -83,7 +85,8 @@ def model_options(discrepancy: str | None = None, kernel: str = "se", estimate_r
                   scaled_lambda: float | None = None, functional=(), functional_inputs=(),
                   functional_parametrization: str = "centred", approximation: str = "auto",
                   basis_functions=(), boundary_factor=(), mean_centred: bool = False,
-                  discrepancy_parametrization: str = "auto", noise: str = "iid", noise_inputs=()) -> ModelOptions:
+                  discrepancy_parametrization: str = "auto", noise: str = "iid", noise_inputs=(),
+                  stochastic: bool = False) -> ModelOptions:
     """calibrate()'s model keywords as ModelOptions; the discrepancy defaults
     to gp, or none with functional theta (flexible enough without one,
     review section 8.2)."""
@@ -91,7 +94,8 @@ def model_options(discrepancy: str | None = None, kernel: str = "se", estimate_r
                         estimate_rho, mean_formula, mean_intercept, scaled_lambda, tuple(functional),
                         tuple(functional_inputs), functional_parametrization, approximation,
                         tuple(basis_functions), tuple(boundary_factor), mean_centred,
-                        discrepancy_parametrization, noise=noise, noise_inputs=tuple(noise_inputs))
+                        discrepancy_parametrization, noise=noise, noise_inputs=tuple(noise_inputs),
+                        stochastic=stochastic)
 
 
 def make_plan(data: CalibrationData | VectorCalibrationData, simulator: str | Path | None = None,
@@ -134,7 +138,8 @@ def plan_scalar(data: CalibrationData, simulator: str | Path | None = None, meth
     l2 = method == L2
     if l2:
         require_gaussian("method 'l2'", data, options)
-    base = _requested(data, simulator, None if l2 else method, "scalar")
+    base = _stochastic_base(data, simulator, method, options, _requested(data, simulator, None if l2 else method,
+                                                                          "scalar"))
     chosen = _latent_version(base, latent_reason(data, options), options) or _scalable_version(data, base, options)
     _check_options(chosen, options)
     _check_noise(chosen, options, data)
@@ -152,6 +157,7 @@ def plan_scalar(data: CalibrationData, simulator: str | Path | None = None, meth
             basis = first_basis(options.kernel, data.discrepancy_inputs)
             options = replace(options, basis_functions=basis.counts, boundary_factor=basis.boundary_factors)
     _check_fidelities(data, chosen, options, method)
+    _check_stochastic(data, chosen, options)
     return Plan(chosen, options, _path(simulator), _path(program), l2, basis_given,
                 parametrization_given=parametrization_given, fidelities=data.fidelities if chosen.runs else 1)
 
@@ -272,6 +278,40 @@ def _check_fidelities(data: CalibrationData, chosen: Program, options: ModelOpti
                          f"only; got kernel '{options.kernel}'")
     logger.info("%d low-fidelity run set(s): the emulator is multi-fidelity (Kennedy & O'Hagan 2000), method "
                 "'%s'%s", data.fidelities - 1, chosen.name, "" if method else " (the default with them)")
+
+
+def _stochastic_base(data: CalibrationData, simulator, method: str | None, options: ModelOptions,
+                     base: Program) -> Program:
+    """A stochastic simulator is known by its runs: a Stan simulator is
+    refused; without a method, the first program whose emulator takes its
+    intrinsic variance (modular), said in one line."""
+    if not options.stochastic:
+        return base
+    if simulator is not None:
+        raise ValueError("stochastic = true describes a simulator known by its runs; a Stan simulator is a "
+                         "deterministic function of (x, theta): give the runs of the stochastic simulator instead")
+    if method is None and not base.stochastic_runs:
+        base = stochastic_programs("scalar")[0]
+        logger.info("a stochastic simulator: method '%s' (%s), the default with stochastic = true",
+                    base.name, base.description)
+    return base
+
+
+def _check_stochastic(data: CalibrationData, chosen: Program, options: ModelOptions) -> None:
+    """A stochastic simulator on a program that carries its intrinsic
+    variance, with replicated runs to estimate it, before anything compiles."""
+    if not options.stochastic:
+        return
+    if not chosen.stochastic_runs:
+        taking = ", ".join(p.name for p in stochastic_programs("scalar"))
+        raise ValueError(f"stochastic = true runs on the programs {taking}; this problem runs {chosen.name} "
+                         f"({chosen.description})")
+    if data.fidelities > 1:
+        raise ValueError("stochastic = true with low-fidelity runs is not built: give the stochastic "
+                         "simulator's runs alone")
+    if not run_replicates(data).replicated.any():
+        raise ValueError("stochastic = true needs replicated runs (equal inputs and theta) to estimate the "
+                         "simulator's own variance; the runs have none")
 
 
 def _check_noise(chosen: Program, options: ModelOptions, data: CalibrationData) -> None:

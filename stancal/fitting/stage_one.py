@@ -13,6 +13,7 @@ from typing import Any
 
 import numpy as np
 
+from stancal.fitting.run_variance import intrinsic_variance
 from stancal.numerics.kernels import ard_cross_cov
 from stancal.numerics.multifidelity import Level, cheap_runs_value, fit_levels, mean_function
 from stancal.numerics.multifidelity_variance import variance_correction
@@ -35,6 +36,7 @@ from stancal.stan.standata import (
     build_emulator_data,
     emulator_run_data,
     fidelity_run_data,
+    run_intrinsic_variance,
     to_stan_json,
 )
 
@@ -53,7 +55,7 @@ def run_stage_one(kind: str | None, data, options, programs: list[FlatProgram], 
         logger.info("stage 1: fitting the emulator to %d runs", len(data.runs))
         return fit_emulator(data, options, programs[0], backend=backend, seed=seed)
     if kind == STAGE_ONE_SCALABLE:
-        return fit_scalable_emulator(data, seed)
+        return fit_scalable_emulator(data, seed, stochastic=options.stochastic)
     if kind == STAGE_ONE_BASIS:
         return fit_vector_emulator(data, seed)
     if kind == STAGE_ONE_FIDELITY:
@@ -67,29 +69,43 @@ def fit_emulator(data: CalibrationData, options: ModelOptions, program: FlatProg
     posterior mode on the unconstrained (log) scale, which for a positive
     parameter with a near log-normal posterior is its median; found by
     optimisation, a fraction of a sampler's cost (and the only affordable route
-    for many runs). Also the emulator's leave-one-out accuracy on the runs."""
+    for many runs). Also the emulator's leave-one-out accuracy on the runs.
+    A stochastic simulator's runs carry their intrinsic variance
+    (stancal.fitting.run_variance; stochastic kriging, Ankenman, Nelson &
+    Staum 2010): the emulator is then of the simulator's mean."""
     started = time.perf_counter()
-    mode, _ = backend.posterior_mode(program, to_stan_json(build_emulator_data(data, options)),
-                                     starts=EMULATOR_STARTS, seed=seed)
+    surface, replicates = intrinsic_variance(data, options.stochastic, seed)
+    stored = {} if surface is None else {"intrinsic_variance": surface.to_json()}
+    stan_data = {**build_emulator_data(data, options), "run_intrinsic_sd": np.sqrt(
+        run_intrinsic_variance(data, stored))}
+    mode, _ = backend.posterior_mode(program, to_stan_json(stan_data), starts=EMULATOR_STARTS, seed=seed)
     seconds = time.perf_counter() - started
     logger.info("stage 1: emulator hyperparameters by optimisation in %.1f s", seconds)
     loo_error = mode["loo_error"].reshape(-1)  # generated quantities at the mode
     return {
-        "hyperparameters": {name: mode[name][0, 0].tolist() for name in EMULATOR_HYPERPARAMETERS},
+        "hyperparameters": {**{name: mode[name][0, 0].tolist() for name in EMULATOR_HYPERPARAMETERS}, **stored},
         "loo_rmse": float(np.sqrt(np.mean(loo_error**2))),
         "runs_sd": runs_sd(data),
+        "replicated_runs": replicates,
         "fit_s": seconds,
     }
 
 
-def fit_scalable_emulator(data: CalibrationData, seed: int) -> dict[str, Any]:
+def fit_scalable_emulator(data: CalibrationData, seed: int, stochastic: bool = False) -> dict[str, Any]:
     """Stage 1 of modular_hsgp (stancal.numerics.scalable_emulator): hyperparameters,
     weights and theta interpolant; then the theta whose emulator mean fits
-    the data best, where the emulator's variance is taken."""
+    the data best, where the emulator's variance is taken. A stochastic
+    simulator's intrinsic variance is on the runs' diagonal (Ankenman,
+    Nelson & Staum 2010)."""
     started = time.perf_counter()
     runs = emulator_run_data(data)
     x_points = data.scaling.to_unit(data.physical, data.inputs)
-    state, emulator = ScalableEmulator.fit(runs["x_sim"], runs["theta_sim"], runs["y_sim"], x_points, seed)
+    surface, replicates = intrinsic_variance(data, stochastic, seed)
+    stored = {} if surface is None else {"intrinsic_variance": surface.to_json()}
+    state, emulator = ScalableEmulator.fit(runs["x_sim"], runs["theta_sim"], runs["y_sim"], x_points, seed,
+                                           known=run_intrinsic_variance(data, stored) if stored else None)
+    emulator["hyperparameters"].update(stored)
+    emulator["replicated_runs"] = replicates
     logger.info("stage 1: emulator hyperparameters at their posterior mode (scipy L-BFGS) on %d of %d "
                 "runs; its mean from all runs, interpolated in theta through %d Chebyshev nodes "
                 "(error %.1g sd of the output)", emulator["hyperparameter_runs"], len(data.runs),
@@ -156,7 +172,8 @@ def _one_fidelity_mean(data: CalibrationData, hyperparameters: dict[str, Any], k
     sd, mean = float(hyperparameters["emulator_sd"]), float(hyperparameters["emulator_mean"])
     length = np.asarray(hyperparameters["emulator_length_scale"], float)
     k_runs = ard_cross_cov(runs_xt, runs_xt, kernel_id, sd, length)
-    k_runs[np.diag_indices_from(k_runs)] += float(hyperparameters["emulator_nugget"]) ** 2
+    k_runs[np.diag_indices_from(k_runs)] += (float(hyperparameters["emulator_nugget"]) ** 2
+                                             + run_intrinsic_variance(data, hyperparameters))
     weights = np.linalg.solve(k_runs, s.standardise(data.runs_on_link_scale()) - mean)
     return lambda xt: mean + ard_cross_cov(xt, runs_xt, kernel_id, sd, length) @ weights
 

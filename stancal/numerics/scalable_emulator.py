@@ -78,10 +78,13 @@ def se_correlation(a: np.ndarray, b: np.ndarray, length_scale: np.ndarray) -> np
     return np.exp(-0.5 * np.maximum(sq, 0.0))
 
 
-def run_covariance(xt: np.ndarray, h: Hyperparameters) -> np.ndarray:
-    """emulator_run_cov of functions/gp_kernels.stan (squared exponential)."""
+def run_covariance(xt: np.ndarray, h: Hyperparameters, known: np.ndarray | None = None) -> np.ndarray:
+    """emulator_run_cov of functions/gp_kernels.stan (squared exponential);
+    ``known``: each run's own known variance on the diagonal too (a stochastic
+    simulator's intrinsic variance: stochastic kriging, Ankenman, Nelson &
+    Staum 2010), as emulator.stan's run_intrinsic_sd."""
     K = h.sd**2 * se_correlation(xt, xt, h.length_scale)
-    K[np.diag_indices_from(K)] += run_nugget_variance(h)
+    K[np.diag_indices_from(K)] += run_nugget_variance(h) + (0.0 if known is None else known)
     return K
 
 
@@ -100,14 +103,16 @@ def pack(h: Hyperparameters) -> np.ndarray:
     return np.concatenate([[h.mean, np.log(h.sd)], np.log(h.length_scale), [np.log(max(h.nugget, 1e-8))]])
 
 
-def negative_log_posterior(u: np.ndarray, xt: np.ndarray, y: np.ndarray) -> tuple[float, np.ndarray]:
+def negative_log_posterior(u: np.ndarray, xt: np.ndarray, y: np.ndarray,
+                           known: np.ndarray | None = None) -> tuple[float, np.ndarray]:
     """emulator.stan's log density on the unconstrained scale (with the
     Jacobian, as Stan's optimiser with jacobian=True sees it), negated, and
-    its gradient; u = (mean, log sd, log length scales, log nugget)."""
+    its gradient; u = (mean, log sd, log length scales, log nugget);
+    ``known``: each run's known variance on the diagonal (run_covariance)."""
     h = unpack(u)
     correlation = se_correlation(xt, xt, h.length_scale)
     K = h.sd**2 * correlation
-    K[np.diag_indices_from(K)] += run_nugget_variance(h)
+    K[np.diag_indices_from(K)] += run_nugget_variance(h) + (0.0 if known is None else known)
     try:
         factor = linalg.cho_factor(K, lower=True)
     except linalg.LinAlgError:
@@ -134,21 +139,22 @@ def negative_log_posterior(u: np.ndarray, xt: np.ndarray, y: np.ndarray) -> tupl
     return -(log_lik + log_prior + log_jacobian), -grad
 
 
-def fit_hyperparameters(xt: np.ndarray, y: np.ndarray, seed: int,
-                        subset: int = SUBSET_SIZE) -> tuple[Hyperparameters, int]:
+def fit_hyperparameters(xt: np.ndarray, y: np.ndarray, seed: int, subset: int = SUBSET_SIZE,
+                        known: np.ndarray | None = None) -> tuple[Hyperparameters, int]:
     """The posterior mode of emulator.stan on a random subset of at most
     ``subset`` runs: the best of STARTS L-BFGS runs. Returns it and the
-    number of runs used."""
+    number of runs used. ``known``: each run's known variance (run_covariance)."""
     rng = np.random.default_rng(seed)
     chosen = rng.choice(len(y), size=min(subset, len(y)), replace=False)
     xt_sub, y_sub = xt[chosen], y[chosen]
+    known_sub = None if known is None else np.asarray(known, float)[chosen]
     n_ell = xt.shape[1]
     sensible = np.concatenate([[y_sub.mean(), math.log(max(y_sub.std(), 0.1))],
                                np.full(n_ell, math.log(0.5)), [math.log(0.01)]])
     starts = [sensible] + [rng.uniform(-2, 2, n_ell + 3) for _ in range(STARTS - 1)]
     best = None
     for start in starts:
-        found = optimize.minimize(negative_log_posterior, start, args=(xt_sub, y_sub), jac=True,
+        found = optimize.minimize(negative_log_posterior, start, args=(xt_sub, y_sub, known_sub), jac=True,
                                   method="L-BFGS-B", options={"maxiter": 500})
         if np.isfinite(found.fun) and (best is None or found.fun < best.fun):
             best = found
@@ -180,11 +186,11 @@ def predictive_mean_variance(points: np.ndarray, xt_runs: np.ndarray, alpha: np.
     return mean, np.maximum(variance, 0.0)
 
 
-def run_factor(xt: np.ndarray, h: Hyperparameters) -> tuple[np.ndarray, bool]:
+def run_factor(xt: np.ndarray, h: Hyperparameters, known: np.ndarray | None = None) -> tuple[np.ndarray, bool]:
     """The Cholesky factor of the runs' covariance, the N x N factorisation
     (in place: at N = 5,000 a copy is 200 MB); made for the mean's weights
     and again for the error basis, never per gradient."""
-    return linalg.cho_factor(run_covariance(xt, h), lower=True, overwrite_a=True)
+    return linalg.cho_factor(run_covariance(xt, h, known), lower=True, overwrite_a=True)
 
 
 def chebyshev_basis(theta_unit: np.ndarray, degrees: tuple[int, ...]) -> np.ndarray:
@@ -275,10 +281,11 @@ def least_squares_theta(weights: np.ndarray, degrees: tuple[int, ...], mean: flo
 
 
 def local_variance(x_unit: np.ndarray, theta_unit: np.ndarray, xt_runs: np.ndarray,
-                   h: Hyperparameters) -> np.ndarray:
+                   h: Hyperparameters, known: np.ndarray | None = None) -> np.ndarray:
     """The emulator's predictive variance at (x_i, theta), each from a local
     GP on the NEIGHBOURS nearest runs in the kernel's metric (no nugget at the
-    points: the simulator is deterministic there, as in modular.stan)."""
+    points; a stochastic simulator's intrinsic variance, ``known`` per run,
+    is on the runs' diagonal only: the emulator is of its mean)."""
     points = np.column_stack([x_unit, np.broadcast_to(theta_unit, (len(x_unit), len(theta_unit)))])
     k = min(NEIGHBOURS, len(xt_runs))
     _, nearest = cKDTree(xt_runs / h.length_scale).query(points / h.length_scale, k=k)
@@ -287,7 +294,7 @@ def local_variance(x_unit: np.ndarray, theta_unit: np.ndarray, xt_runs: np.ndarr
     for i, rows in enumerate(nearest):
         local = xt_runs[rows]
         cross = h.sd**2 * se_correlation(points[i : i + 1], local, h.length_scale)[0]
-        factor = linalg.cho_factor(run_covariance(local, h), lower=True)
+        factor = linalg.cho_factor(run_covariance(local, h, None if known is None else known[rows]), lower=True)
         variance[i] = h.sd**2 - cross @ linalg.cho_solve(factor, cross)
     return np.maximum(variance, 0.0)
 
@@ -303,7 +310,7 @@ class ErrorBasis:
 
 
 def error_basis(x_unit: np.ndarray, theta_unit: np.ndarray, xt_runs: np.ndarray, h: Hyperparameters,
-                threshold: float) -> ErrorBasis:
+                threshold: float, known: np.ndarray | None = None) -> ErrorBasis:
     """The leading eigenvectors of the emulator's predictive covariance at
     (x_i, theta), C = k(P, P) - k(P, runs) K^-1 k(runs, P), whose
     eigenvalues exceed ``threshold``: C's Nystroem approximation through
@@ -317,7 +324,7 @@ def error_basis(x_unit: np.ndarray, theta_unit: np.ndarray, xt_runs: np.ndarray,
                  else np.sort(rng.choice(len(points), LANDMARKS, replace=False)))
     # made again rather than kept: PyStan forks its sampling workers from this process, and
     # a factor held here (200 MB at N = 5,000) would sit in each of them
-    runs_solve = linalg.cho_solve(run_factor(xt_runs, h),
+    runs_solve = linalg.cho_solve(run_factor(xt_runs, h, known),
                                   h.sd**2 * se_correlation(xt_runs, points[landmarks], h.length_scale))
     to_landmarks = np.empty((len(points), len(landmarks)))
     for start in range(0, len(points), 1000):  # k(P, runs) a block of points at a time
@@ -332,7 +339,7 @@ def error_basis(x_unit: np.ndarray, theta_unit: np.ndarray, xt_runs: np.ndarray,
     above = int(np.sum(singular**2 > threshold))
     rank = min(above, MAX_ERROR_RANK)
     columns = left[:, :rank] * singular[:rank]
-    local = local_variance(x_unit, theta_unit, xt_runs, h)
+    local = local_variance(x_unit, theta_unit, xt_runs, h, known)
     return ErrorBasis(columns, np.maximum(local - (columns**2).sum(1), 0.0), above > rank)
 
 
@@ -346,6 +353,7 @@ class ScalableEmulator:
     theta_runs: np.ndarray  # (N, Q), unit cube
     alpha: np.ndarray  # K^-1 (y - m)
     interpolant: ThetaInterpolant
+    known: np.ndarray | None = None  # (N,): a stochastic simulator's intrinsic variance at each run
 
     @property
     def xt_runs(self) -> np.ndarray:
@@ -353,33 +361,34 @@ class ScalableEmulator:
 
     @classmethod
     def fit(cls, x_runs: np.ndarray, theta_runs: np.ndarray, y_runs: np.ndarray, x_points: np.ndarray,
-            seed: int) -> tuple[ScalableEmulator, dict]:
+            seed: int, known: np.ndarray | None = None) -> tuple[ScalableEmulator, dict]:
         """Stage 1: hyperparameters, weights and the theta interpolant
         (checked at the physical points ``x_points``). Returns it and what to
         keep of it (``emulator`` of the result: enough to rebuild it with ``of``)."""
-        h, used = fit_hyperparameters(np.column_stack([x_runs, theta_runs]), y_runs, seed)
-        alpha = linalg.cho_solve(run_factor(np.column_stack([x_runs, theta_runs]), h), y_runs - h.mean)
+        h, used = fit_hyperparameters(np.column_stack([x_runs, theta_runs]), y_runs, seed, known=known)
+        alpha = linalg.cho_solve(run_factor(np.column_stack([x_runs, theta_runs]), h, known), y_runs - h.mean)
         check = x_points[np.random.default_rng(seed).choice(len(x_points), min(500, len(x_points)), replace=False)]
         interpolant = theta_interpolant(x_runs, theta_runs, alpha, h, check, seed)
         stored = {**h.as_stan(), "theta_degrees": list(interpolant.degrees)}
         _BUILT.clear()  # one emulator's arrays at a time
-        _BUILT[_key(x_runs, theta_runs, y_runs, stored)] = cls(h, x_runs, theta_runs, alpha, interpolant)
-        return _BUILT[_key(x_runs, theta_runs, y_runs, stored)], {
+        key = _key(x_runs, theta_runs, y_runs, stored, known)
+        _BUILT[key] = cls(h, x_runs, theta_runs, alpha, interpolant, known)
+        return _BUILT[key], {
             "hyperparameters": stored, "hyperparameter_runs": used,
             "theta_interpolation_points": int(np.prod([p + 1 for p in interpolant.degrees])),
             "theta_interpolation_error": interpolant.max_error}
 
     @classmethod
     def of(cls, x_runs: np.ndarray, theta_runs: np.ndarray, y_runs: np.ndarray,
-           stored: dict) -> ScalableEmulator:
+           stored: dict, known: np.ndarray | None = None) -> ScalableEmulator:
         """The emulator ``fit`` described with ``stored`` (no optimisation)."""
-        key = _key(x_runs, theta_runs, y_runs, stored)
+        key = _key(x_runs, theta_runs, y_runs, stored, known)
         if key not in _BUILT:
             h = Hyperparameters.from_stan(stored)
-            alpha = linalg.cho_solve(run_factor(np.column_stack([x_runs, theta_runs]), h), y_runs - h.mean)
+            alpha = linalg.cho_solve(run_factor(np.column_stack([x_runs, theta_runs]), h, known), y_runs - h.mean)
             _BUILT.clear()
             _BUILT[key] = cls(h, x_runs, theta_runs, alpha,
-                              ThetaInterpolant(tuple(stored["theta_degrees"]), float("nan")))
+                              ThetaInterpolant(tuple(stored["theta_degrees"]), float("nan")), known)
         return _BUILT[key]
 
     def mean_weights(self, x_unit: np.ndarray) -> np.ndarray:
@@ -388,19 +397,22 @@ class ScalableEmulator:
             x_unit, self.x_runs, self.theta_runs, self.alpha, self.hyperparameters, nodes))
 
     def variance(self, x_unit: np.ndarray, theta_unit: np.ndarray) -> np.ndarray:
-        return local_variance(x_unit, theta_unit, self.xt_runs, self.hyperparameters)
+        return local_variance(x_unit, theta_unit, self.xt_runs, self.hyperparameters, self.known)
 
     def error_basis(self, x_unit: np.ndarray, theta_unit: np.ndarray, threshold: float) -> ErrorBasis:
-        return error_basis(x_unit, theta_unit, self.xt_runs, self.hyperparameters, threshold)
+        return error_basis(x_unit, theta_unit, self.xt_runs, self.hyperparameters, threshold, self.known)
 
 
 _BUILT: dict[tuple, ScalableEmulator] = {}
 
 
-def _key(x_runs: np.ndarray, theta_runs: np.ndarray, y_runs: np.ndarray, stored: dict) -> tuple:
+def _key(x_runs: np.ndarray, theta_runs: np.ndarray, y_runs: np.ndarray, stored: dict,
+         known: np.ndarray | None) -> tuple:
     """What defines an emulator: the runs, hyperparameters and degrees (not
     calibrate's variance_theta and error_threshold, added later: the N x N
     factor is not redone)."""
-    defining = {k: v for k, v in stored.items() if k not in ("variance_theta", "error_threshold")}
+    defining = {k: v for k, v in stored.items() if k not in ("variance_theta", "error_threshold",
+                                                               "intrinsic_variance")}
     return (hash(np.asarray(x_runs).tobytes()), hash(np.asarray(theta_runs).tobytes()),
-            hash(np.asarray(y_runs).tobytes()), json.dumps(defining, sort_keys=True))
+            hash(np.asarray(y_runs).tobytes()), json.dumps(defining, sort_keys=True),
+            None if known is None else hash(np.asarray(known, float).tobytes()))

@@ -101,6 +101,8 @@ def _problem(raw: dict[str, Any], base: Path) -> Problem:
     if stan is None and runs is None:
         raise ConfigError("config: [simulator] needs 'stan' (a Stan simulator), 'runs' (a CSV of runs), or both")
     model = dict(raw.get("model", {}))
+    if simulator.get("stochastic"):  # a property of the simulator, carried as a model option (ModelOptions)
+        model["stochastic"] = True
     if "output_index" in physical:
         return _vector_problem(physical, simulator, theta, runs, stan, model, raw, base)
     if "program" in model:

@@ -112,6 +112,9 @@ TABLES: tuple[Table, ...] = (
             "emulator is fitted to them)"),
         Key("run", "string", "required with runs for a vector output", "the runs' column naming each run "
             "(long runs, one row per value)", VECTOR),
+        Key("stochastic", "boolean", "false", "the runs scatter at equal inputs and theta (agent-based, Monte "
+            "Carlo): the emulator of the simulator's mean carries its own variance, estimated from the replicated "
+            "runs (stochastic kriging; methods modular and modular_hsgp; docs/noise.md)", SCALAR),
     )),
     Table("simulator.theta", _THETA_MEANING + ", in the simulator's order", entries="[lower, upper]",
           required=True),

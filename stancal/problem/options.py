@@ -47,6 +47,10 @@ class ModelOptions:
     noise: str = "iid"
     # heteroscedastic noise: the simulator inputs its log sd varies over (empty: all of them)
     noise_inputs: tuple[str, ...] = ()
+    # a stochastic simulator: its replicated runs' scatter is its own variance, which the emulator of
+    # its mean carries (stochastic kriging, Ankenman, Nelson & Staum 2010; docs/noise.md); a property
+    # of the simulator, so its config key is in [simulator], not [model]
+    stochastic: bool = field(default=False, metadata={"set_by": "[simulator] stochastic"})
 
     def __post_init__(self) -> None:
         # lists from a config or a saved result

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from stancal.problem.noise import HETEROSCEDASTIC
+from stancal.problem.run_replicates import describe
 from stancal.reporting.html import write_html
 from stancal.results.vector_result import VectorCalibrationResult
 
@@ -94,6 +95,20 @@ def fidelity_lines(emulator: dict) -> list[str]:
             *([f"- **warning**: {emulator['warning']}"] if emulator.get("warning") else [])]
 
 
+def replicated_run_lines(emulator: dict) -> list[str]:
+    """The simulator's replicated runs, and a stochastic simulator's
+    intrinsic sd (stancal.fitting.run_variance; docs/noise.md)."""
+    runs = emulator.get("replicated_runs")
+    if not runs or not runs["replicated_settings"]:
+        return []
+    lines = ["", "## Replicated simulator runs", "", f"- {describe(runs)} (output units)"]
+    if runs["stochastic"]:
+        low, high = runs["intrinsic_sd_range"]
+        lines.append(f"- stochastic simulator: the emulator of its mean carries its own sd, {low:.3g} to {high:.3g} "
+                     f"at the replicated settings ({runs['intrinsic_variance_model']}), on the runs only")
+    return lines
+
+
 def noise_lines(noise: dict, table) -> list[str]:
     """The noise model, each source's sd and nu (docs/noise.md), and the rows
     a Student-t fit treats as outliers, by its stated rule."""
@@ -142,6 +157,7 @@ def _report(summary: dict, table, plots: list[Path]) -> str:
         lines += ["", "## Before sampling: theta against the model's own terms", "",
                   *(f"- {c['message']}" for c in summary["confounding"])]
     lines += fidelity_lines(summary.get("emulator", {}))
+    lines += replicated_run_lines(summary.get("emulator", {}))
     if "noise" in summary:
         lines += ["", "## Measurement noise", "", *noise_lines(summary["noise"], table)]
     if "censoring" in summary:

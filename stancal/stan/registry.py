@@ -57,6 +57,7 @@ class Program:
     scalable_version: str | None = None  # takes over above the exact programs' size limit
     data: tuple[Callable[..., dict[str, Any]], ...] = ()  # Stan data parts, merged in order
     samples_emulator: bool = False  # the emulator's hyperparameters are sampled with theta
+    stochastic_runs: bool = False  # its emulator carries a stochastic simulator's intrinsic variance
     commands: frozenset[str] = frozenset()
     helper: bool = False  # a stage-1 program, not a calibration
 
@@ -93,7 +94,7 @@ PROGRAMS: dict[str, Program] = {program.name: program for program in (
             stage_one=STAGE_ONE_GP, stage_one_fidelities=STAGE_ONE_FIDELITY, latent_version="koh_latent_emulator",
             scalable_version="modular_hsgp",
             data=(*_GAUSSIAN, sd.noise_model, sd.emulator_points, sd.fidelity_emulator),
-            commands=_SCALAR | {L2, DESIGN}, **_NOISY),
+            commands=_SCALAR | {L2, DESIGN}, stochastic_runs=True, **_NOISY),
     Program("koh_latent", "koh_latent.stan",
             "KOH with latent GPs: counts, binomial, censored outputs, functional theta", simulator=True,
             latent=True, estimate_rho=False, data=(*_LATENT, sd.simulator_points, sd.partial_centring),
@@ -108,7 +109,7 @@ PROGRAMS: dict[str, Program] = {program.name: program for program in (
     Program("modular_hsgp", "modular_hsgp.stan",
             "modular for thousands of runs and points: precomputed-weight emulator, Hilbert-space GP discrepancy",
             runs=True, stage_one=STAGE_ONE_SCALABLE, approximation="hsgp",
-            data=(*_GAUSSIAN, sd.hsgp_discrepancy, sd.scalable_emulator), commands=_SCALAR),
+            data=(*_GAUSSIAN, sd.hsgp_discrepancy, sd.scalable_emulator), commands=_SCALAR, stochastic_runs=True),
     Program("koh_vector", "koh_vector.stan",
             "KOH for a vector output with a cheap Stan simulator, ragged experiments", output="vector",
             methods=("koh",), simulator=True, estimate_rho=False, data=(vd.simulator_at_values,),
@@ -186,6 +187,11 @@ def default_program(output: str, *, simulator: bool, fidelities: int = 1) -> Pro
     if fidelities > 1 and chosen.stage_one_fidelities is None and not simulator:
         return fidelity_programs(output)[0]
     return chosen
+
+
+def stochastic_programs(output: str) -> list[Program]:
+    """The programs of an output kind whose emulator takes a stochastic simulator's runs."""
+    return [p for p in PROGRAMS.values() if p.output == output and p.stochastic_runs]
 
 
 def fidelity_programs(output: str) -> list[Program]:

@@ -10,6 +10,7 @@ import numpy as np
 import pandas as pd
 
 from stancal.numerics.hsgp import HALF_RANGE, HSGPBasis, first_basis
+from stancal.numerics.intrinsic_variance import IntrinsicVariance
 from stancal.numerics.parametrization import information_per_point, model_scale_values
 from stancal.numerics.quadrature import input_box_quadrature
 from stancal.numerics.scalable_emulator import ScalableEmulator
@@ -191,7 +192,10 @@ def fidelity_emulator(inputs: StanInputs) -> dict[str, Any]:
         raise ValueError("this program needs the stage-1 emulator's hyperparameters")
     data, levels = inputs.data, inputs.emulator.get("levels") or [inputs.emulator]
     runs = fidelity_run_data(data)
+    cheaper = sum(r["M"] for r in runs[:-1])  # a stochastic simulator is the calibrated one: its runs come last
     return {"M": sum(r["M"] for r in runs), "L": len(runs),
+            "run_intrinsic_sd": np.concatenate([np.zeros(cheaper),
+                                                np.sqrt(run_intrinsic_variance(data, inputs.emulator))]),
             "x_sim": np.vstack([r["x_sim"] for r in runs]),
             "theta_sim": np.vstack([r["theta_sim"] for r in runs]),
             "y_sim": np.concatenate([r["y_sim"] for r in runs]),
@@ -308,7 +312,19 @@ def scalable_emulator_data(data: CalibrationData, emulator: dict[str, Any],
 def scalable_emulator_of(data: CalibrationData, stored: dict[str, Any]) -> ScalableEmulator:
     """The stage-1 emulator of modular_hsgp that ``stored`` describes, on the data's runs."""
     runs = emulator_run_data(data)
-    return ScalableEmulator.of(runs["x_sim"], runs["theta_sim"], runs["y_sim"], stored)
+    known = run_intrinsic_variance(data, stored) if stored.get("intrinsic_variance") else None
+    return ScalableEmulator.of(runs["x_sim"], runs["theta_sim"], runs["y_sim"], stored, known)
+
+
+def run_intrinsic_variance(data: CalibrationData, stored: dict[str, Any]) -> np.ndarray:
+    """Each calibrated-simulator run's intrinsic variance, standardised
+    units, from stage 1's surface (stancal.numerics.intrinsic_variance);
+    zeros for a deterministic simulator (no surface stored)."""
+    runs = emulator_run_data(data)
+    if not stored.get("intrinsic_variance"):
+        return np.zeros(runs["M"])
+    surface = IntrinsicVariance.from_json(stored["intrinsic_variance"])
+    return surface.at(np.hstack([runs["x_sim"], runs["theta_sim"]]))
 
 
 def restricted_gp_data(data: CalibrationData, options: ModelOptions) -> dict[str, Any]:
@@ -348,7 +364,8 @@ def fidelity_run_data(data: CalibrationData) -> list[dict[str, Any]]:
 def build_emulator_data(data: CalibrationData, options: ModelOptions) -> dict[str, Any]:
     """Data of emulator.stan (stage 1 of modular calibration)."""
     return {**emulator_run_data(data), "D": len(data.inputs), "Q": len(data.parameters),
-            "y_scale": data.scaling.y_scale, "kernel_id": options.kernel_id, "prior_only": 0}
+            "y_scale": data.scaling.y_scale, "kernel_id": options.kernel_id, "prior_only": 0,
+            "run_intrinsic_sd": np.zeros(len(data.runs))}  # stage 1 sets a stochastic simulator's
 
 
 def to_stan_json(stan_data: dict[str, Any]) -> dict[str, Any]:

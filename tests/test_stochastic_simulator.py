@@ -1,0 +1,306 @@
+"""Stochastic simulators (issue 33, item 3): replicated runs found and
+reported, the emulator of the simulator's mean with each run's intrinsic
+variance on its diagonal (stochastic kriging, Ankenman, Nelson & Staum
+2010), modular.stan against a numpy reference, and the stochastic_cooling
+case study (a known truth) against the deterministic emulator."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import assert_healthy, case_study_module, fit, no_stancal_warnings
+from scipy import stats
+
+import stancal
+from stancal.fitting.plan import model_options, plan_scalar
+from stancal.fitting.run_variance import intrinsic_variance
+from stancal.numerics.intrinsic_variance import IntrinsicVariance, log_variance_moments
+from stancal.numerics.kernels import ard_cross_cov
+from stancal.problem.config import load_config
+from stancal.problem.run_replicates import RunReplicates
+from stancal.reporting.report import replicated_run_lines
+from stancal.stan.standata import build_stan_data, run_intrinsic_variance, to_stan_json
+
+CASE = Path(__file__).parents[1] / "case_studies" / "stochastic_cooling"
+
+
+@pytest.fixture(scope="module")
+def case() -> stancal.CalibrationData:
+    return load_config(CASE / "config.toml").data
+
+
+def small_case(settings: int = 10, replicates: int = 3, points: int = 6) -> stancal.CalibrationData:
+    """The case study's first runs, three of each setting, and physical
+    points inside their box: a small problem for exact references."""
+    data = load_config(CASE / "config.toml").data
+    runs = data.runs.iloc[: 5 * settings].groupby(["t", "T0", "k"], sort=False).head(replicates)
+    inside = np.logical_and.reduce([data.physical[c].between(runs[c].min(), runs[c].max()) for c in ("t", "T0")])
+    physical = data.physical[inside].iloc[:points].reset_index(drop=True)
+    assert len(physical) == points
+    return stancal.CalibrationData(physical, ["t", "T0"], "temperature", {"k": (0.02, 0.1)},
+                                   runs=runs.reset_index(drop=True))
+
+
+def test_replicated_runs_are_grouped_and_pooled():
+    settings = np.array([[0, 1], [0, 1], [0, 1], [2, 3], [4, 5], [4, 5]], float)
+    y = np.array([1.0, 2.0, 3.0, 7.0, 4.0, 6.0])
+    replicates = RunReplicates.of(settings, y)
+    assert replicates.counts.tolist() == [3, 1, 2]
+    np.testing.assert_allclose(replicates.means, [2.0, 7.0, 5.0])
+    np.testing.assert_allclose(replicates.variances[[0, 2]], [1.0, 2.0])
+    # pooled: (2 * 1 + 1 * 2) / (2 + 1)
+    summary = replicates.summary(scale=10.0)
+    assert summary == {"runs": 6, "settings": 3, "replicated_settings": 2, "runs_per_replicated_setting": [2, 2.5, 3],
+                       "pooled_within_replicate_sd": pytest.approx(10 * np.sqrt(4 / 3))}
+
+
+def test_stage_one_reports_the_case_studys_replicates_and_its_intrinsic_sd(case, caplog):
+    with caplog.at_level(logging.INFO, logger="stancal"):
+        surface, summary = intrinsic_variance(case, True, seed=1)
+    assert summary["runs"] == 300 and summary["settings"] == 60 and summary["replicated_settings"] == 60
+    assert summary["runs_per_replicated_setting"] == [5, 5.0, 5]
+    # the true sd, 0.2 10^(t / 60), averages about 0.9 deg C in quadrature over t in [0, 64]
+    assert 0.75 < summary["pooled_within_replicate_sd"] < 1.3
+    assert "60 of 60 run settings (inputs and theta) are replicated" in caplog.text
+    # the surface rises with t, as the truth does tenfold over [0, 60] min
+    early, late = (np.sqrt(surface.at(np.array([[t, 0.5, 0.5]]))[0]) * case.scaling.y_scale for t in (0.05, 0.85))
+    assert late > 2.5 * early
+
+
+def test_log_variance_bias_and_spread_are_those_of_normal_samples():
+    """log_variance_moments against simulation: the log sample variance of n normal draws."""
+    rng = np.random.default_rng(0)
+    for n in (2, 5, 20):
+        logs = np.log(rng.normal(size=(200_000, n)).var(axis=1, ddof=1))
+        bias, variance = log_variance_moments(np.array([n]))
+        # Monte Carlo se of the mean: sd / sqrt(200,000) < 0.005
+        assert abs(logs.mean() - bias[0]) < 0.02 and abs(logs.var() / variance[0] - 1) < 0.02
+
+
+def test_a_deterministic_simulators_disagreeing_replicates_are_warned_about(case, caplog):
+    with caplog.at_level(logging.WARNING, logger="stancal"):
+        surface, summary = intrinsic_variance(case, False, seed=1)
+    assert surface is None and summary["stochastic"] is False
+    assert "if the simulator is stochastic, set stochastic = true" in caplog.text
+
+
+def stochastic_kriging(settings, means, counts, intrinsic, xt_new, mean, sd, length, run_variance):
+    """Ankenman, Nelson & Staum (2010), eq. (5) and (6), on the settings'
+    averages: the mean and MSE of the simulator's mean at xt_new, with
+    Sigma_eps = diag((run_variance + V_i) / n_i), squared exponential kernel;
+    run_variance: what every run has besides (the nugget, the jitter)."""
+    k_settings = ard_cross_cov(settings, settings, 1, sd, length) + np.diag((run_variance + intrinsic) / counts)
+    k_new = ard_cross_cov(xt_new, settings, 1, sd, length)
+    prediction = mean + k_new @ np.linalg.solve(k_settings, means - mean)
+    mse = ard_cross_cov(xt_new, xt_new, 1, sd, length) - k_new @ np.linalg.solve(k_settings, k_new.T)
+    return prediction, mse
+
+
+def unit_settings(data: stancal.CalibrationData) -> np.ndarray:
+    return np.hstack([data.scaling.to_unit(data.runs, data.inputs), data.scaling.to_unit(data.runs, data.theta_names)])
+
+
+@pytest.fixture(scope="module")
+def small():
+    """A small case, its replicates, a fitted intrinsic variance surface and fixed hyperparameters."""
+    data = small_case()
+    replicates = RunReplicates.of(unit_settings(data), data.scaling.standardise(data.runs["temperature"].to_numpy()))
+    surface = IntrinsicVariance(0.01, replicates.settings, 0.0, 1.0, np.linspace(-1, 1, len(replicates.counts)),
+                                stancal.numerics.scalable_emulator.Hyperparameters(0.0, 1.0, np.full(3, 0.6), 0.0))
+    hyper = {"emulator_mean": 0.3, "emulator_sd": 1.2, "emulator_length_scale": [0.5, 0.9, 0.7],
+             "emulator_nugget": 0.02, "intrinsic_variance": surface.to_json()}
+    return data, replicates, surface, hyper
+
+
+def test_the_emulator_mean_is_stochastic_krigings_on_the_averages(small):
+    """Each run with its intrinsic variance on the diagonal (stancal) and each
+    setting's average with the variance / n (Ankenman et al.) give one predictor."""
+    from stancal.fitting.stage_one import emulator_mean_function
+
+    data, replicates, surface, hyper = small
+    assert (replicates.counts == 3).all() and len(replicates.counts) == 10 and not np.allclose(surface.at(replicates.settings), surface.pooled)
+    points = data.physical[["t", "T0"]]
+    theta_unit = np.array([[0.3], [0.6]])
+    ours = data.scaling.standardise(emulator_mean_function(data, hyper, 1)(points, theta_unit))
+    for row, theta in zip(ours, theta_unit, strict=True):
+        xt = np.hstack([data.scaling.to_unit(points, data.inputs), np.full((len(points), 1), theta)])
+        reference, _ = stochastic_kriging(replicates.settings, replicates.means, replicates.counts,
+                                          surface.at(replicates.settings), xt, 0.3, 1.2, np.array([0.5, 0.9, 0.7]),
+                                          0.02**2)
+        np.testing.assert_allclose(row, reference, rtol=1e-8, atol=1e-8)
+
+
+def test_modular_stan_density_is_stochastic_krigings(small):
+    """modular.stan's log density at several theta against a numpy reference
+    built on the settings' averages: y ~ N(m(theta), MSE(theta) + nugget^2 S +
+    sigma^2 I), S_ij = 1 where x_i = x_j: the intrinsic variance on the runs
+    only, the nugget (the emulator's misfit, one value at one point) at the
+    physical points too; to 1e-8, up to a constant."""
+    from stancal.stan.backends import get_backend
+
+    data, replicates, surface, hyper = small
+    plan = plan_scalar(data, None, "modular", model_options(discrepancy="none", stochastic=True))
+    stan_data = build_stan_data(data, plan.program.data, plan.options, data.physical[["t", "T0"]].iloc[:2],
+                                emulator_hyperparameters=hyper)
+    np.testing.assert_allclose(np.square(stan_data["run_intrinsic_sd"]), run_intrinsic_variance(data, hyper))
+    _, log_density = get_backend().log_density_functions(plan.main_program(), to_stan_json(stan_data))
+    sigma = 0.05  # the noise sd, standardised
+    jitter = 1e-6 * 1.2**2  # functions/gp_kernels.stan's add_jitter: on the runs and on the points
+    y = stan_data["y"]
+    x = data.scaling.to_unit(data.physical, data.inputs)
+    same = (x[:, None, :] == x[None, :, :]).all(axis=2)
+    assert same.sum() > len(x)  # two readings at one point share the emulator's misfit
+    stan, reference = [], []
+    for theta in (0.2, 0.45, 0.7, 0.9):
+        stan.append(log_density(np.array([[np.log(theta / (1 - theta)), np.log(sigma)]]))[0]
+                    - np.log(theta * (1 - theta)))  # without the Jacobian of theta_unit
+        mean, mse = stochastic_kriging(replicates.settings, replicates.means, replicates.counts,
+                                       surface.at(replicates.settings), np.hstack([x, np.full((len(x), 1), theta)]),
+                                       0.3, 1.2, np.array([0.5, 0.9, 0.7]), 0.02**2 + jitter)
+        covariance = mse + 0.02**2 * same + (sigma**2 + jitter) * np.eye(len(y))
+        reference.append(stats.multivariate_normal(mean, covariance).logpdf(y))
+    np.testing.assert_allclose(np.diff(stan), np.diff(reference), rtol=1e-8, atol=1e-8)
+
+
+@pytest.mark.parametrize(("keywords", "match"), [
+    ({"simulator": "case_studies/cooling/simulator.stan"}, "a Stan simulator is a deterministic function"),
+    ({"method": "koh_emulator"}, "stochastic = true runs on the programs modular, modular_hsgp"),
+])
+def test_stochastic_refuses_what_it_cannot_run(case, keywords, match):
+    with pytest.raises(ValueError, match=match):
+        plan_scalar(case, keywords.get("simulator"), keywords.get("method"), model_options(stochastic=True))
+
+
+def test_stochastic_needs_replicated_runs(case):
+    distinct = case.runs.drop_duplicates(["t", "T0", "k"])
+    data = stancal.CalibrationData(case.physical, ["t", "T0"], "temperature", {"k": (0.02, 0.1)}, runs=distinct)
+    with pytest.raises(ValueError, match="needs replicated runs"):
+        plan_scalar(data, None, None, model_options(stochastic=True))
+
+
+def test_stochastic_chooses_modular_by_default(case):
+    assert plan_scalar(case, None, None, model_options(stochastic=True)).program.name == "modular"
+
+
+def test_the_config_key_reaches_the_model_options():
+    assert load_config(CASE / "config.toml").model["stochastic"] is True
+
+
+def test_the_deterministic_emulator_takes_the_simulators_noise_for_its_misfit(case):
+    """Stage 1 alone: the deterministic emulator's nugget is the runs' pooled
+    scatter (about 1 deg C), carried to the physical points as misfit; the
+    stochastic emulator's nugget, with the scatter on the runs' diagonal, is a
+    tenth of it or less."""
+    from stancal.fitting.stage_one import run_stage_one
+    from stancal.stan.backends import get_backend
+
+    nuggets = {}
+    for stochastic in (False, True):
+        plan = plan_scalar(case, None, "modular", model_options(stochastic=stochastic))
+        emulator = run_stage_one(plan.stage_one, case, plan.options, plan.stan_programs(), backend=get_backend(),
+                                 seed=1)
+        nuggets[stochastic] = emulator["hyperparameters"]["emulator_nugget"] * case.scaling.y_scale
+    assert 0.7 < nuggets[False] < 1.5
+    assert nuggets[True] < 0.1 * nuggets[False]
+
+
+def test_the_stochastic_fit_recovers_k_and_the_measurement_sd(case, tmp_path):
+    """A small fit of the case study (truth k = 0.05 1/min, measurement sd
+    0.1 deg C): k's 90 % interval holds the truth and is narrow (0.0018
+    at 2 x (800 + 800); the deterministic emulator's 0.0053: docs/noise.md),
+    the noise sd is the measurement's; the summary and the report state the
+    replicated runs."""
+    make_data = case_study_module(CASE)
+    with no_stancal_warnings():
+        result = fit(case, method="modular", discrepancy="none", stochastic=True)
+    assert_healthy(result)
+    k = np.asarray(result.idata["posterior"]["theta"]).ravel()
+    low, high = np.quantile(k, [0.05, 0.95])
+    assert low <= make_data.K_TRUE <= high and high - low < 0.004
+    noise = np.asarray(result.idata["posterior"]["noise_sd"]).ravel()  # original units
+    assert np.quantile(noise, 0.05) < make_data.MEASUREMENT_SD < np.quantile(noise, 0.95)
+    assert result.emulator["replicated_runs"]["replicated_settings"] == 60
+    summary = result.to_summary_json()  # report.md's lines from summary.json's entry (a whole report takes minutes)
+    assert summary["emulator"]["replicated_runs"]["runs_per_replicated_setting"] == [5, 5.0, 5]
+    report = "\n".join(replicated_run_lines(summary["emulator"]))
+    assert "## Replicated simulator runs" in report and "60 of 60 run settings" in report
+    assert "stochastic simulator: the emulator of its mean carries its own sd" in report
+    # saved and loaded, the fit keeps its option and its intrinsic variance surface
+    loaded = stancal.CalibrationResult.load(result.save(tmp_path / "fit.nc"))
+    assert loaded.options.stochastic
+    np.testing.assert_allclose(run_intrinsic_variance(case, loaded.emulator["hyperparameters"]),
+                               run_intrinsic_variance(case, result.emulator["hyperparameters"]))
+
+
+def test_the_scalable_emulator_is_stochastic_krigings_too(small):
+    """modular_hsgp's stage 1 (stancal.numerics.scalable_emulator) with the
+    intrinsic variance: its mean and its local-GP variance at the points (all
+    runs are neighbours in this small case) are stochastic kriging's."""
+    from stancal.numerics.scalable_emulator import JITTER, ScalableEmulator, exact_mean
+    from stancal.stan.standata import emulator_run_data
+
+    data, replicates, surface, hyper = small
+    runs = emulator_run_data(data)
+    stored = {**hyper, "theta_degrees": [4]}
+    emulator = ScalableEmulator.of(runs["x_sim"], runs["theta_sim"], runs["y_sim"], stored,
+                                   run_intrinsic_variance(data, hyper))
+    x = data.scaling.to_unit(data.physical, data.inputs)
+    theta = np.array([0.4])
+    mean = 0.3 + exact_mean(x, runs["x_sim"], runs["theta_sim"], emulator.alpha, emulator.hyperparameters,
+                            theta[None, :])[:, 0]
+    reference, mse = stochastic_kriging(replicates.settings, replicates.means, replicates.counts,
+                                        surface.at(replicates.settings), np.hstack([x, np.full((len(x), 1), 0.4)]),
+                                        0.3, 1.2, np.array([0.5, 0.9, 0.7]), 0.02**2 + JITTER * 1.2**2)
+    np.testing.assert_allclose(mean, reference, rtol=1e-8, atol=1e-8)
+    np.testing.assert_allclose(emulator.variance(x, theta), np.diag(mse), rtol=1e-6, atol=1e-10)
+
+
+@pytest.mark.slow
+def test_the_scalable_path_takes_a_stochastic_simulator(case):
+    """modular_hsgp with the intrinsic variance on its precomputed-weight
+    emulator's runs: a healthy fit whose k interval holds the truth. The
+    scalable path takes the emulator's covariance at theta's least-squares
+    fit, and says so when the posterior's theta moves an observation's sd by
+    more than its tolerance: here the emulator's sd at the points (about
+    0.4 deg C) is four times the noise's, so it does; the exact path has no
+    such approximation."""
+    make_data = case_study_module(CASE)
+    with no_stancal_warnings(allow="the emulator's covariance entered the fit at theta's least-squares fit"):
+        result = fit(case, method="modular", approximation="hsgp", discrepancy="none", stochastic=True)
+    assert result.method == "modular_hsgp"
+    assert_healthy(result)
+    assert result.emulator["hyperparameters"]["intrinsic_variance"]["hyperparameters"] is not None
+    k = np.asarray(result.idata["posterior"]["theta"]).ravel()
+    assert np.quantile(k, 0.05) <= make_data.K_TRUE <= np.quantile(k, 0.95)
+
+
+@pytest.mark.slow
+def test_the_case_studys_comparison(tmp_path):
+    """compare.py at 2 x (800 + 800): both fits healthy and covering k; the
+    deterministic emulator's k interval and bands at least twice the
+    stochastic one's (measured: 2.9 and 4.7 times), its 90 % bands covering
+    more than 0.98 of the held-out readings in both halves (1.00, 1.00), the
+    stochastic one's within 0.75-0.98 (0.80, 0.90); the stochastic fit's
+    noise sd interval holds 0.1 deg C."""
+    compare = case_study_module(CASE, "compare")
+    table = compare.main(tmp_path, draws=800, chains=2).set_index("emulator")
+    assert (table["max_rhat"] <= 1.01).all() and (table["divergences"] == 0).all()
+    assert table["k_covers_truth"].all()
+    assert table.loc["deterministic", "k_width_90"] > 2 * table.loc["stochastic", "k_width_90"]
+    assert table.loc["deterministic", "band_width_quiet"] > 2 * table.loc["stochastic", "band_width_quiet"]
+    assert table.loc["stochastic", "noise_sd_q05"] < compare.MEASUREMENT_SD < table.loc["stochastic", "noise_sd_q95"]
+    halves = ["coverage_quiet", "coverage_noisy"]
+    assert (table.loc["deterministic", halves] > 0.98).all()
+    assert table.loc["stochastic", halves].between(0.75, 0.98).all()
+
+
+def test_the_gap_diagnosis_plans_with_the_stochastic_emulator(case):
+    """`stancal gap` passes [simulator] stochastic on as a calibrate option;
+    its baseline's plan (make_plan of the options' model keywords) keeps it."""
+    from stancal.fitting.plan import make_plan, model_keywords
+
+    plan = make_plan(case, None, None, None, **model_keywords({"stochastic": True, "chains": 2}, False))
+    assert plan.name == "modular" and plan.options.stochastic
