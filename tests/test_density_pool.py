@@ -1,0 +1,45 @@
+"""Moment matching's passes over the draws split between worker processes
+(stancal.diagnosing.density_pool): the same values as the model's own
+functions in this process, computed in the workers."""
+
+from __future__ import annotations
+
+import multiprocessing
+
+import numpy as np
+from conftest import ROOT
+
+from stancal.diagnosing.density_pool import DensityPool
+from stancal.diagnosing.moment_match import LOG_LIK, LOO_MEAN
+from stancal.fitting.plan import make_plan
+from stancal.problem.config import load_config
+from stancal.stan.backends import get_backend
+from stancal.stan.standata import build_stan_data, to_stan_json
+
+SHIELD = ROOT / "case_studies" / "source_shield" / "config.toml"
+
+
+def test_a_pool_gives_the_models_log_density_and_pointwise_values_from_its_workers():
+    problem = load_config(SHIELD)  # 90 counts, a latent GP: the case whose matching was slow
+    plan = make_plan(problem.data, problem.simulator)
+    program = plan.main_program()
+    stan_data = to_stan_json(build_stan_data(problem.data, plan.program.data, plan.options,
+                                             problem.data.source.iloc[:0]))
+    backend = get_backend("pystan")
+    dimension = sum(int(np.prod(shape)) for shape in backend.parameter_shapes(program, stan_data).values())
+    points = np.random.default_rng(3).uniform(-1, 1, size=(120, dimension))
+    _, log_density = backend.log_density_functions(program, stan_data)
+    here = backend.unconstrained_quantities_function(program, stan_data)(points)
+    before = {p.pid for p in multiprocessing.active_children()}
+    with DensityPool(2) as pool:
+        spread_density, spread_quantities = pool.functions("pystan", program, stan_data, (LOG_LIK, LOO_MEAN))
+        spread = spread_quantities(points)
+        np.testing.assert_allclose(spread_density(points), log_density(points), rtol=1e-12)
+        workers = {p.pid for p in multiprocessing.active_children()} - before
+    assert len(workers) == 2  # the passes ran in two processes, not here
+    for name in (LOG_LIK, LOO_MEAN):
+        assert spread[name].shape == (120, len(problem.data.physical))
+        np.testing.assert_allclose(spread[name], here[name], rtol=1e-12)
+    assert np.isfinite(spread[LOG_LIK]).mean() > 0.9  # the points are mostly inside the support: a real check
+    with DensityPool(1) as alone:  # one worker: nothing started, the caller's own functions serve
+        assert alone.functions("pystan", program, stan_data, (LOG_LIK,)) is None
