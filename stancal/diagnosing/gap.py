@@ -300,9 +300,11 @@ def diagnose_gap(
     runs first, with half its warm-up; off by default, as on the cooling
     case it saved no wall time on two cores (docs/benchmarks.md). Unless ``every_candidate`` or ``kfold``,
     or the comparison falls back to K-fold (too many unreliable points), a
-    candidate that cannot lead whatever its unreliable points' held-out
-    densities turn out to be keeps its PSIS scores, unrefitted
-    (scoring.settled; its scheme says so). ``moment_matching``: before any
+    fit whose refits cannot change the answer whatever its unreliable
+    points' held-out densities turn out to be keeps its PSIS scores,
+    unrefitted (scoring.settled; its scheme says so): a candidate that
+    cannot lead; the leader and the baseline, when the leader is certain
+    and its verdict (credible or not) holds at every end of the bounds. ``moment_matching``: before any
     refit, PSIS-LOO with moment matching (Paananen et al. 2021;
     stancal.diagnosing.moment_match) at each fit's points with Pareto k
     above 0.7 (scalar outputs); only the points it leaves above 0.7 are
@@ -483,8 +485,8 @@ def comparison_scheme(labels: list, scores: list[Score], kfold: int | None,
     if chosen is not None:
         skipped = set()
     for i in sorted(skipped):
-        logger.info("%s cannot lead whatever its %d unreliable points score: its refits are skipped",
-                    label_name(labels[i]), scores[i].unreliable.size)
+        logger.info("%s: whatever its %d unreliable points score, the leader and its verdict stay: "
+                    "its refits are skipped", label_name(labels[i]), scores[i].unreliable.size)
         scores[i] = replace(scores[i], scheme=f"{scores[i].scheme} (settled: refits skipped)")
     return scores, skipped, chosen
 
