@@ -43,3 +43,23 @@ def test_a_pool_gives_the_models_log_density_and_pointwise_values_from_its_worke
     assert np.isfinite(spread[LOG_LIK]).mean() > 0.9  # the points are mostly inside the support: a real check
     with DensityPool(1) as alone:  # one worker: nothing started, the caller's own functions serve
         assert alone.functions("pystan", program, stan_data, (LOG_LIK,)) is None
+
+
+def test_a_script_without_a_main_guard_is_not_run_again_by_the_workers(tmp_path):
+    """Spawned workers would run the user's script again to find its
+    functions (as __mp_main__): a script that calls the gap diagnosis with no
+    ``if __name__ == "__main__"`` guard would diagnose again in each worker.
+    The pool starts its workers at once, with the script out of sight."""
+    import subprocess
+    import sys
+
+    script = tmp_path / "no_guard.py"
+    script.write_text("from stancal.diagnosing.density_pool import DensityPool\n"
+                      "print('script ran', flush=True)\n"
+                      "import multiprocessing\n"
+                      "with DensityPool(2):\n"
+                      "    print('workers', len(multiprocessing.active_children()), flush=True)\n")
+    done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=120,
+                          cwd=tmp_path, env={**__import__("os").environ, "PYTHONPATH": str(ROOT)})
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.splitlines() == ["script ran", "workers 2"]  # once: not again in the 2 workers

@@ -19,8 +19,10 @@ from __future__ import annotations
 
 import multiprocessing
 import os
-from collections.abc import Callable
-from concurrent.futures import ProcessPoolExecutor
+import sys
+from collections.abc import Callable, Iterator
+from concurrent.futures import ProcessPoolExecutor, wait
+from contextlib import contextmanager
 from typing import Any
 
 import numpy as np
@@ -61,6 +63,23 @@ def default_workers() -> int:
     return os.cpu_count() or 1
 
 
+@contextmanager
+def _main_hidden() -> Iterator[None]:
+    """The command's __main__ without a file or module name while workers
+    start: a spawned process runs the parent's main script again (as
+    __mp_main__) to find its functions, and a user's script without an
+    ``if __name__ == "__main__"`` guard would then run its gap diagnosis
+    again in every worker. The workers need only this module's functions."""
+    main = sys.modules["__main__"]
+    saved = {name: main.__dict__.pop(name) for name in ("__file__", "__spec__") if name in main.__dict__}
+    main.__spec__ = None
+    try:
+        yield
+    finally:
+        main.__dict__.pop("__spec__", None)
+        main.__dict__.update(saved)
+
+
 class DensityPool:
     """Worker processes that evaluate fits' log densities and pointwise
     values at many draws, split between them (spawned: a fork would copy the
@@ -75,6 +94,8 @@ class DensityPool:
     def __enter__(self) -> DensityPool:
         if self.workers > 1:
             self._pool = ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("spawn"))
+            with _main_hidden():  # every worker starts now, while the user's script is out of sight
+                list(wait([self._pool.submit(os.getpid) for _ in range(self.workers)]).done)
         return self
 
     def __exit__(self, *exc: object) -> None:
