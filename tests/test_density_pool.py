@@ -45,21 +45,57 @@ def test_a_pool_gives_the_models_log_density_and_pointwise_values_from_its_worke
         assert alone.functions("pystan", program, stan_data, (LOG_LIK,)) is None
 
 
-def test_a_script_without_a_main_guard_is_not_run_again_by_the_workers(tmp_path):
+def test_a_script_without_a_main_guard_is_not_run_again_and_its_workers_end_with_it(tmp_path):
     """Spawned workers would run the user's script again to find its
     functions (as __mp_main__): a script that calls the gap diagnosis with no
     ``if __name__ == "__main__"`` guard would diagnose again in each worker.
-    The pool starts its workers at once, with the script out of sight."""
+    The pool starts its workers at once, with the script out of sight; and
+    when the command is killed, its workers end within seconds."""
+    import os
+    import signal
     import subprocess
     import sys
+    import time
 
     script = tmp_path / "no_guard.py"
-    script.write_text("from stancal.diagnosing.density_pool import DensityPool\n"
+    script.write_text("import multiprocessing, time\n"
+                      "from stancal.diagnosing.density_pool import DensityPool\n"
                       "print('script ran', flush=True)\n"
-                      "import multiprocessing\n"
                       "with DensityPool(2):\n"
-                      "    print('workers', len(multiprocessing.active_children()), flush=True)\n")
-    done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=120,
-                          cwd=tmp_path, env={**__import__("os").environ, "PYTHONPATH": str(ROOT)})
-    assert done.returncode == 0, done.stderr
-    assert done.stdout.splitlines() == ["script ran", "workers 2"]  # once: not again in the 2 workers
+                      "    print(*(p.pid for p in multiprocessing.active_children()), flush=True)\n"
+                      "    time.sleep(120)\n")
+    said = tmp_path / "said.txt"  # a file, not a pipe: a worker left running would hold a pipe open
+
+    def lines(count: int) -> list[str]:
+        deadline = time.monotonic() + 120
+        while len(said.read_text().splitlines()) < count and time.monotonic() < deadline:
+            time.sleep(0.2)
+        return said.read_text().splitlines()
+
+    with said.open("w") as out:
+        command = subprocess.Popen([sys.executable, str(script)], stdout=out, cwd=tmp_path,
+                                   env={**os.environ, "PYTHONPATH": str(ROOT)})
+    try:
+        first, pids = lines(2)[:2]
+        workers = [int(pid) for pid in pids.split()]
+        assert first == "script ran" and len(workers) == 2
+    finally:
+        command.send_signal(signal.SIGKILL)  # no clean-up runs: the workers must see it themselves
+        command.wait()
+    assert said.read_text().count("script ran") == 1  # not again in the 2 workers
+    deadline = time.monotonic() + 10
+    while any(alive(pid) for pid in workers) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    left = [pid for pid in workers if alive(pid)]
+    for pid in left:  # a failing run leaves nothing behind either
+        os.kill(pid, signal.SIGKILL)
+    assert not left
+
+
+def alive(pid: int) -> bool:
+    """The process runs (a zombie, ended but not yet reaped by init, counts as ended)."""
+    try:
+        with open(f"/proc/{pid}/stat") as stat:
+            return stat.read().split(")")[-1].split()[0] != "Z"
+    except FileNotFoundError:
+        return False
