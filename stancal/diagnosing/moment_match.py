@@ -241,6 +241,8 @@ def relative_efficiency(result) -> float:
     """The draws' relative efficiency as arviz-stats's loo takes it (the
     mean ESS over the posterior's variables, per draw), so that Pareto k
     here is the k psis_score reported."""
+    import arviz_stats  # noqa: F401  (registers the azstats accessor: match_fit may run before any loo)
+
     posterior = result.idata["posterior"].to_dataset()
     draws = posterior.sizes["chain"] * posterior.sizes["draw"]
     if posterior.sizes["chain"] == 1:
