@@ -62,6 +62,7 @@ def arguments() -> argparse.Namespace:
                         help="candidates' fits from Stan's inits (cold) or from the baseline's (warm)")
     parser.add_argument("--no-moment-matching", action="store_true", help="refit every high Pareto k point")
     parser.add_argument("--json", type=Path, default=None)
+    parser.add_argument("--out", type=Path, default=None, help="write each diagnosis's fits under OUT/cold, OUT/warm")
     return parser.parse_args()
 
 
@@ -127,6 +128,7 @@ def main() -> None:
         started = time.perf_counter()
         gap = diagnose_gap(problem.data, problem.candidates, simulator=problem.simulator, seed=args.seed,
                            warm_candidates=kind == "warm", moment_matching=not args.no_moment_matching,
+                           out_dir=None if args.out is None else args.out / kind,
                            **sampling)
         runs[kind] = figures = {"sampling": sampling, "candidates_start": kind,
                                 "moment_matching_on": not args.no_moment_matching,

@@ -176,6 +176,26 @@ def test_settled_needs_many_ses():
         assert (12.0 > SETTLED_SES * se) == bool(expected)
 
 
+def test_the_leader_and_the_baseline_are_settled_when_neither_can_change_the_answer():
+    """The leader's and the baseline's refits are skipped when no candidate
+    can overtake the leader and its gain over the baseline is credible at
+    every end of both fits' bounds (the baseline's refits move every
+    difference alike, so they never change the ranking); refitted when that
+    verdict could flip, or when another candidate could lead."""
+    rng = np.random.default_rng(3)
+    noise = rng.normal(0, 0.1, 40)
+    leader = score(-1.0 + noise, [5], -1.6, -0.9)  # worst case: 39 x -1 - 1.6
+    far = score(-3.0 + noise, [7, 8], -9.0, -1.0)  # best case: 38 x -3 - 2: cannot lead
+    credible = score(-1.5 + rng.normal(0, 0.1, 40), [3, 4], -3.0, -1.2)  # 20 below at the worst ends
+    assert settled([credible, leader, far]) == [0, 1, 2]
+    doubtful = score(-1.02 + rng.normal(0, 0.1, 40), [3], -9.0, -1.0)  # the gain is 1 +- 0.9: the bounds decide
+    assert settled([doubtful, leader, far]) == [2]
+    close = score(-1.05 + noise, [9], -9.0, 1.0)  # its best case, -39.95, beats the leader's worst: it could lead
+    assert settled([credible, leader, far, close]) == [2]
+    reliable = score(-1.5 + noise, [], 0, 0)  # nothing to refit in the baseline: only the leader is skipped
+    assert settled([reliable, leader, far]) == [1, 2]
+
+
 def test_a_fallback_to_kfold_refits_the_settled_candidates_too():
     """Settled candidates keep PSIS-LOO scores only while the others are
     PSIS-LOO as well: when too many unreliable points send the comparison to
@@ -188,15 +208,16 @@ def test_a_fallback_to_kfold_refits_the_settled_candidates_too():
     labels = [None, *(stancal.Candidate(name, formula=f"~ {name}") for name in ("near", "far"))]
     far = score(-3.0 + noise, [7, 8], -9.0, -1.0)  # settled beside the leader, as in the test above
     leader = score(-1.0 + noise, [5], -4.0, -0.5)
-    assert settled([score(-2.0 + noise, [3], -9.0, -1.0), leader, far]) == [2]
-    many = score(-2.0 + noise, list(range(FALLBACK_FOLDS + 1)), -9.0, -1.0)  # the baseline: K-fold
+    # a baseline as good as the leader: whether the leader's gain is credible hangs on the refits
+    base = score(-1.0 + noise, [3], -9.0, -1.0)
+    assert settled([base, leader, far]) == [2]
+    many = score(-1.0 + noise, list(range(FALLBACK_FOLDS + 1)), -9.0, -1.0)  # the baseline, unsettled: K-fold
     with pytest.warns(GapWarning, match=f"every fit is compared by {FALLBACK_FOLDS}-fold"):
         scores, skipped, kfold = comparison_scheme(labels, [many, leader, far], None, every=False)
     assert kfold == FALLBACK_FOLDS and skipped == set() and all(s.scheme == "psis-loo" for s in scores)
     # without the fallback the settled candidate's refits are skipped, and its score says so
     with pytest.warns(GapWarning, match="scored by an exact refit"):
-        scores, skipped, kfold = comparison_scheme(labels, [score(-2.0 + noise, [3], -9.0, -1.0), leader, far],
-                                                   None, every=False)
+        scores, skipped, kfold = comparison_scheme(labels, [base, leader, far], None, every=False)
     assert kfold is None and skipped == {2} and scores[2].scheme.endswith("(settled: refits skipped)")
 
 

@@ -47,6 +47,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from stancal.diagnosing.density_pool import DensityPool
 from stancal.diagnosing.gap_location import GapLocation, interval, locate_gap
 from stancal.diagnosing.moment_match import match_fit
 from stancal.diagnosing.scoring import (
@@ -275,6 +276,7 @@ def diagnose_gap(
     warm_candidates: bool = False,
     every_candidate: bool = False,
     moment_matching: bool = True,
+    matching_workers: int | None = None,
     **calibrate_options: Any,
 ) -> GapAnalysis:
     """Fit the baseline (KOH with a GP discrepancy over the inputs and
@@ -296,15 +298,20 @@ def diagnose_gap(
     (stancal.fitting.warm_start). ``warm_candidates``: so does each
     candidate's fit (a scalar output's), from the baseline's, which then
     runs first, with half its warm-up; off by default, as on the cooling
-    case it saved no wall time on two cores (docs/benchmarks.md). Unless ``every_candidate`` or ``kfold``,
+    case it saved no wall time on two cores, nor on the counts case (943 s
+    of fits against 524 s cold: docs/benchmarks.md). Unless
+    ``every_candidate`` or ``kfold``,
     or the comparison falls back to K-fold (too many unreliable points), a
-    candidate that cannot lead whatever its unreliable points' held-out
-    densities turn out to be keeps its PSIS scores, unrefitted
-    (scoring.settled; its scheme says so). ``moment_matching``: before any
+    fit whose refits cannot change the answer whatever its unreliable
+    points' held-out densities turn out to be keeps its PSIS scores,
+    unrefitted (scoring.settled; its scheme says so): a candidate that
+    cannot lead; the leader and the baseline, when the leader is certain
+    and its verdict (credible or not) holds at every end of the bounds. ``moment_matching``: before any
     refit, PSIS-LOO with moment matching (Paananen et al. 2021;
     stancal.diagnosing.moment_match) at each fit's points with Pareto k
     above 0.7 (scalar outputs); only the points it leaves above 0.7 are
-    refitted.
+    refitted. ``matching_workers``: the processes its passes over the draws
+    are split between (None: the machine's cores; 1: this process alone).
     """
     SamplerOptions.from_keywords({**calibrate_options, "seed": seed})  # before anything is planned or compiled
     vector = isinstance(data, VectorCalibrationData)
@@ -361,7 +368,7 @@ def diagnose_gap(
         clock.lap("fits")
         scores = [psis_score(r) for r in fits]
         if moment_matching and kfold is None and not vector:  # K-fold refits every point; vectors: not yet
-            scores = _moment_matched(labels, fits, scores)
+            scores = _moment_matched(labels, fits, scores, matching_workers)
             clock.lap("moment matching")
         scores, skipped, kfold = comparison_scheme(labels, scores, kfold, every_candidate)
         tests = [[] if i in skipped else kfold_tests(len(data_for(c).physical), kfold, seed) if kfold is not None
@@ -419,7 +426,7 @@ def _without_failures(labels: list, fits: list, failed: list[FitFailure]) -> tup
                      strict=True))
 
 
-def _moment_matched(labels: list, fits: list, scores: list[Score]) -> list[Score]:
+def _moment_matched(labels: list, fits: list, scores: list[Score], workers: int | None) -> list[Score]:
     """Each fit's observations with Pareto k above 0.7 moment-matched
     (Paananen et al. 2021; stancal.diagnosing.moment_match) before any
     refit: an observation whose k it brings to 0.7 or below keeps its
@@ -428,21 +435,31 @@ def _moment_matched(labels: list, fits: list, scores: list[Score]) -> list[Score
     a Dask worker's thread, crashed workers (pystan_backend.start_error).
     Where it cannot run (PyStan outside the main thread; the cmdstanpy
     backend has no unconstrained log density: each backend says why) every
-    such point is refitted, as before."""
+    such point is refitted, as before. Each pass over a fit's draws is split
+    between ``workers`` processes (None: the machine's cores;
+    stancal.diagnosing.density_pool): the fits are done by then, so the
+    cores are free."""
     scores = list(scores)
-    for i, (label, fit, score) in enumerate(zip(labels, fits, scores, strict=True)):
-        if not score.unreliable.size:
-            continue
-        try:
-            matched = match_fit(fit, score.unreliable.tolist())
-        except NotImplementedError as reason:
-            logger.info("%s: no moment matching (%s): its high Pareto k points are refitted",
-                        label_name(label), reason)
-            continue
-        scores[i] = moment_matched(score, matched)
-        logger.info("%s: moment matching scored %d of %d points with Pareto k above %g", label_name(label),
-                    len(scored(matched)), len(matched), PARETO_K_LIMIT)
+    if not any(score.unreliable.size for score in scores):
+        return scores  # no worker processes started for nothing
+    with DensityPool(workers) as pool:
+        for i, (label, fit, score) in enumerate(zip(labels, fits, scores, strict=True)):
+            if score.unreliable.size:
+                scores[i] = _matched_score(label, fit, score, pool)
     return scores
+
+
+def _matched_score(label: Candidate | None, fit, score: Score, pool: DensityPool) -> Score:
+    """One fit's score with its high Pareto k points moment-matched, where its backend can."""
+    try:
+        matched = match_fit(fit, score.unreliable.tolist(), pool=pool)
+    except NotImplementedError as reason:
+        logger.info("%s: no moment matching (%s): its high Pareto k points are refitted",
+                    label_name(label), reason)
+        return score
+    logger.info("%s: moment matching scored %d of %d points with Pareto k above %g", label_name(label),
+                len(scored(matched)), len(matched), PARETO_K_LIMIT)
+    return moment_matched(score, matched)
 
 
 def _warm(fit: CalibrationResult, test: np.ndarray, calibrate_options: dict[str, Any], seed: int) -> dict[str, Any]:
@@ -470,8 +487,8 @@ def comparison_scheme(labels: list, scores: list[Score], kfold: int | None,
     if chosen is not None:
         skipped = set()
     for i in sorted(skipped):
-        logger.info("%s cannot lead whatever its %d unreliable points score: its refits are skipped",
-                    label_name(labels[i]), scores[i].unreliable.size)
+        logger.info("%s: whatever its %d unreliable points score, the leader and its verdict stay: "
+                    "its refits are skipped", label_name(labels[i]), scores[i].unreliable.size)
         scores[i] = replace(scores[i], scheme=f"{scores[i].scheme} (settled: refits skipped)")
     return scores, skipped, chosen
 

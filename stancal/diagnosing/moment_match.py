@@ -39,6 +39,7 @@ from typing import Any
 import numpy as np
 from scipy.special import logsumexp
 
+from stancal.diagnosing.density_pool import DensityPool
 from stancal.stan.backends import get_backend
 from stancal.stan.standata import build_stan_data, to_stan_json
 
@@ -205,19 +206,27 @@ def match_point(i: int, upars: np.ndarray, lp: np.ndarray, log_lik: np.ndarray, 
 LOG_LIK, LOO_MEAN = "log_lik", "y_loo_mean"  # the programs' pointwise generated quantities (stan_models/*.stan)
 
 
-def fit_target(result) -> tuple[Target, np.ndarray]:
+def fit_stan_data(result) -> dict[str, Any]:
+    """The Stan data moment matching evaluates a scalar fit at: the fit's,
+    without prediction points (P = 0): the pointwise values need none, and
+    httpstan rebuilds the model from the data at every call."""
+    return to_stan_json(build_stan_data(result.data, result.row.data, result.options, result.data.source.iloc[:0],
+                                        emulator_hyperparameters=result.emulator.get("hyperparameters")))
+
+
+def fit_target(result, pool: DensityPool | None = None) -> tuple[Target, np.ndarray]:
     """A scalar fit's posterior as a Target, through its backend, and its
-    draws on the unconstrained scale (S, d), chains one after another. The
-    Stan data are the fit's without prediction points (P = 0): the pointwise
-    values need none, and httpstan rebuilds the model from the data at every
-    write_array call."""
-    stan_data = to_stan_json(build_stan_data(result.data, result.row.data, result.options,
-                                             result.data.source.iloc[:0],
-                                             emulator_hyperparameters=result.emulator.get("hyperparameters")))
+    draws on the unconstrained scale (S, d), chains one after another. With
+    a ``pool`` that has workers, the Target's passes over the draws run
+    split between its processes (stancal.diagnosing.density_pool)."""
+    stan_data = fit_stan_data(result)
     backend = get_backend(result.backend)
     # the quantities first: a backend without them (cmdstanpy) says so in its own words
     quantities = backend.unconstrained_quantities_function(result.program, stan_data)
     unconstrain, log_density = backend.log_density_functions(result.program, stan_data)
+    spread = pool.functions(result.backend, result.program, stan_data, (LOG_LIK, LOO_MEAN)) if pool else None
+    if spread is not None:
+        log_density, quantities = spread
 
     def pointwise(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         values = quantities(points)
@@ -232,6 +241,8 @@ def relative_efficiency(result) -> float:
     """The draws' relative efficiency as arviz-stats's loo takes it (the
     mean ESS over the posterior's variables, per draw), so that Pareto k
     here is the k psis_score reported."""
+    import arviz_stats  # noqa: F401  (registers the azstats accessor: match_fit may run before any loo)
+
     posterior = result.idata["posterior"].to_dataset()
     draws = posterior.sizes["chain"] * posterior.sizes["draw"]
     if posterior.sizes["chain"] == 1:
@@ -240,12 +251,15 @@ def relative_efficiency(result) -> float:
     return float(np.mean(np.hstack([np.ravel(ess[v].values) for v in ess.data_vars])) / draws)
 
 
-def match_fit(result, rows: list[int], k_target: float = MATCH_K_TARGET) -> list[MatchedPoint]:
+def match_fit(result, rows: list[int], k_target: float = MATCH_K_TARGET,
+              pool: DensityPool | None = None) -> list[MatchedPoint]:
     """Moment-matched PSIS-LOO of a scalar fit's observations ``rows``
     (those with a high Pareto k), from its stored draws, log density,
-    log likelihood and held-out means. Run it in a process's main thread:
-    the model's log density called from a worker thread crashed the process."""
-    target, upars = fit_target(result)
+    log likelihood and held-out means; each pass over the draws split
+    between the ``pool``'s processes when it has workers. Run it in a
+    process's main thread: the model's log density called from a worker
+    thread crashed the process."""
+    target, upars = fit_target(result, pool)
     n = len(result.data.physical)
     log_lik = np.asarray(result.idata["log_likelihood"]["y"]).reshape(-1, n)
     loo_mean = np.asarray(result.idata["at_observations"][LOO_MEAN]).reshape(-1, n)

@@ -22,6 +22,8 @@ PARETO_K_LIMIT = 0.7  # above it PSIS-LOO is unreliable (Vehtari et al. 2024)
 # points PSIS cannot score set at its best and the leader's at its worst, keeps
 # its PSIS scores: no refit there can change the ranking (settled())
 SETTLED_SES = 4.0
+# the report calls the leading candidate's ELPD gain over the baseline credible beyond this many ses
+CREDIBLE_SES = 2.0
 
 
 @dataclass
@@ -123,34 +125,59 @@ def moment_matched(score: Score, matched: list[MatchedPoint]) -> Score:
 
 
 def settled(scores: list[Score]) -> list[int]:
-    """The candidates (indices into ``scores``; 0 is the baseline, always
-    refitted, as every difference is to it) whose refits cannot change which
-    candidate leads. Each fit's log p(y_i | y_-i) at a point where its Pareto
-    k is high is bounded: above by the full fit's log predictive density there
-    (p(y_i | y) = E_-i[p_i^2] / E_-i[p_i] >= E_-i[p_i] = p(y_i | y_-i), with p_i
-    = p(y_i | y_-i, parameters), by Cauchy-Schwarz), below by the lowest
-    log likelihood over the full fit's draws (the refit's posterior stays
-    where the full fit's draws are: a pragmatic bound, loose as it is). The
-    leader is the candidate with the best total at its lower bounds; a
-    candidate whose total at its upper bounds trails it by more than
-    SETTLED_SES ses of their pointwise difference is settled: its refits are
-    skipped and its PSIS scores kept. The identity behind the upper bound,
-    p(y_i | y_-i) = 1 / E_post[1 / p_i], is Gelfand, Dey & Chang (1992), the
-    one PSIS-LOO estimates (Vehtari, Gelman & Gabry 2017); the rule is
-    stancal's, to spend exact refits only where they can change the answer."""
-    if len(scores) < 3 or any(s.lowest_i is None for s in scores[1:]):
+    """The fits (indices into ``scores``; 0 is the baseline) whose refits
+    cannot change the answer: which candidate leads, and whether its gain
+    over the baseline is credible. Each fit's log p(y_i | y_-i) at a point
+    where its Pareto k is high is bounded: above by the full fit's log
+    predictive density there (p(y_i | y) = E_-i[p_i^2] / E_-i[p_i] >=
+    E_-i[p_i] = p(y_i | y_-i), with p_i = p(y_i | y_-i, parameters), by
+    Cauchy-Schwarz), below by the lowest log likelihood over the full fit's
+    draws (the refit's posterior stays where the full fit's draws are: a
+    pragmatic bound, loose as it is). The leader is the candidate with the
+    best total at its lower bounds; a candidate whose total at its upper
+    bounds trails it by more than SETTLED_SES ses of their pointwise
+    difference is settled: its refits are skipped and its PSIS scores kept.
+    When the leader is certain (no candidate's upper total reaches its
+    lower one; by SETTLED_SES ses when its own lower bound is the pragmatic
+    one) and its gain over the baseline is credible, or not, by more than
+    CREDIBLE_SES ses at every end of both fits' bounds, the leader's and the
+    baseline's refits are skipped too: the baseline's move every difference
+    alike, so they never change the ranking. The identity behind the upper
+    bound, p(y_i | y_-i) = 1 / E_post[1 / p_i], is Gelfand, Dey & Chang
+    (1992), the one PSIS-LOO estimates (Vehtari, Gelman & Gabry 2017, whose
+    rule, as the loo package's reloo, refits every such point); skipping
+    is stancal's, to spend exact refits only where they can change the
+    answer."""
+    if len(scores) < 3 or any(s.lowest_i is None for s in scores):
         return []
     worst = [_total(s, s.lowest_i) for s in scores]
     best = [_total(s, s.in_sample_i) for s in scores]
     leader = max(range(1, len(scores)), key=lambda f: worst[f])
-    out = []
-    for f in range(1, len(scores)):
-        if f == leader or not scores[f].unreliable.size:
-            continue
-        diff = scores[leader].elpd_i - scores[f].elpd_i
-        if worst[leader] - best[f] > SETTLED_SES * np.sqrt(len(diff) * np.var(diff)):
-            out.append(f)
+    out = [f for f in range(1, len(scores)) if f != leader and scores[f].unreliable.size
+           and worst[leader] - best[f] > SETTLED_SES * _se(scores[leader], scores[f])]
+    if _leader_certain(scores, worst, best, leader) and _verdict_fixed(scores, worst, best, leader):
+        out = sorted({*out, *(f for f in (0, leader) if scores[f].unreliable.size)})
     return out
+
+
+def _se(one: Score, other: Score) -> float:
+    """The se of two fits' ELPD difference, from their pointwise one."""
+    diff = one.elpd_i - other.elpd_i
+    return float(np.sqrt(len(diff) * np.var(diff)))
+
+
+def _leader_certain(scores: list[Score], worst: list[float], best: list[float], leader: int) -> bool:
+    """No candidate's total can reach the leader's, whatever the refits give."""
+    margin = SETTLED_SES if scores[leader].unreliable.size else 0.0  # its lower bound is the pragmatic one
+    return all(worst[leader] - best[f] > margin * _se(scores[leader], scores[f])
+               for f in range(1, len(scores)) if f != leader)
+
+
+def _verdict_fixed(scores: list[Score], worst: list[float], best: list[float], leader: int) -> bool:
+    """The leader's gain over the baseline is credible (above CREDIBLE_SES
+    ses) at both fits' worst ends, or not credible at their best ends."""
+    bar = CREDIBLE_SES * _se(scores[leader], scores[0])
+    return worst[leader] - best[0] > bar or best[leader] - worst[0] <= bar
 
 
 def _total(score: Score, bound: np.ndarray) -> float:

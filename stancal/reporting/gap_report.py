@@ -10,6 +10,7 @@ import numpy as np
 
 from stancal.diagnosing.gap import GapAnalysis
 from stancal.diagnosing.gap_location import GapLocation
+from stancal.diagnosing.scoring import CREDIBLE_SES
 from stancal.reporting.html import write_html
 from stancal.reporting.plots import LEVEL, finish, pyplot
 from stancal.reporting.series import axis_label
@@ -160,7 +161,7 @@ def _which_section(base: dict, cands: list[dict], level: str = "a constant in th
     best = cands[0]
     moved = ", ".join(f"{k} {base['theta'][k]['mean']:.4g} → {best['theta'][k]['mean']:.4g}"
                       for k in best["theta_change"])
-    credible = best["elpd_diff"] > 2 * best["elpd_diff_se"]
+    credible = best["elpd_diff"] > CREDIBLE_SES * best["elpd_diff_se"]
     return [
         f"Best candidate: **{best['name']}** ({best['kind']}: `{best['effect']}`), ELPD "
         f"{best['elpd_diff']:+.1f} ± {best['elpd_diff_se']:.1f} over the baseline"
