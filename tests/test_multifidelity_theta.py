@@ -195,3 +195,22 @@ def test_a_config_declares_the_cheap_theta_and_it_round_trips(tmp_path):
     (tmp_path / "config.toml").write_text(config.format("k = [0.0, 1.0]"))
     with pytest.raises(DataError, match="low-fidelity theta 'k' is also a theta"):
         load_config(tmp_path / "config.toml")
+
+
+def test_the_cheap_theta_is_reported_beside_theta_and_survives_saving(theta_low_fit, tmp_path):
+    """summary.json, the report's parameter table and the theta figure carry
+    theta_l beside theta; a saved fit loads with it and predicts."""
+    from stancal.reporting.plots import plot_theta
+
+    summary = theta_low_fit.to_summary_json()
+    assert summary["theta_low"]["a"]["q05"] < A_TRUE < summary["theta_low"]["a"]["q95"]
+    assert abs(summary["emulator"]["theta_low_stage1"]["a"] - A_TRUE) < 0.05
+    figure = plot_theta(theta_low_fit)
+    assert [ax.get_xlabel() for ax in figure.axes] == ["k", "a"]
+    stancal.write_calibration(theta_low_fit, tmp_path)
+    assert "| a | " in (tmp_path / "report.md").read_text()
+    again = stancal.CalibrationResult.load(theta_low_fit.save(tmp_path / "fit.nc"))
+    assert again.data.theta_low_names == ["a"]
+    predicted = again.predict(pd.DataFrame({"t": [0.5, 1.5]}))
+    truth = expensive(np.array([0.5, 1.5]), K_TRUE)
+    assert np.all(np.abs(predicted["zeta_q50"].to_numpy() - truth) < 0.05), predicted

@@ -365,6 +365,8 @@ class CalibrationResult:
             "backend": self.backend,
             "options": asdict(self.options),
             "theta": self.theta_summary(),
+            **({"theta_low": theta_summary(self.idata["posterior"].to_dataset(), self.modes, self.data.theta_low_names,
+                                           variable="theta_low")} if self.data.theta_low_names else {}),
             "modes": [m.to_dict() for m in self.modes],
             "parameters": json.loads(self.summary().reset_index().to_json(orient="records")),
             "diagnostics": d.summary(),
