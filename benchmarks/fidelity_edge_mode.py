@@ -15,7 +15,9 @@ stancal.numerics.multifidelity, noise sd integrated or maximised out):
 With --fit it also runs the fit (4 chains, 500 + 1000, seed 1) and prints the
 chains' k, stancal's modes and their weights (stancal.numerics.mode_mass).
 
-    python benchmarks/fidelity_edge_mode.py [--stage-one-seed 0] [--fit]
+    python benchmarks/fidelity_edge_mode.py [--problem-seed 0] [--stage-one-seed 1] [--fit]
+
+(calibrate's stage 1 takes the sampler's seed: --stage-one-seed 1 for the fit with seed 1.)
 """
 
 from __future__ import annotations
@@ -97,11 +99,11 @@ def sampler_scale(data, levels, x, y) -> None:
               f"at noise sd {np.exp(v[grid[i].argmax()]) * data.scaling.y_scale:.3f} (original units)")
 
 
-def fit_and_modes() -> None:
+def fit_and_modes(problem_seed: int, seed: int) -> None:
     from conftest import fit
 
-    result = fit(two_level.problem(seed=0), method="modular", discrepancy="none", chains=4, warmup=500, draws=1000,
-                 seed=1)
+    result = fit(two_level.problem(seed=problem_seed), method="modular", discrepancy="none", chains=4, warmup=500,
+                 draws=1000, seed=seed)
     theta = np.asarray(result.idata["posterior"]["theta"])[..., 0]
     print("chains' k: mean", theta.mean(axis=1).round(4), "min", theta.min(axis=1).round(4),
           "max", theta.max(axis=1).round(4))
@@ -112,10 +114,11 @@ def fit_and_modes() -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser()
-    parser.add_argument("--stage-one-seed", type=int, default=0)
+    parser.add_argument("--problem-seed", type=int, default=0)
+    parser.add_argument("--stage-one-seed", type=int, default=1)
     parser.add_argument("--fit", action="store_true")
     args = parser.parse_args()
-    data = two_level.problem(seed=0)
+    data = two_level.problem(seed=args.problem_seed)
     x = data.scaling.to_unit(data.physical, data.inputs)
     y = data.scaling.standardise(data.physical[data.output].to_numpy())
     stage_one = fit_fidelity_emulator(data, seed=args.stage_one_seed)
@@ -125,7 +128,7 @@ def main() -> None:
     along_k(data, levels, x, y)
     sampler_scale(data, levels, x, y)
     if args.fit:
-        fit_and_modes()
+        fit_and_modes(args.problem_seed, args.stage_one_seed)
 
 
 if __name__ == "__main__":

@@ -123,16 +123,21 @@ def test_thetas_90_interval_covers_the_truth_over_seeds():
     sampler's): theta's 90 % interval covers K_TRUE in about 90 % of them.
     Under 90 % coverage the count of 20 is 14 or more with probability
     0.998, so fewer than 14 is a finding. Four chains, from spread inits:
-    one starts near the top of k's box, where the emulator's flat ramp once
-    held a chain (docs/multifidelity.md; benchmarks/fidelity_coverage.py
-    prints the table)."""
+    one starts near the top of k's box, where at seed 13 the emulator,
+    extrapolating past the highest expensive run, has a second mode of
+    weight 0.002 (docs/multifidelity.md); the interval is then the modes'
+    mixture by mass, and R-hat is asked within modes
+    (benchmarks/fidelity_coverage.py prints the table)."""
     covered = []
     for seed in range(20):
         result = fit(problem(seed=seed), method="modular", discrepancy="none", chains=4, warmup=500, draws=1000,
                      seed=seed + 1)
-        assert_healthy(result)
-        low, high = np.quantile(np.asarray(result.idata["posterior"]["theta"]).reshape(-1), [0.05, 0.95])
-        covered.append(bool(low <= K_TRUE <= high))
+        k = result.theta_summary()["k"]  # several modes: their mixture, each weighted by its mass
+        if len(result.modes) > 1:  # a chain in the emulator's mode at the box's edge (seed 13: weight 0.002)
+            assert k["rhat"] <= 1.01 and result.diagnostics.divergences == 0, (seed, k)
+        else:
+            assert_healthy(result)
+        covered.append(bool(k["q05"] <= K_TRUE <= k["q95"]))
     assert sum(covered) >= 14, covered
 
 
