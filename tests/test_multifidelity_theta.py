@@ -139,6 +139,7 @@ def theta_low_fit():
     return fit(problem(), method="modular", discrepancy="none", draws=600)
 
 
+@pytest.mark.slow  # one fit with stage 1, about 35 s: the default run's time stays as it was
 def test_the_fit_recovers_theta_and_the_cheap_theta_as_quadrature_does(theta_low_fit):
     assert_healthy(theta_low_fit)
     posterior = theta_low_fit.idata["posterior"]
@@ -197,6 +198,7 @@ def test_a_config_declares_the_cheap_theta_and_it_round_trips(tmp_path):
         load_config(tmp_path / "config.toml")
 
 
+@pytest.mark.slow  # one fit with stage 1, about 35 s: the default run's time stays as it was
 def test_the_cheap_theta_is_reported_beside_theta_and_survives_saving(theta_low_fit, tmp_path):
     """summary.json, the report's parameter table and the theta figure carry
     theta_l beside theta; a saved fit loads with it and predicts."""

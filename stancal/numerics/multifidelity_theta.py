@@ -79,8 +79,11 @@ def fit_levels_theta_low(x: list[np.ndarray], theta: list[np.ndarray], y: list[n
                  / (2 * THETA_LOW_STEP) for e in np.eye(q_low)]
         return value, np.concatenate([steps, grad])
 
-    best = min((_from_start(objective, start, xt, y[1], below(start), seed)
-                for start in _theta_low_starts(q_low)), key=lambda found: found.fun)
+    # g_2's hyperparameters from the box's centre start every search (one GP fit, not one per start)
+    centre = np.full(q_low, 0.5)
+    h, _ = fit_hyperparameters(xt, y[1] - _slope(below(centre), y[1]) * below(centre), seed)
+    best = min((_from_start(objective, start, y[1], below(start), h) for start in _theta_low_starts(q_low)),
+               key=lambda found: found.fun)
     theta_low, v = best.x[:q_low], best.x[q_low:]
     top = Level(with_inactive(unpack(v[1:]), 0, q_low, d + q), float(v[0]),
                 expensive_points(x[1], theta[1], theta_low), y[1])
@@ -93,11 +96,14 @@ def _theta_low_starts(q_low: int) -> list[np.ndarray]:
     return [np.full(q_low, g) for g in grid]
 
 
-def _from_start(objective, start: np.ndarray, xt: np.ndarray, y: np.ndarray, below: np.ndarray, seed: int):
-    """L-BFGS-B from theta_l = start, rho by regression and g_2's mode at that start."""
-    slope = np.polyfit(below, y, 1)[0] if np.ptp(below) > 0 else 1.0
-    h, _ = fit_hyperparameters(xt, y - slope * below, seed)
-    v0 = np.concatenate([start, [slope], pack(h)])
+def _slope(below: np.ndarray, y: np.ndarray) -> float:
+    """rho's start: y's regression on the level below (1 where that is constant)."""
+    return float(np.polyfit(below, y, 1)[0]) if np.ptp(below) > 0 else 1.0
+
+
+def _from_start(objective, start: np.ndarray, y: np.ndarray, below: np.ndarray, h: Hyperparameters):
+    """L-BFGS-B from theta_l = start, rho by regression there, g_2's hyperparameters at ``h``."""
+    v0 = np.concatenate([start, [_slope(below, y)], pack(h)])
     bounds = [(0.0, 1.0)] * len(start) + [(None, None)] * (len(v0) - len(start))
     found = optimize.minimize(objective, v0, jac=True, method="L-BFGS-B", bounds=bounds, options={"maxiter": 500})
     if not np.isfinite(found.fun):
