@@ -161,6 +161,7 @@ def test_the_fit_recovers_theta_and_the_cheap_theta_as_quadrature_does(theta_low
 
 @pytest.mark.parametrize(("change", "message"), [
     ({"theta_low": {"k": (0.0, 1.0)}}, "low-fidelity theta 'k' is also a theta"),
+    ({"theta_low": {"t": (0.0, 1.0)}}, "low-fidelity theta 't' is also a data column"),
     ({"low_k_column": True}, "column 'k' is a theta"),
     ({"no_low": True}, "exactly one level of low-fidelity runs"),
     ({"drop_a": True}, "'a'"),

@@ -415,7 +415,8 @@ class CalibrationData:
         if given and self.runs is None:
             raise DataError("low-fidelity runs need the runs of the simulator being calibrated (runs = ...): "
                             "the cheaper runs inform its emulator")
-        check_low_fidelity_theta(self.parameters, self.low_parameters, given)
+        check_low_fidelity_theta(self.parameters, self.low_parameters, given,
+                                 [*self.inputs, *self.covariates, self.output])
         return [self._check_runs(runs, self.low_parameters or None) if level == 0 else self._check_runs(runs)
                 for level, runs in enumerate(given)]
 

@@ -33,12 +33,16 @@ class Named(Protocol):
 
 
 def check_low_fidelity_theta(parameters: Sequence[Named], low_parameters: Sequence[Named],
-                             low_runs: Sequence[pd.DataFrame]) -> None:
+                             low_runs: Sequence[pd.DataFrame], columns: Sequence[str] = ()) -> None:
     """Refuse theta_l without one level of cheap runs, theta_l named as a
-    theta, and cheap runs with a theta column (DataError naming it)."""
+    theta or as a data column (``columns``: inputs, covariates, output), and
+    cheap runs with a theta column (DataError naming it)."""
     if not low_parameters:
         return
     names = [p.name for p in low_parameters]
+    clash = [name for name in names if name in columns]
+    if clash:
+        raise DataError(f"low-fidelity theta '{clash[0]}' is also a data column: name the parameter differently")
     if len(low_runs) != 1:
         raise DataError(f"low-fidelity theta {names}: the cheapest simulator's own parameters need exactly one "
                         f"level of low-fidelity runs; got {len(low_runs)}")
