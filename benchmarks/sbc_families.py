@@ -13,7 +13,9 @@ successes (the decay survival, 16 points), censored concentrations (the
 detection-limit lab, every third of its 90 points, censored by the lab's
 two limits) and a functional theta(x) (the beam's E(temperature), 45 points);
 modular with two fidelities runs on case_studies/cooling_fidelity (28
-points, 150 cheap and 15 expensive runs, no discrepancy).
+points, 150 cheap and 15 expensive runs, no discrepancy); with a cheap
+simulator's own theta_l (Goh et al. 2013) on tests/test_multifidelity_theta's
+design (12 points, 30 cheap runs over (t, a), 8 expensive over (t, k)).
 The noise families (docs/noise.md) run on the cooling design with two
 instruments alternating over its rows (one noise sd each), with a known sd
 per row rising from 0.1 to 1 degC, or with Student-t noise (its mixture
@@ -42,6 +44,7 @@ sys.path.insert(0, str(ROOT / "tests"))
 import pandas as pd  # noqa: E402
 from conftest import COOLING, cooling_data  # noqa: E402
 from test_latent import BEAM, CENSORED, COUNTS, beam_data, censored_data, exact_counts  # noqa: E402
+from test_multifidelity_theta import problem as theta_low_design  # noqa: E402
 
 import stancal  # noqa: E402
 from stancal.diagnosing.sbc import simulation_based_calibration  # noqa: E402
@@ -83,6 +86,7 @@ DESIGNS = {"counts": lambda: exact_counts("poisson", seed=1), "binomial": binomi
            "censored": censored_design, "beam": beam_data,
            "two_sources": lambda: noise_design(source="instrument"), "known_sd": lambda: noise_design(noise_sd="sd"),
            "cooling": lambda: cooling_data(seed=7), "hetero_noise": hetero_design,
+           "theta_low": theta_low_design,
            "cooling_fidelity": lambda: load_config(ROOT / "case_studies" / "cooling_fidelity" / "config.toml").data}
 LATENT = {
     "koh_latent_poisson": ("counts", {"simulator": COUNTS / "simulator.stan", "method": "koh", "discrepancy": "gp"}),
@@ -110,7 +114,8 @@ NOISE = {
     "koh_none_heteroscedastic": ("hetero_noise", {"simulator": SIMULATOR, "method": "koh", "discrepancy": "none",
                                                   "noise": "heteroscedastic", "noise_inputs": ["t"]}),
 }
-FIDELITY = {"modular_multifidelity": ("cooling_fidelity", {"method": "modular", "discrepancy": "none"})}
+FIDELITY = {"modular_multifidelity": ("cooling_fidelity", {"method": "modular", "discrepancy": "none"}),
+            "modular_multifidelity_theta_low": ("theta_low", {"method": "modular", "discrepancy": "none"})}
 # every family: its design, then its calibrate() options
 FAMILIES = {
     "koh": ("cooling", {"simulator": SIMULATOR, "method": "koh", "discrepancy": "gp"}),

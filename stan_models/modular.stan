@@ -21,6 +21,7 @@ functions {
 #include gp_conditional.stan
 #include noise.stan
 #include fidelity.stan
+#include fidelity_theta.stan
 #include koh_joint.stan
 #include loo.stan
 #include priors.stan
@@ -40,7 +41,11 @@ data {
   matrix[N, H] h;                       // mean terms at the physical points, scaled to unit RMS
   vector<lower=0>[H] beta_prior_sd;     // prior sd of each coefficient, standardised units
   array[M] vector[D] x_sim;             // simulator inputs of the runs, scaled to [0, 1]
-  array[M] vector[Q] theta_sim;         // theta of the runs, scaled to [0, 1] within its bounds
+  int<lower=0> Q_low;                   // the cheapest level's own theta_l (Goh et al. 2013): how many; 0 = theta shared
+  vector[Q_low] theta_low_lower;        // lower bounds of theta_l, original units (uniform prior)
+  vector<lower=theta_low_lower>[Q_low] theta_low_upper;  // upper bounds of theta_l, original units
+  array[M] vector[Q + Q_low] theta_sim; // (theta, theta_l) of the runs, scaled to [0, 1] within their bounds
+                                        // (the parameters a run's simulator lacks: any value, unused)
   vector[M] y_sim;                      // simulator output of the runs, standardised like y
   real y_center;                        // original-scale y = y_center + y_scale * y
   real<lower=0> y_scale;                // see y_center
@@ -64,7 +69,7 @@ data {
   vector[L - 1] level_rho;              // stage 1: each level's scale on the level below
   array[L] real emulator_mean;          // stage-1 hyperparameters of each level's GP, standardised units
   array[L] real<lower=0> emulator_sd;   // see emulator_mean
-  array[L, D + Q] real<lower=0> emulator_length_scale;  // inputs first, then theta; unit-cube units
+  array[L, D + Q + Q_low] real<lower=0> emulator_length_scale;  // inputs, theta, theta_l; unit-cube units
   array[L] real<lower=0> emulator_nugget;  // see emulator_mean
   vector<lower=0>[M] run_intrinsic_sd;  // stochastic simulator: each run's intrinsic sd, standardised (0 = deterministic)
   int<lower=0> P;                       // number of prediction points
@@ -74,7 +79,7 @@ data {
 #include prediction_normals_data.stan
 }
 transformed data {
-  array[M] vector[D + Q] xt_sim;
+  array[M] vector[D + Q + Q_low] xt_sim;
   for (j in 1:M) xt_sim[j] = append_row(x_sim[j], theta_sim[j]);
   // each run's weights on the levels' GPs; the physical points are at the top level
   matrix[L, L] weights = fidelity_weights(level_rho);
@@ -106,6 +111,7 @@ transformed data {
 }
 parameters {
   vector<lower=0, upper=1>[Q] theta_unit;                // theta rescaled to [0, 1]
+  vector<lower=0, upper=1>[Q_low] theta_low_unit;        // the cheapest level's own theta_l rescaled to [0, 1]
   array[S] real<lower=0> noise_sd;                       // standardised units, one per source (S = 1 unless per_source);
                                                          // heteroscedastic: the sd's geometric mean over the settings
   array[noise_id == 3] real<lower=0> nu;                 // Student-t degrees of freedom
@@ -127,6 +133,7 @@ transformed parameters {
   array[use_discrepancy ? D_delta : 0] real delta_length_scale
     = discrepancy_length_scales(delta_input_length_scale, delta_relevance);
   vector[Q] theta = theta_from_unit(theta_unit, theta_lower, theta_upper);
+  vector[Q_low] theta_low = theta_from_unit(theta_low_unit, theta_low_lower, theta_low_upper);
   real rho = estimate_rho ? rho_free[1] : 1.0;
 }
 model {
@@ -142,21 +149,34 @@ model {
   rho_free ~ koh_scale();                            // normal(1, 0.25), rho > 0
   beta ~ normal(0, beta_prior_sd);
   if (!prior_only) {
-    matrix[N, M] K_obs_sim;
-    if (kernel_id == 1) {  // the first level assigned, the others added: one pass for one fidelity
-      K_obs_sim = diag_post_multiply(K_obs_sim_x[1], theta_factor(theta_unit, theta_sim,
-                                                                  emulator_length_scale[1, (D + 1):(D + Q)]));
-      for (j in 2:L) {
-        K_obs_sim += diag_post_multiply(K_obs_sim_x[j], theta_factor(theta_unit, theta_sim,
-                                                                     emulator_length_scale[j, (D + 1):(D + Q)]));
+    tuple(vector[N], matrix[N, N]) emulated;  // the top level's mean and covariance at the points
+    if (Q_low == 0) {  // the runs' covariance is data
+      matrix[N, M] K_obs_sim;
+      if (kernel_id == 1) {  // the first level assigned, the others added: one pass for one fidelity
+        K_obs_sim = diag_post_multiply(K_obs_sim_x[1], theta_factor(theta_unit, theta_sim,
+                                                                    emulator_length_scale[1, (D + 1):(D + Q)]));
+        for (j in 2:L) {
+          K_obs_sim += diag_post_multiply(K_obs_sim_x[j], theta_factor(theta_unit, theta_sim,
+                                                                       emulator_length_scale[j, (D + 1):(D + Q)]));
+        }
+      } else {
+        K_obs_sim = fidelity_cross_cov(append_theta(x, theta_unit), w_obs, xt_sim, w_sim, kernel_id, emulator_sd,
+                                       emulator_length_scale);
       }
-    } else {
-      K_obs_sim = fidelity_cross_cov(append_theta(x, theta_unit), w_obs, xt_sim, w_sim, kernel_id, emulator_sd,
-                                     emulator_length_scale);
+      emulated = fidelity_at_points(K_obs_sim, L_sim, alpha_sim, top_mean, K_obs);
+    } else {  // theta_l moves the expensive runs' cheap part (functions/fidelity_theta.stan)
+      array[M] vector[D + Q + Q_low] xt_run = runs_at_theta_low(x_sim, theta_sim, run_level, theta_low_unit);
+      matrix[M, M] L_run = cholesky_decompose(
+        fidelity_run_cov(xt_run, w_sim, w_top, kernel_id, emulator_sd, emulator_length_scale, run_nugget_sd));
+      vector[M] alpha_run = mdivide_right_tri_low(
+        mdivide_left_tri_low(L_run, y_sim - w_sim * to_vector(emulator_mean))', L_run)';
+      emulated = fidelity_at_points(
+        fidelity_points_runs_cov(K_obs_sim_x, x, append_row(theta_unit, theta_low_unit), xt_run, w_obs, w_sim,
+                                 kernel_id, emulator_sd, emulator_length_scale),
+        L_run, alpha_run, top_mean, K_obs);
     }
-    matrix[M, N] A = mdivide_left_tri_low(L_sim, K_obs_sim');
-    vector[N] emulator_mean_obs = top_mean + K_obs_sim * alpha_sim;
-    matrix[N, N] K = square(rho) * (K_obs - crossprod(A) + nugget_obs);
+    vector[N] emulator_mean_obs = emulated.1;
+    matrix[N, N] K = square(rho) * (emulated.2 + nugget_obs);
     if (use_discrepancy) {
       K += ard_cov(x_delta, kernel_id, delta_sd[1], delta_length_scale);
     }
@@ -183,7 +203,9 @@ generated quantities {
   {
     vector[N] noise_var = row_noise_variance(noise_sd, source, known_sd, noise_log_scale, noise_loc);
     tuple(vector[N], vector[N], vector[N], vector[N], vector[N], vector[P], vector[P], vector[P]) q
-      = koh_joint_quantities_rng(y_sim, y, xt_sim, x, theta_unit, x_delta, h, beta, x_new, x_delta_new,
+      = koh_joint_quantities_rng(y_sim, y, Q_low == 0 ? xt_sim : runs_at_theta_low(x_sim, theta_sim, run_level,
+                                                                                     theta_low_unit),
+                                 x, append_row(theta_unit, theta_low_unit), x_delta, h, beta, x_new, x_delta_new,
                                  h_new, normals_new, prior_only, kernel_id, w_sim, w_top, emulator_mean,
                                  emulator_sd, emulator_length_scale, run_nugget_sd, rho, delta_sd,
                                  delta_length_scale, weighted_noise_variance(noise_var, noise_weight),

@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from stancal.fitting.run_variance import intrinsic_variance
+from stancal.fitting.stage_one_theta_low import fit_theta_low_emulator
 from stancal.numerics.kernels import ard_cross_cov
 from stancal.numerics.multifidelity import Level, cheap_runs_value, fit_levels, mean_function
 from stancal.numerics.multifidelity_variance import variance_correction
@@ -37,6 +38,7 @@ from stancal.stan.standata import (
     emulator_run_data,
     fidelity_run_data,
     run_intrinsic_variance,
+    theta_low_runs,
     to_stan_json,
 )
 
@@ -179,20 +181,27 @@ def _one_fidelity_mean(data: CalibrationData, hyperparameters: dict[str, Any], k
 
 
 def _fidelity_mean(data: CalibrationData, per_level: list[dict[str, Any]]):
-    """The same for the multi-fidelity emulator: the top level's co-kriging mean."""
+    """The same for the multi-fidelity emulator: the top level's co-kriging
+    mean (with a cheap level's own theta_l, of points (x, theta, theta_l))."""
     return mean_function(fidelity_levels(data, per_level))
 
 
-def fidelity_runs(data: CalibrationData) -> list[tuple[np.ndarray, np.ndarray]]:
+def fidelity_runs(data: CalibrationData, theta_low_unit: np.ndarray | None = None
+                  ) -> list[tuple[np.ndarray, np.ndarray]]:
     """Every simulator's runs, cheapest first, as the emulator sees them:
-    (x, theta) on the unit cube, y standardised."""
-    return [(np.hstack([r["x_sim"], r["theta_sim"]]), r["y_sim"]) for r in fidelity_run_data(data)]
+    (x, theta) on the unit cube, y standardised; with a cheap level's own
+    theta_l, (x, theta, theta_l), the expensive runs' theta_l at
+    ``theta_low_unit`` (stancal.numerics.multifidelity_theta)."""
+    runs = theta_low_runs(data, theta_low_unit) if data.theta_low_names else fidelity_run_data(data)
+    return [(np.hstack([r["x_sim"], r["theta_sim"]]), r["y_sim"]) for r in runs]
 
 
 def fidelity_levels(data: CalibrationData, per_level: list[dict[str, Any]]) -> list[Level]:
-    """The multi-fidelity emulator that stage 1's per-level hyperparameters describe, on the data's runs."""
+    """The multi-fidelity emulator that stage 1's per-level hyperparameters
+    describe, on the data's runs (a cheap level's own theta_l at stage 1's estimate)."""
+    theta_low = per_level[-1].get("theta_low_unit")
     return [Level(Hyperparameters.from_stan(h), float(h["rho"]), xt, y)
-            for h, (xt, y) in zip(per_level, fidelity_runs(data), strict=True)]
+            for h, (xt, y) in zip(per_level, fidelity_runs(data, theta_low), strict=True)]
 
 
 def fit_fidelity_emulator(data: CalibrationData, seed: int) -> dict[str, Any]:
@@ -204,6 +213,8 @@ def fit_fidelity_emulator(data: CalibrationData, seed: int) -> dict[str, Any]:
     predictor's mean squared error under its hyperparameters' posterior
     over its own variance (stancal.numerics.multifidelity_variance)."""
     started = time.perf_counter()
+    if data.theta_low_names:
+        return fit_theta_low_emulator(data, seed)
     runs = fidelity_runs(data)
     correction = variance_correction(fit_levels([xt for xt, _ in runs], [y for _, y in runs], seed), seed)
     levels = correction.levels

@@ -123,6 +123,10 @@ TABLES: tuple[Table, ...] = (
         Key("runs", "path (or a list of paths)", "required", "CSV(s) of the cheaper simulators' runs, with the "
             "columns of [simulator] runs; several files are levels, cheapest first", SCALAR),
     )),
+    Table("simulator.low_fidelity.theta", "The cheapest simulator's own calibration parameters theta_l, "
+          "`name = [lower, upper]` (Goh et al. 2013): its runs carry these columns in place of theta's, and theta_l "
+          "is sampled with theta; one level of low-fidelity runs, names other than theta's (docs/multifidelity.md)",
+          entries="[lower, upper]"),
     Table("simulator.theta_per_experiment", "Parameters with one value per experiment, `name = [lower, upper]` "
           "(vector outputs; they follow the shared theta in the simulator's theta)", entries="[lower, upper]"),
     Table("model", "The statistical model and the method", keys=(
@@ -279,7 +283,8 @@ def _check_low_fidelity(simulator: dict[str, Any], output: str) -> str | None:
     low = simulator.get("low_fidelity")
     if low is None:
         return None
-    problem = _check_table(low, table("simulator.low_fidelity"), output)
+    problem = (_check_table(low, table("simulator.low_fidelity"), output, subtables=("theta",))
+               or _check_entries(low.get("theta", {}), table("simulator.low_fidelity.theta")))
     if problem or "runs" not in low:
         return problem or "[simulator.low_fidelity] needs runs = \"file.csv\" (the cheaper simulator's runs)"
     if "runs" not in simulator:

@@ -11,6 +11,7 @@ import numpy as np
 import pandas as pd
 
 from stancal.problem.categories import covariate_columns, covariate_levels, one_hot
+from stancal.problem.low_fidelity_theta import check_low_fidelity_theta
 from stancal.problem.noise import MeasurementNoise, read_measurement_noise, row_noise_sd, with_known_sd
 from stancal.problem.observations import LINKS, read_observations
 from stancal.problem.validation import DataError, described, numeric_values, require_whole, source_file
@@ -170,6 +171,11 @@ class CalibrationData:
         cheapest first, with the columns of ``runs`` (review section 8.3;
         stancal.numerics.multifidelity): the emulator of ``runs`` learns
         from them too.
+    theta_low : the cheapest simulator's own calibration parameters theta_l,
+        name -> (lower, upper) (Goh et al. 2013): its runs carry these
+        columns in place of theta's, and the calibrated simulator is
+        rho f_low(x, theta_l) + g(x, theta); theta_l is sampled with theta.
+        Two levels only; the names must differ from theta's.
     noise_sd : gaussian only: a column of each row's known measurement sd,
         added in quadrature to the estimated noise (stancal.problem.noise).
     source : a column naming each row's measurement source (instrument),
@@ -195,11 +201,13 @@ class CalibrationData:
         noise_sd: str | None = None,
         source: str | None = None,
         sources: Sequence[str] | None = None,
+        theta_low: Mapping[str, tuple[float, float]] | None = None,
     ) -> None:
         self.inputs = list(inputs)
         self.output = output
         self.covariates = list(covariates)
         self.parameters = parameters_from_bounds(theta)
+        self.low_parameters = parameters_from_bounds(theta_low or {}, "low-fidelity theta", required=False)
         self._check_names()
         self.source = physical.copy()  # every column, for formulas over the physical data
         what = described("physical data", physical)  # with the file it was read from, if any
@@ -278,7 +286,8 @@ class CalibrationData:
                                bounds_of(self.parameters) if theta is None else theta,
                                self.covariates if covariates is None else covariates,
                                runs, levels=self.levels, sources=self.noise.given_sources, **self.observation_columns,
-                               low_fidelity_runs=self.low_fidelity_runs if runs is not None else ())
+                               low_fidelity_runs=self.low_fidelity_runs if runs is not None else (),
+                               theta_low=bounds_of(self.low_parameters) if runs is not None else None)
 
     def subset(self, rows: Sequence[int]) -> CalibrationData:
         """The same problem on some physical rows (positions), same categories."""
@@ -388,15 +397,17 @@ class CalibrationData:
         if clash:
             raise DataError(f"theta name(s) {clash} clash with data column names")
 
-    def _check_runs(self, runs: pd.DataFrame) -> pd.DataFrame:
+    def _check_runs(self, runs: pd.DataFrame, parameters: Sequence[Parameter] | None = None) -> pd.DataFrame:
+        """Runs with the inputs, ``parameters`` (default theta) and the output, checked."""
+        parameters = self.parameters if parameters is None else parameters
         what = described("simulator runs", runs)
-        table = numeric_columns(runs, [*self.inputs, *self.theta_names, self.output], what)
+        table = numeric_columns(runs, [*self.inputs, *(p.name for p in parameters), self.output], what)
         if len(table) < 3:
             raise DataError(f"{what}: {len(table)} rows; an emulator needs at least 3")
         if np.ptp(table[self.output].to_numpy()) == 0:
             raise DataError(f"{what}: output column '{self.output}' is constant")
         self._check_runs_on_link_scale(table)
-        require_runs_within_bounds(table, self.parameters)
+        require_runs_within_bounds(table, parameters)
         return table
 
     def _check_low_fidelity(self, given: Sequence[pd.DataFrame]) -> list[pd.DataFrame]:
@@ -404,7 +415,15 @@ class CalibrationData:
         if given and self.runs is None:
             raise DataError("low-fidelity runs need the runs of the simulator being calibrated (runs = ...): "
                             "the cheaper runs inform its emulator")
-        return [self._check_runs(runs) for runs in given]
+        check_low_fidelity_theta(self.parameters, self.low_parameters, given,
+                                 [*self.inputs, *self.covariates, self.output])
+        return [self._check_runs(runs, self.low_parameters or None) if level == 0 else self._check_runs(runs)
+                for level, runs in enumerate(given)]
+
+    @property
+    def theta_low_names(self) -> list[str]:
+        """The cheapest simulator's own theta_l (empty: the levels share theta)."""
+        return [p.name for p in self.low_parameters]
 
     @property
     def fidelities(self) -> int:
@@ -440,7 +459,7 @@ class CalibrationData:
                     values = np.concatenate([values, runs[column].to_numpy()])
             low[column] = float(values.min())
             width[column] = float(np.ptp(values)) or 1.0
-        for p in self.parameters:
+        for p in [*self.parameters, *self.low_parameters]:
             low[p.name], width[p.name] = p.lower, p.upper - p.lower
         # With runs, the emulator sees mostly simulator output: standardise by it
         # (on the link scale). A cheap simulator's link scale is left as it is.
@@ -468,6 +487,7 @@ class CalibrationData:
             "theta": {p.name: [p.lower, p.upper] for p in self.parameters},
             "runs": None if self.runs is None else self.runs.to_dict(orient="list"),
             "low_fidelity_runs": [runs.to_dict(orient="list") for runs in self.low_fidelity_runs],
+            "theta_low": bounds_of(self.low_parameters),
             "levels": self.levels,
             "sources": self.noise.given_sources,
             **self.observation_columns,
@@ -481,4 +501,5 @@ class CalibrationData:
                    levels=d.get("levels"), sources=d.get("sources"), likelihood=d.get("likelihood", "gaussian"),
                    trials=d.get("trials"), lower=d.get("lower"), upper=d.get("upper"),
                    noise_sd=d.get("noise_sd"), source=d.get("source"),
-                   low_fidelity_runs=[pd.DataFrame(r) for r in d.get("low_fidelity_runs", [])])
+                   low_fidelity_runs=[pd.DataFrame(r) for r in d.get("low_fidelity_runs", [])],
+                   theta_low={k: tuple(v) for k, v in d.get("theta_low", {}).items()})

@@ -57,10 +57,14 @@ def plot_theta(result: CalibrationResult, path: str | Path | None = None, units:
     colour per mode, its central 90 % interval shaded, and the uniform
     prior as a dashed reference."""
     plt = pyplot()
-    params = result.data.parameters
+    posterior = result.idata["posterior"]
+    # a cheap simulator's own theta_l (Goh et al. 2013) in panels after theta's
+    low = list(getattr(result.data, "low_parameters", [])) if "theta_low" in posterior else []
+    params = [*result.data.parameters, *low]
     fig, axes = plt.subplots(1, len(params), figsize=(4.2 * len(params), 3.4), squeeze=False,
                              layout="constrained")
-    theta = np.asarray(result.idata["posterior"]["theta"])
+    theta = np.concatenate([np.asarray(posterior["theta"]), *([np.asarray(posterior["theta_low"])] if low else [])],
+                           axis=-1)
     groups = [m.chains for m in result.modes] or [list(range(theta.shape[0]))]
     for k, (ax, p) in enumerate(zip(axes[0], params, strict=False)):
         low, high = _posterior_view(theta[..., k].ravel(), p)

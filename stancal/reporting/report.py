@@ -62,7 +62,8 @@ def _parameters_and_sampler(summary: dict, table) -> list[str]:
         "## Calibration parameters (original units; 90 % interval)", "",
         "| parameter | mean | 5 % | 50 % | 95 % | R-hat | bulk ESS |", "|---|---|---|---|---|---|---|",
         *(f"| {k} | {v['mean']:.4g} | {v['q05']:.4g} | {v['q50']:.4g} | {v['q95']:.4g} | "
-          f"{v['rhat']:.3f} | {v['ess_bulk']:.0f} |" for k, v in summary["theta"].items()),
+          f"{v['rhat']:.3f} | {v['ess_bulk']:.0f} |"
+          for k, v in [*summary["theta"].items(), *summary.get("theta_low", {}).items()]),
         "", "## All parameters", "", table.round(4).to_markdown(),
         "", "## Sampler", "",
         (f"- divergences: {d['divergences']}; max R-hat {d['max_rhat']:.3f}; "

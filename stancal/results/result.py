@@ -28,6 +28,7 @@ from stancal.stan.standata import EMULATOR_HYPERPARAMETERS, mean_terms_of, noise
 # Stan program variables -> names in the posterior group (original units)
 _REPORTED = {
     "theta": "theta",
+    "theta_low": "theta_low",  # the cheap simulator's own theta_l (Goh et al. 2013)
     "noise_sd_original": "noise_sd",
     "delta_sd_original": "delta_sd",
     "rho": "rho",
@@ -52,7 +53,7 @@ AT_OBSERVATIONS = ("delta_gp", "delta_gp_mean", "y_loo_mean")
 # parameters of stancal's programs that the posterior group holds in another
 # form (original units, or not at all: latent standard normals); any other
 # parameter of a program goes into the posterior group as it is
-_REEXPRESSED = {"theta_unit", "noise_sd", "delta_sd", "delta_input_length_scale", "delta_relevance",
+_REEXPRESSED = {"theta_unit", "theta_low_unit", "noise_sd", "delta_sd", "delta_input_length_scale", "delta_relevance",
                 "rho_free", "beta", "noise_weight", "noise_z", "noise_log_scale", "noise_length_scale",
                 "inv_sqrt_phi", "delta_raw", "emulator_z", "theta_function_sd",
                 "theta_function_length_scale", "theta_function_logit", "theta_function_raw"}
@@ -108,7 +109,7 @@ def _posterior(d: Draws, data: CalibrationData, parameter_names: list[str], opti
                terms) -> Draws:
     """The posterior group: the program's parameters in original units, and
     any parameter of a user's program as the program has it."""
-    posterior: Draws = {out: d[stan] for stan, out in _REPORTED.items() if stan in d}
+    posterior: Draws = {out: d[stan] for stan, out in _REPORTED.items() if stan in d and d[stan].size}
     for name in _OPTIONAL_SCALARS:
         if name in posterior and posterior[name].ndim == 3 and posterior[name].shape[-1] <= 1:
             if posterior[name].shape[-1] == 0:
@@ -142,7 +143,8 @@ def _posterior(d: Draws, data: CalibrationData, parameter_names: list[str], opti
 
 
 _DIMS = {
-    "theta": ["theta_name"], "delta_length_scale": ["delta_input"], "delta_relevance": ["delta_covariate"],
+    "theta": ["theta_name"], "theta_low": ["theta_low_name"],
+    "delta_length_scale": ["delta_input"], "delta_relevance": ["delta_covariate"],
     "emulator_length_scale": ["emulator_input"], "y": ["obs"], "beta": ["mean_term"],
     **{k: ["obs"] for k in AT_OBSERVATIONS},
     **{k: ["new_point"] for k in (*PREDICTED, NEW_OBSERVATION)},
@@ -157,7 +159,7 @@ _DIMS = {
 def _coords(data: CalibrationData, new_points: pd.DataFrame, options: ModelOptions, terms,
             grid: pd.DataFrame) -> dict:
     return {
-        "theta_name": data.theta_names, "delta_input": data.discrepancy_inputs,
+        "theta_name": data.theta_names, "theta_low_name": data.theta_low_names, "delta_input": data.discrepancy_inputs,
         "delta_covariate": data.discrepancy_inputs[len(data.inputs):],
         "emulator_input": [*data.inputs, *data.theta_names],
         "obs": np.arange(len(data.physical)), "new_point": np.arange(len(new_points)),
@@ -363,6 +365,8 @@ class CalibrationResult:
             "backend": self.backend,
             "options": asdict(self.options),
             "theta": self.theta_summary(),
+            **({"theta_low": theta_summary(self.idata["posterior"].to_dataset(), self.modes, self.data.theta_low_names,
+                                           variable="theta_low")} if self.data.theta_low_names else {}),
             "modes": [m.to_dict() for m in self.modes],
             "parameters": json.loads(self.summary().reset_index().to_json(orient="records")),
             "diagnostics": d.summary(),

@@ -70,31 +70,33 @@ def summary_by_mode(posterior: xr.Dataset, modes: list[Mode]) -> pd.DataFrame:
     return pd.concat(blocks)
 
 
-def theta_summary(posterior: xr.Dataset, modes: list[Mode], theta_names: list[str]) -> dict[str, dict[str, float]]:
+def theta_summary(posterior: xr.Dataset, modes: list[Mode], theta_names: list[str],
+                  variable: str = "theta") -> dict[str, dict[str, float]]:
     """theta's summary: with several modes whose masses are known, that of
     their mixture, each weighted by its mass (R-hat the worst within a mode,
     ESS the smallest); masses unknown, that of the first mode; never the
-    chains blended."""
+    chains blended. ``variable``: another parameter vector summarised the
+    same way (theta_low, a cheap simulator's own theta_l)."""
     keys = ("mean", "sd", "q05", "q50", "q95", "rhat", "ess_bulk")
     if len(modes) > 1 and modes[0].weight is not None:
-        theta = np.asarray(posterior["theta"])  # (chain, draw, theta)
+        theta = np.asarray(posterior[variable])  # (chain, draw, theta)
         draws = np.concatenate([theta[m.chains].reshape(-1, theta.shape[-1]) for m in modes])
         weights = np.concatenate([np.full(len(m.chains) * theta.shape[1], m.weight / (len(m.chains) * theta.shape[1]))
                                   for m in modes])
-        per_mode = [posterior_table(posterior[["theta"]].isel(chain=m.chains)) for m in modes]
+        per_mode = [posterior_table(posterior[[variable]].isel(chain=m.chains)) for m in modes]
         out = {}
         for j, name in enumerate(theta_names):
             mean = float(weights @ draws[:, j])
             sd = float(np.sqrt(weights @ (draws[:, j] - mean) ** 2))
-            label = f"theta[{name}]"
+            label = f"{variable}[{name}]"
             out[name] = dict(zip(keys, [mean, sd, *weighted_quantiles(draws[:, j], weights, QUANTILES),
                                         max(float(t.loc[label, "rhat"]) for t in per_mode),
                                         min(float(t.loc[label, "ess_bulk"]) for t in per_mode)], strict=True))
         return out
     if len(modes) > 1:  # masses unknown (see modes.report)
         posterior = posterior.isel(chain=modes[0].chains)
-    table = posterior_table(posterior[["theta"]])
-    return {name: {k: float(table.loc[f"theta[{name}]", k]) for k in keys} for name in theta_names}
+    table = posterior_table(posterior[[variable]])
+    return {name: {k: float(table.loc[f"{variable}[{name}]", k]) for k in keys} for name in theta_names}
 
 
 def theta_function_summary(curves: np.ndarray, grid: pd.DataFrame,

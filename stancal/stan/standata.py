@@ -191,7 +191,8 @@ def fidelity_emulator(inputs: StanInputs) -> dict[str, Any]:
     if inputs.emulator is None:
         raise ValueError("this program needs the stage-1 emulator's hyperparameters")
     data, levels = inputs.data, inputs.emulator.get("levels") or [inputs.emulator]
-    runs = fidelity_run_data(data)
+    runs = (theta_low_runs(data, levels[-1].get("theta_low_unit")) if data.theta_low_names
+            else fidelity_run_data(data))
     cheaper = sum(r["M"] for r in runs[:-1])  # a stochastic simulator is the calibrated one: its runs come last
     return {"M": sum(r["M"] for r in runs), "L": len(runs),
             "run_intrinsic_sd": np.concatenate([np.zeros(cheaper),
@@ -201,6 +202,7 @@ def fidelity_emulator(inputs: StanInputs) -> dict[str, Any]:
             "y_sim": np.concatenate([r["y_sim"] for r in runs]),
             "run_level": np.concatenate([np.full(r["M"], k + 1) for k, r in enumerate(runs)]),
             "level_rho": [float(level["rho"]) for level in levels[1:]],
+            **theta_low_bounds(data),
             **{name: [level[name] for level in levels] for name in EMULATOR_HYPERPARAMETERS}}
 
 
@@ -357,8 +359,37 @@ def emulator_run_data(data: CalibrationData, runs: pd.DataFrame | None = None) -
 
 
 def fidelity_run_data(data: CalibrationData) -> list[dict[str, Any]]:
-    """Every simulator's runs, cheapest first, as emulator_run_data gives each."""
+    """Every simulator's runs, cheapest first, as emulator_run_data gives each
+    (with a cheap level's own theta_l, as theta_low_runs gives them)."""
+    if data.theta_low_names:
+        return theta_low_runs(data)
     return [emulator_run_data(data, runs) for runs in data.runs_by_fidelity()]
+
+
+def theta_low_runs(data: CalibrationData, theta_low_unit: Any = None) -> list[dict[str, Any]]:
+    """The cheap and the expensive runs when the cheap simulator has its
+    own theta_l (Goh et al. 2013; functions/fidelity_theta.stan): theta_sim
+    is (theta, theta_l) on the unit cube, the parameters a simulator lacks at
+    the box's centre (cheap runs: theta, unused) or at ``theta_low_unit``
+    (expensive runs: stage 1's theta_l; stage 2 samples it)."""
+    s = data.scaling
+    low, high = data.runs_by_fidelity()
+    q, q_low = len(data.theta_names), len(data.theta_low_names)
+    at = np.full(q_low, 0.5) if theta_low_unit is None else np.asarray(theta_low_unit, float)
+
+    def level(runs: pd.DataFrame, theta: np.ndarray) -> dict[str, Any]:
+        return {"M": len(runs), "x_sim": s.to_unit(runs, data.inputs), "theta_sim": theta,
+                "y_sim": s.standardise(data.runs_on_link_scale(runs))}
+
+    return [level(low, np.hstack([np.full((len(low), q), 0.5), s.to_unit(low, data.theta_low_names)])),
+            level(high, np.hstack([s.to_unit(high, data.theta_names), np.tile(at, (len(high), 1))]))]
+
+
+def theta_low_bounds(data: CalibrationData) -> dict[str, Any]:
+    """modular.stan's theta_l: how many, and their bounds (none: the levels share theta)."""
+    return {"Q_low": len(data.theta_low_names),
+            "theta_low_lower": [p.lower for p in data.low_parameters],
+            "theta_low_upper": [p.upper for p in data.low_parameters]}
 
 
 def build_emulator_data(data: CalibrationData, options: ModelOptions) -> dict[str, Any]:
