@@ -304,3 +304,20 @@ def test_the_gap_diagnosis_plans_with_the_stochastic_emulator(case):
 
     plan = make_plan(case, None, None, None, **model_keywords({"stochastic": True, "chains": 2}, False))
     assert plan.name == "modular" and plan.options.stochastic
+
+
+def test_a_setting_without_scatter_leaves_the_variance_surface_to_the_others():
+    """Discrete Monte Carlo output often repeats itself at a setting: that
+    setting's log sample variance is -inf and tells nothing of the surface,
+    so the surface is fitted to the other settings; equal variances
+    everywhere (no surface to tell from a level) give the pooled variance."""
+    from stancal.numerics.intrinsic_variance import IntrinsicVariance
+
+    settings = np.linspace(0, 1, 12)[:, None]
+    variances = 0.04 * np.exp(2 * settings[:, 0])  # a variance rising over the input
+    counts = np.full(12, 5)
+    surface = IntrinsicVariance.fit(settings, counts, np.where(np.arange(12) == 3, 0.0, variances), seed=1)
+    assert surface.hyperparameters is not None and len(surface.settings) == 11
+    assert surface.at(np.array([[1.0]]))[0] > 2 * surface.at(np.array([[0.0]]))[0]
+    level = IntrinsicVariance.fit(settings, counts, np.full(12, 0.04), seed=1)
+    assert level.hyperparameters is None and level.pooled == pytest.approx(0.04)

@@ -14,8 +14,10 @@ than one of twenty. The log variances are standardised first (the GP's
 priors are emulator.stan's, on a unit scale). The GP's hyperparameters are its posterior mode under
 emulator.stan's priors (scalable_emulator.fit_hyperparameters); the
 variance at a run is exp(the GP's mean there), the log variance's median.
-With fewer than MIN_SETTINGS replicated settings no surface can be told
-from a level, and the pooled variance is used at every run."""
+A setting whose runs agree exactly has no log variance and is left to
+the others. With fewer than MIN_SETTINGS replicated settings left, or log
+variances all alike, no surface can be told from a level, and the pooled
+variance is used at every run."""
 
 from __future__ import annotations
 
@@ -27,6 +29,7 @@ from scipy import linalg, special
 from stancal.numerics.scalable_emulator import Hyperparameters, fit_hyperparameters, run_covariance, se_correlation
 
 MIN_SETTINGS = 4  # replicated settings for a variance surface; fewer: the pooled variance
+SCALE_FLOOR = 1e-8  # log variances this alike (relative to their level) are one level: the pooled variance
 
 
 def log_variance_moments(counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -52,11 +55,14 @@ class IntrinsicVariance:
         """From the replicated settings (unit cube), their runs and sample variances (n >= 2 each)."""
         counts, variances = np.asarray(counts, float), np.asarray(variances, float)
         pooled = float(np.sum((counts - 1) * variances) / np.sum(counts - 1))
-        if len(counts) < MIN_SETTINGS or np.any(variances <= 0):
-            return cls(pooled, np.zeros((0, np.shape(settings)[1])))
+        # a setting whose runs agree exactly (discrete output) has no log variance: the others carry the surface
+        scattered = variances > 0
+        settings, counts, variances = np.asarray(settings, float)[scattered], counts[scattered], variances[scattered]
         bias, noise = log_variance_moments(counts)
         corrected = np.log(variances) - bias
-        centre, scale = float(corrected.mean()), float(corrected.std())
+        centre, scale = (float(corrected.mean()), float(corrected.std())) if len(counts) else (0.0, 0.0)
+        if len(counts) < MIN_SETTINGS or scale <= SCALE_FLOOR * max(1.0, abs(centre)):  # no surface but a level
+            return cls(pooled, np.zeros((0, np.shape(settings)[1])))
         z, noise = (corrected - centre) / scale, noise / scale**2
         h, _ = fit_hyperparameters(settings, z, seed, known=noise)
         weights = linalg.solve(run_covariance(settings, h, noise), z - h.mean, assume_a="pos")
