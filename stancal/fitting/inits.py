@@ -129,7 +129,9 @@ def mode_inits(stan_backend, program, stan_json: dict[str, Any], chains: int, n_
         k = next(k for k, m in enumerate(modes) if chain in m.chains)
         # each of a mode's chains at its own optimum of that mode, where the mode has several
         draws = groups[k][modes[k].chains.index(chain) % len(groups[k])][0]
-        inits.append({name: _unit(draws, name).tolist() for name in ("theta_unit", "theta_exp_unit") if name in draws})
+        # an optimum far out on the unconstrained scale rounds to a bound of the box, where Stan's init fails
+        inits.append({name: np.clip(_unit(draws, name), 1e-9, 1 - 1e-9).tolist()
+                      for name in ("theta_unit", "theta_exp_unit") if name in draws})
     _log(modes, len(starts))
     return inits, modes
 
