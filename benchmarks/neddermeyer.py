@@ -118,7 +118,9 @@ def fit(name: str, data, emulator, chains: int, warmup: int, draws: int, seed: i
     new_rows = prediction_rows(data)
     stan_data = build_vector_stan_data(data, plan.program.data, plan.options, new_rows.iloc[:0], emulator)
     change(data, stan_data)
-    inits = chain_inits(plan.program, backend, flat, stan_data, emulator, chains, seed)  # as calibrate_vector's
+    searched = time.perf_counter()
+    inits, start_modes = chain_inits(plan.program, backend, flat, stan_data, emulator, chains, seed)  # as calibrate's
+    search_s = time.perf_counter() - searched  # modular's L-BFGS runs before sampling (fitting.inits.mode_inits)
     if centre:
         inits = [init | {"theta_unit": [0.5] * int(stan_data["Q"])} for init in inits]
     started = time.perf_counter()
@@ -135,7 +137,10 @@ def fit(name: str, data, emulator, chains: int, warmup: int, draws: int, seed: i
             "sd_over_prior": sd.round(4).tolist(), "mean_unit": theta.mean(axis=(0, 1)).round(4).tolist(),
             "max_rhat_theta": float(max(ast.rhat(theta[..., q]) for q in range(theta.shape[-1]))),
             "min_ess_theta": float(min(ast.ess(theta[..., q], method="bulk") for q in range(theta.shape[-1]))),
-            "divergences": int(sample.sample_stats["diverging"].sum()), "seconds": round(seconds, 1)}
+            "divergences": int(sample.sample_stats["diverging"].sum()), "seconds": round(seconds, 1),
+            "start_search_s": round(search_s, 1), "start_modes": [
+                {"theta_unit": np.round(m.theta_unit, 3).tolist(), "below_best": round(m.below_best, 1),
+                 "starts": m.starts, "chains": list(m.chains)} for m in start_modes]}
 
 
 def main() -> None:

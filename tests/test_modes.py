@@ -82,3 +82,47 @@ def test_theta_is_summarised_as_the_weighted_mixture(two_mode_fit):
     table = two_mode_fit.summary()
     assert sorted(table["mode"].unique()) == [1, 2]
     assert table.loc["theta[theta]", "weight"].tolist() == pytest.approx([m.weight for m in two_mode_fit.modes])
+
+
+class _Optima:
+    """A backend whose L-BFGS runs end at given theta optima (one per start, in turn): mode_inits' logic alone."""
+
+    def __init__(self, ends: list[tuple[list[float], float]]):
+        self.ends, self.starts = ends, []
+
+    def optima(self, program, data, *, starts, seed):
+        self.starts = starts
+        return [({"theta_unit": np.array([[theta]])}, lp) for theta, lp in
+                (self.ends[i % len(self.ends)] for i in range(len(starts)))]
+
+
+def test_chains_start_in_every_comparable_mode_and_none_far_below(caplog):
+    """Two modes 3 log units apart (comparable: the second holds e^-3 of the
+    first's density) each get chains, in turn; a third, 15 below (e^-15 <
+    e^-10, MINOR_OPTIMUM_GAP), gets none and is logged; optima within 0.02
+    of the box are one mode; a start with no finite density is left out."""
+    from stancal.fitting.inits import START_OPTIMA, mode_inits
+    from stancal.problem.data import Parameter
+
+    backend = _Optima([([0.50, 0.50], -10.0), ([0.90, 0.10], -13.0), ([0.02, 0.03], -25.0),
+                       ([0.51, 0.49], -10.5), ([0.3, 0.3], -np.inf), ([0.90, 0.10], -13.0),
+                       ([0.50, 0.51], -10.2), ([0.50, 0.50], -10.0)])
+    with caplog.at_level("INFO", logger="stancal"):
+        inits, modes = mode_inits(backend, None, {}, chains=4, n_theta=2, seed=1)
+    assert len(backend.starts) == START_OPTIMA  # theta spread in strata over the box (spread_theta_inits)
+    assert [m.theta_unit for m in modes] == [(0.50, 0.50), (0.90, 0.10), (0.02, 0.03)]
+    assert [m.chains for m in modes] == [(0, 2), (1, 3), ()]
+    assert [m.below_best for m in modes] == [0.0, 3.0, 15.0]
+    assert [m.starts for m in modes] == [4, 2, 1]
+    # a mode's chains at its own optima, best first
+    assert [i["theta_unit"] for i in inits] == [[0.50, 0.50], [0.90, 0.10], [0.50, 0.50], [0.90, 0.10]]
+    assert "(0.020, 0.030) on the unit box (1 of 8 starts) gets no chain" in caplog.text
+    assert modes[2].to_dict([Parameter("k", 0.0, 2.0), Parameter("T", 10.0, 20.0)])["theta"] \
+        == pytest.approx({"k": 0.04, "T": 10.3})
+
+
+def test_chains_start_spread_when_no_start_reaches_a_finite_density():
+    from stancal.fitting.inits import mode_inits, spread_theta_inits
+
+    inits, modes = mode_inits(_Optima([([0.5, 0.5], -np.inf)]), None, {}, chains=2, n_theta=2, seed=1)
+    assert modes == [] and inits == spread_theta_inits(2, 2, np.random.default_rng(1))

@@ -1,8 +1,15 @@
-"""Initial values spread over the theta box, so chains can find separate modes."""
+"""Initial values: theta spread over its box, or in the posterior's modes
+found by optimisation before sampling, so chains can find separate modes."""
 
 from __future__ import annotations
 
+import logging
+from dataclasses import dataclass
+from typing import Any
+
 import numpy as np
+
+logger = logging.getLogger("stancal")
 
 
 def spread_theta_inits(chains: int, n_theta: int, rng: np.random.Generator,
@@ -24,3 +31,121 @@ def theta_unit_init(values: dict[str, float], bounds: dict[str, tuple[float, flo
     unit = [float(np.clip((values[name] - lo) / (hi - lo), 1e-3, 1 - 1e-3)) if name in values
             else float(rng.uniform(margin, 1 - margin)) for name, (lo, hi) in bounds.items()]
     return {"theta_unit": unit}
+
+
+# L-BFGS runs before sampling: at least this many, one per stratum of theta's box (spread_theta_inits), so that
+# two chains do not depend on two starts (on Neddermeyer both spread chains stopped in corner modes)
+START_OPTIMA = 8
+# An optimum this far (log density, lp__'s scale) below the best gets no chain: its density relative to the best's
+# is below e^-10 = 4.5e-5, so its mass is below 0.5 % of the best mode's unless its width's volume is over a
+# hundred times the best's (each of two theta ten times wider). Such optima are reported, not sampled.
+MINOR_OPTIMUM_GAP = 10.0
+# Optima whose theta (shared and per experiment, on the unit box) agree to this are one mode: L-BFGS stops within
+# its tolerance of a mode, and stancal.results.modes counts chains 3 % of the box apart as separate
+SAME_MODE = 0.02
+
+
+@dataclass(frozen=True)
+class StartMode:
+    """A theta optimum of the fit's log density, found before sampling."""
+
+    theta_unit: tuple[float, ...]  # shared theta on the unit box
+    theta_exp_unit: tuple[tuple[float, ...], ...]  # per-experiment theta on the unit box
+    log_density: float  # lp__ at the optimum
+    below_best: float  # the best optimum's lp__ minus this one's
+    starts: int  # how many L-BFGS runs ended here
+    chains: tuple[int, ...]  # the chains started here (none: far below the best)
+
+    def to_dict(self, parameters) -> dict[str, Any]:
+        """In the summary: shared theta in its units (``parameters``: the
+        shared theta's, with name, lower, upper), per-experiment theta on its
+        unit box."""
+        theta = {p.name: p.lower + (p.upper - p.lower) * v for p, v in zip(parameters, self.theta_unit, strict=True)}
+        return {"theta": theta, "theta_experiment_unit": [list(row) for row in self.theta_exp_unit],
+                "log_density": self.log_density, "below_best": self.below_best, "starts": self.starts,
+                "chains": list(self.chains)}
+
+
+def _unit(draws: dict[str, np.ndarray], name: str) -> np.ndarray:
+    """A theta variable at an optimum (draws (1, 1, ...)); a backend may leave out a variable of size 0."""
+    return np.asarray(draws[name][0, 0], dtype=float) if name in draws else np.zeros(0)
+
+
+def group_optima(optima: list[tuple[dict[str, np.ndarray], float]]) -> list[list[tuple[dict, float]]]:
+    """The finite optima grouped by theta (within SAME_MODE on the unit box,
+    shared and per experiment), best first; each group's members best first."""
+    found = sorted((o for o in optima if np.isfinite(o[1])), key=lambda o: -o[1])
+    groups: list[list[tuple[dict, float]]] = []
+    for optimum in found:
+        at = np.concatenate([_unit(optimum[0], "theta_unit").ravel(), _unit(optimum[0], "theta_exp_unit").ravel()])
+        for group in groups:
+            lead = group[0][0]
+            if np.all(np.abs(at - np.concatenate([_unit(lead, "theta_unit").ravel(),
+                                                   _unit(lead, "theta_exp_unit").ravel()])) <= SAME_MODE):
+                group.append(optimum)
+                break
+        else:
+            groups.append([optimum])
+    return groups
+
+
+def _start_modes(groups: list[list[tuple[dict, float]]], chains: int) -> list[StartMode]:
+    """StartMode per group; chains dealt round-robin over the groups within
+    MINOR_OPTIMUM_GAP of the best, so comparable modes each get chains."""
+    best = groups[0][0][1]
+    kept = [g for g in groups if best - g[0][1] <= MINOR_OPTIMUM_GAP]
+    dealt = {k: tuple(c for c in range(chains) if c % len(kept) == k) for k in range(len(kept))}
+    return [StartMode(tuple(_unit(g[0][0], "theta_unit").tolist()),
+                      tuple(map(tuple, _unit(g[0][0], "theta_exp_unit").tolist())), g[0][1], best - g[0][1],
+                      len(g), dealt.get(k, ())) for k, g in enumerate(groups)]
+
+
+def mode_inits(stan_backend, program, stan_json: dict[str, Any], chains: int, n_theta: int,
+               seed: int) -> tuple[list[dict[str, Any]], list[StartMode]]:
+    """Chains start in the theta posterior's modes, found before sampling
+    (Gelman et al. 2013, Bayesian Data Analysis, 3rd ed., §11.4 and §13.3:
+    find the modes first, start the chains near them). L-BFGS on the fit's
+    own log density from max(START_OPTIMA, chains) starts, theta spread over
+    its box in strata (spread_theta_inits), the other parameters at Stan's
+    random inits; the optima grouped into theta modes (group_optima).
+    Chains go to the modes within MINOR_OPTIMUM_GAP of the best, in turn, so
+    that separate modes of comparable density each get chains and
+    stancal.results.modes weighs them by their bridge-sampled mass; a chain
+    started in a minor mode far below would stay there and carry a weight
+    its mass does not have (Yao, Vehtari & Gelman 2022, "Stacking for
+    non-mixing Bayesian computations", JMLR 23(79)). The modes far below
+    get no chain and are logged and returned. Each chain starts theta (shared
+    and per experiment) at one of its mode's optima; Stan draws the rest.
+    Where no start reaches a finite density: theta spread over its box."""
+    rng = np.random.default_rng(seed)
+    starts = spread_theta_inits(max(START_OPTIMA, chains), n_theta, rng)
+    groups = group_optima(stan_backend.optima(program, stan_json, starts=starts, seed=seed))
+    if not groups:
+        logger.info("no start of %d reached a finite log density: chains start spread over theta's box", len(starts))
+        return spread_theta_inits(chains, n_theta, np.random.default_rng(seed)), []
+    modes = _start_modes(groups, chains)
+    inits = []
+    for chain in range(chains):
+        k = next(k for k, m in enumerate(modes) if chain in m.chains)
+        # each of a mode's chains at its own optimum of that mode, where the mode has several
+        draws = groups[k][modes[k].chains.index(chain) % len(groups[k])][0]
+        # an optimum far out on the unconstrained scale rounds to a bound of the box, where Stan's init fails
+        inits.append({name: np.clip(_unit(draws, name), 1e-9, 1 - 1e-9).tolist()
+                      for name in ("theta_unit", "theta_exp_unit") if name in draws})
+    _log(modes, len(starts))
+    return inits, modes
+
+
+def _log(modes: list[StartMode], starts: int) -> None:
+    def at(m: StartMode) -> str:
+        return "(" + ", ".join(f"{v:.3f}" for v in m.theta_unit) + ")"
+
+    sampled = [m for m in modes if m.chains]
+    logger.info("L-BFGS from %d starts found %d theta mode(s); chains start in %s", starts, len(modes),
+                "; ".join(f"{at(m)} on the unit box, {m.below_best:.1f} below the best: chains {list(m.chains)}"
+                          for m in sampled))
+    for m in modes:
+        if not m.chains:
+            logger.info("theta mode at %s on the unit box (%d of %d starts) gets no chain: its log density is "
+                        "%.1f below the best (relative density %.1e < e^-%g)", at(m), m.starts, starts,
+                        m.below_best, np.exp(-m.below_best), MINOR_OPTIMUM_GAP)

@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from stancal.fitting.inits import spread_theta_inits
+from stancal.fitting.inits import StartMode, mode_inits, spread_theta_inits
 from stancal.fitting.plan import Plan, plan_vector
 from stancal.fitting.postfit import check_fit, save_draws
 from stancal.fitting.seeds import command_seed
@@ -88,14 +88,19 @@ def joint_start(stan_backend, program, stan_data: dict[str, Any], seed: int) -> 
 
 
 def chain_inits(row, stan_backend, program, stan_data: dict[str, Any], emulator: VectorEmulator | None,
-                chains: int, seed: int) -> list[dict[str, Any]]:
-    """Where each chain starts: theta spread over its box, or for the joint
-    fit (the registry row samples the emulator) every chain at the modular
-    mode with its weight GPs at stage 1's values (joint_start)."""
-    if not row.samples_emulator:
-        return spread_theta_inits(chains, int(stan_data["Q"]), np.random.default_rng(seed))
-    start = joint_start(stan_backend, program, stan_data, seed) | joint_inits(emulator)
-    return [dict(start) for _ in range(chains)]
+                chains: int, seed: int) -> tuple[list[dict[str, Any]], list[StartMode]]:
+    """Where each chain starts, and the theta modes found before sampling
+    (none when not searched): for the joint fit (the registry row samples
+    the emulator) every chain at the modular mode with its weight GPs at
+    stage 1's values (joint_start); for a row that starts at modes, in the
+    modes of its own density within reach of the best (mode_inits); else
+    theta spread over its box."""
+    if row.samples_emulator:
+        start = joint_start(stan_backend, program, stan_data, seed) | joint_inits(emulator)
+        return [dict(start) for _ in range(chains)], []
+    if row.starts_at_modes:
+        return mode_inits(stan_backend, program, to_stan_json(stan_data), chains, int(stan_data["Q"]), seed)
+    return spread_theta_inits(chains, int(stan_data["Q"]), np.random.default_rng(seed)), []
 
 
 def calibrate_vector(
@@ -149,7 +154,7 @@ def calibrate_vector(
     new_rows = prediction_rows(data) if new_rows is None else new_rows
     emulator = run_stage_one(row.stage_one, data, options, [flat], backend=stan_backend, seed=seed)
     stan_data = build_vector_stan_data(data, row.data, options, new_rows, emulator)
-    inits = chain_inits(row, stan_backend, flat, stan_data, emulator, chains, seed)
+    inits, start_modes = chain_inits(row, stan_backend, flat, stan_data, emulator, chains, seed)
     logger.info("sampling %s: %d experiments, %d values%s; %d chains x (%d + %d)", row.name,
                 stan_data["E"], stan_data["N"], f", {stan_data['C']} components" if emulator else "",
                 chains, warmup, draws)
@@ -167,7 +172,7 @@ def calibrate_vector(
                            options, terms, samples_emulator=row.samples_emulator, from_runs=row.runs)
     result = VectorCalibrationResult(tree, data, row.name, flat, stan_backend.name,
                                      {"compile_s": compile_s, "sample_s": sample.load_seconds + sample.sample_seconds},
-                                     options, emulator, terms)
+                                     options, emulator, terms, start_modes=start_modes)
     save_draws(result, out_dir)
     return check_fit(result, theta_names=data.theta_names,
                      theta_widths=np.array([p.upper - p.lower for p in data.parameters]),

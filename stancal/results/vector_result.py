@@ -38,6 +38,8 @@ class VectorCalibrationResult:
     terms: MeanTerms | None = None
     diagnostics: sampler_checks.Diagnostics | None = None
     modes: list = field(default_factory=list)
+    # theta's modes found by L-BFGS before sampling, where the chains started (stancal.fitting.inits.StartMode)
+    start_modes: list = field(default_factory=list)
 
     def theta_summary(self) -> dict[str, dict[str, float]]:
         """Shared theta's summary (stancal.results.summaries.theta_summary: modes
@@ -62,6 +64,8 @@ class VectorCalibrationResult:
             "method": self.method, "backend": self.backend,
             "theta": self.theta_summary(), "theta_per_experiment": per_experiment,
             "modes": [m.to_dict() for m in self.modes],
+            # the optima found before sampling, those far below the best (no chain) among them
+            "start_modes": [m.to_dict(self.data.parameters) for m in self.start_modes],
             "parameters": json.loads(self.summary().reset_index().to_json(orient="records")),
             "basis": None if self.emulator is None else {
                 "components": basis.count, "explained": basis.explained.tolist(),

@@ -58,6 +58,7 @@ class Program:
     data: tuple[Callable[..., dict[str, Any]], ...] = ()  # Stan data parts, merged in order
     samples_emulator: bool = False  # the emulator's hyperparameters are sampled with theta
     stochastic_runs: bool = False  # its emulator carries a stochastic simulator's intrinsic variance
+    starts_at_modes: bool = False  # chains start in theta's modes, found by L-BFGS (fitting.inits.mode_inits)
     commands: frozenset[str] = frozenset()
     helper: bool = False  # a stage-1 program, not a calibration
 
@@ -117,7 +118,8 @@ PROGRAMS: dict[str, Program] = {program.name: program for program in (
     Program("modular_vector", "modular_vector.stan",
             "modular KOH for a vector output: one emulator GP per basis component, ragged experiments",
             output="vector", methods=("modular",), runs=True, stage_one=STAGE_ONE_BASIS, kernels=("se",),
-            estimate_rho=False, data=(vd.basis_emulator, vd.modular_weights), commands=frozenset({GAP, DESIGN})),
+            estimate_rho=False, data=(vd.basis_emulator, vd.modular_weights), commands=frozenset({GAP, DESIGN}),
+            starts_at_modes=True),
     Program("koh_emulator_vector", "modular_vector.stan",
             "koh_emulator for a vector output: the basis weights' GP hyperparameters sampled with theta",
             output="vector", methods=("koh_emulator",), runs=True, stage_one=STAGE_ONE_BASIS, kernels=("se",),

@@ -207,6 +207,16 @@ class StanBackend(Protocol):
         and its lp."""
         ...
 
+    def optima(
+        self, program: FlatProgram, data: dict[str, Any], *, starts: list[dict[str, Any]], seed: int
+    ) -> list[tuple[Draws, float]]:
+        """One L-BFGS run on the unconstrained scale (the log density with its
+        Jacobian, as lp__) from each start: a start gives some parameters'
+        values (theta_unit, say), Stan's random inits give the rest. Per start,
+        every variable of the program at the optimum it reached, as one draw
+        (1, 1, ...), and its lp (-inf where the run found no finite density)."""
+        ...
+
     def log_density_functions(
         self, program: FlatProgram, data: dict[str, Any]
     ) -> tuple[Callable[[Draws], np.ndarray], Callable[[np.ndarray], np.ndarray]]:

@@ -189,6 +189,21 @@ class CmdStanPyBackend:
             raise StanRuntimeError(program.explain(f"optimisation failed from all {starts} starting points"))
         return best
 
+    def optima(self, program: FlatProgram, data: dict[str, Any], *, starts: list[dict[str, Any]],
+               seed: int) -> list[tuple[Draws, float]]:
+        model = self._model(program)
+        out: list[tuple[Draws, float]] = []
+        for number, start in enumerate(starts):
+            try:  # CmdStan fills what a partial init leaves out with its random inits
+                fit = model.optimize(data=data, inits=start, seed=seed + number, jacobian=True, algorithm="lbfgs")
+            except RuntimeError as err:
+                logger.info("optimisation from start %d failed: %s", number + 1, err)
+                out.append(({}, -np.inf))
+                continue
+            out.append(({name: np.asarray(v).reshape(1, 1, *np.shape(v)) for name, v in fit.stan_variables().items()},
+                        float(fit.optimized_params_dict["lp__"])))
+        return out
+
     def start_error(self, program: FlatProgram, data: dict[str, Any],
                     inits: list[dict[str, Any]] | None) -> str | None:
         """None: CmdStan's log_prob method needs every parameter's value, whose

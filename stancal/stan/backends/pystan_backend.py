@@ -69,6 +69,18 @@ def _by_variable(flat: np.ndarray, model, leading: tuple[int, ...]) -> Draws:
     return out
 
 
+def _by_variable_first(flat: np.ndarray, model, count: int) -> dict[str, Any]:
+    """One row of write_array's parameters alone (its first ``count``
+    variables) -> name -> nested lists, as transform_inits takes them."""
+    out: dict[str, Any] = {}
+    offset = 0
+    for name, shape in list(zip(model.param_names, model.dims, strict=True))[:count]:
+        size = int(np.prod(shape))
+        out[name] = flat[0, offset : offset + size].reshape(*reversed(shape)).T.tolist()  # column-major, as Stan's
+        offset += size
+    return out
+
+
 def _interior_point(model) -> dict[str, Any]:
     """0.1 for every variable: inside every constraint stancal's programs use,
     the Hilbert-space programs' upper bounds on length scales (0.19 at the
@@ -319,8 +331,10 @@ class PyStanBackend:
 
         return run
 
-    def posterior_mode(self, program: FlatProgram, data: dict[str, Any], *, starts: int,
-                       seed: int) -> tuple[Draws, float]:
+    def _optimiser(self, program: FlatProgram, data: dict[str, Any], seed: int):
+        """The compiled model's services, its unconstrained dimension, and
+        L-BFGS on its negative log density (with the Jacobian, as lp__) from
+        one unconstrained point; a point outside the support counts as +inf."""
         import httpstan.models
         from scipy.optimize import minimize
 
@@ -336,15 +350,38 @@ class PyStanBackend:
                 return np.inf, np.zeros(dimension)
             return -lp, -np.asarray(gradient)
 
+        def run(start: np.ndarray):
+            return minimize(negative_log_density, start, jac=True, method="L-BFGS-B")
+
+        return model, services, dimension, run
+
+    def posterior_mode(self, program: FlatProgram, data: dict[str, Any], *, starts: int,
+                       seed: int) -> tuple[Draws, float]:
+        model, services, dimension, run = self._optimiser(program, data, seed)
         rng = np.random.default_rng(seed)
-        runs = [minimize(negative_log_density, rng.uniform(-2, 2, dimension), jac=True, method="L-BFGS-B")
-                for _ in range(starts)]  # Stan's default inits: uniform(-2, 2) unconstrained
+        runs = [run(rng.uniform(-2, 2, dimension)) for _ in range(starts)]  # Stan's default inits: uniform(-2, 2)
         best = min(runs, key=lambda run: run.fun)
         if not np.isfinite(best.fun):
             raise StanRuntimeError(program.explain(
                 f"no finite log density found from {starts} starting points: {best.message}"))
         at_mode = services.write_array(model.data, best.x.tolist(), True, True)
         return _by_variable(np.asarray([at_mode], dtype=float), model, (1, 1)), -float(best.fun)
+
+    def optima(self, program: FlatProgram, data: dict[str, Any], *, starts: list[dict[str, Any]],
+               seed: int) -> list[tuple[Draws, float]]:
+        model, services, dimension, run = self._optimiser(program, data, seed)
+        count = len(self.parameter_names(program))  # write_array gives the parameters first, in order
+        rng = np.random.default_rng(seed)
+        out = []
+        for start in starts:
+            # Stan's random init for what the start leaves out, then the start's values in place
+            values = services.write_array(model.data, rng.uniform(-2, 2, dimension).tolist(), False, False)
+            point = _by_variable_first(np.asarray([values], dtype=float), model, count)
+            point.update(start)
+            found = run(np.asarray(services.transform_inits(model.data, point), dtype=float))
+            at = services.write_array(model.data, found.x.tolist(), True, True)
+            out.append((_by_variable(np.asarray([at], dtype=float), model, (1, 1)), -float(found.fun)))
+        return out
 
     def log_density_functions(self, program: FlatProgram, data: dict[str, Any]):
         import httpstan.models
