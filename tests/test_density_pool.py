@@ -99,3 +99,23 @@ def alive(pid: int) -> bool:
             return stat.read().split(")")[-1].split()[0] != "Z"
     except FileNotFoundError:
         return False
+
+
+def _enter_a_pool(answer) -> None:
+    try:
+        with DensityPool(2) as pool:
+            answer.put(("entered", pool.functions("pystan", None, {}, ())))
+    except BaseException as err:  # noqa: BLE001  (the test reports what the daemon met)
+        answer.put(("raised", repr(err)))
+
+
+def test_a_daemonic_process_runs_the_passes_itself():
+    """A stock Dask worker is a daemonic process (its nanny's child), which
+    may not start processes: there the pool starts nothing and the caller's
+    own functions serve, as with one core (review of issue 30)."""
+    context = multiprocessing.get_context("fork")
+    answer = context.Queue()
+    daemon = context.Process(target=_enter_a_pool, args=(answer,), daemon=True)
+    daemon.start()
+    daemon.join(60)
+    assert answer.get(timeout=5) == ("entered", None)

@@ -21,6 +21,7 @@ from stancal.fitting.stage_one import fidelity_levels
 from stancal.numerics import multifidelity as mf
 from stancal.numerics.multifidelity_theta import cheap_points, expensive_points, with_inactive
 from stancal.numerics.scalable_emulator import Hyperparameters, run_nugget_variance
+from stancal.numerics.vector_emulator import same_point
 from stancal.problem.config import ConfigError, load_config
 from stancal.problem.data import DataError
 
@@ -105,23 +106,28 @@ def test_the_cokriging_with_a_cheap_theta_matches_the_formulas_written_out():
 
 def quadrature_posterior(data: stancal.CalibrationData, levels: list[mf.Level]) -> dict[str, np.ndarray]:
     """(theta, theta_l)'s posterior quantiles (5, 50, 95 %) under modular.stan's
-    model with no discrepancy: y ~ N(m, V + noise_sd^2 I), m and V the
-    co-kriging at (x, theta, theta_l) with the expensive runs' cheap part at
-    theta_l; uniform priors, noise_sd half-normal(0, 1); on a grid."""
+    model with no discrepancy: p(y_sim | theta_l) p(y | y_sim, theta, theta_l),
+    y ~ N(m, V + nugget^2 + noise_sd^2 I), m and V the co-kriging at
+    (x, theta, theta_l) with the expensive runs' cheap part at theta_l;
+    uniform priors, noise_sd half-normal(0, 1); on a grid."""
     x = data.scaling.to_unit(data.physical, data.inputs)
     y = data.scaling.standardise(data.physical[data.output].to_numpy())
     grid, noise = np.linspace(0, 1, GRID), np.linspace(0.001, 0.2, 300)
     log_post = np.empty((len(grid), len(grid), len(noise)))
+    top = levels[1]
+    misfit = top.hyperparameters.nugget**2 * same_point(x)  # the emulator's nugget at the points (modular.stan)
     for j, a in enumerate(grid):
-        top = levels[1]
         at = [levels[0], replace(top, xt=np.hstack([top.xt[:, :-1], np.full((len(top.xt), 1), a)]))]
+        runs = stats.multivariate_normal(cov=mf.joint_covariance(at)).logpdf(  # the runs' own density moves with a
+            np.concatenate([lv.y - mf.level_mean(at, level) for level, lv in enumerate(at)]))
         for i, k in enumerate(grid):
             mean, cov = mf.predictive(at, np.hstack([x, np.full((len(x), 1), k), np.full((len(x), 1), a)]))
+            cov = cov + misfit
             values, vectors = np.linalg.eigh(cov)
             projected = vectors.T @ (y - mean)
             variance = np.maximum(values, 0)[:, None] + noise[None, :] ** 2
             log_post[i, j] = (-0.5 * (projected[:, None] ** 2 / variance).sum(0) - 0.5 * np.log(variance).sum(0)
-                              + stats.halfnorm.logpdf(noise))
+                              + stats.halfnorm.logpdf(noise) + runs)
     w = np.exp(log_post - log_post.max()).sum(axis=2)
     w /= w.sum()
     out = {}

@@ -242,3 +242,17 @@ def test_warm_refit_holds_out_as_a_cold_refit_does():
     spread = max(np.std(cold, ddof=1), 0.01)  # Monte Carlo spread of a cold refit's answer
     assert abs(np.mean(warm) - np.mean(cold)) < 3 * spread / np.sqrt(len(cold)) * np.sqrt(2) + 0.02, (cold, warm)
     assert np.std(warm, ddof=1) < 3 * spread, (cold, warm)
+
+
+def test_a_gain_that_is_not_credible_leaves_the_baseline_to_its_refits():
+    """"Not credible at the fits' best ends" rests on the baseline's lower
+    bound, the lowest log likelihood over its draws, which a Pareto k above
+    0.7 leaves open (the exact log p(y_i | y_-i) can fall below every draw's):
+    a lower exact value would make the gain credible, so only a credible
+    verdict settles the baseline and the leader (review of issue 30)."""
+    rng = np.random.default_rng(3)
+    noise = rng.normal(0, 0.1, 40)
+    leader = score(-1.0 + noise, [5], -1.6, -0.9)
+    far = score(-3.0 + noise, [7, 8], -9.0, -1.0)
+    alike = score(-1.0 + rng.normal(0, 0.1, 40), [3], -1.3, -0.95)  # as good as the leader at every bound
+    assert settled([alike, leader, far]) == [2]

@@ -68,8 +68,9 @@ def _quantities(spec: tuple, names: tuple[str, ...], points: np.ndarray) -> dict
 
 
 def default_workers() -> int:
-    """The processes moment matching uses: the machine's cores."""
-    return os.cpu_count() or 1
+    """The processes moment matching uses: the cores this process may run on
+    (a batch system's or a container's share, not the host's)."""
+    return len(os.sched_getaffinity(0))
 
 
 @contextmanager
@@ -101,11 +102,17 @@ class DensityPool:
         self._fits = 0
 
     def __enter__(self) -> DensityPool:
-        if self.workers > 1:
+        # a daemonic process (a stock Dask worker, its nanny's child) may not start processes
+        if self.workers > 1 and not multiprocessing.current_process().daemon:
             self._pool = ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("spawn"),
                                              initializer=_worker_started, initargs=(os.getpid(),))
-            with _main_hidden():  # every worker starts now, while the user's script is out of sight
-                list(wait([self._pool.submit(os.getpid) for _ in range(self.workers)]).done)
+            try:
+                with _main_hidden():  # every worker starts now, while the user's script is out of sight
+                    for started in wait([self._pool.submit(os.getpid) for _ in range(self.workers)]).done:
+                        started.result()  # a worker that failed to start says so here
+            except BaseException:
+                self.__exit__()
+                raise
         return self
 
     def __exit__(self, *exc: object) -> None:

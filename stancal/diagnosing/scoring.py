@@ -139,10 +139,10 @@ def settled(scores: list[Score]) -> list[int]:
     difference is settled: its refits are skipped and its PSIS scores kept.
     When the leader is certain (no candidate's upper total reaches its
     lower one; by SETTLED_SES ses when its own lower bound is the pragmatic
-    one) and its gain over the baseline is credible, or not, by more than
-    CREDIBLE_SES ses at every end of both fits' bounds, the leader's and the
-    baseline's refits are skipped too: the baseline's move every difference
-    alike, so they never change the ranking. The identity behind the upper
+    one) and its gain over the baseline is credible at every end of both
+    fits' bounds (_verdict_fixed), the leader's and the baseline's refits
+    are skipped too: the baseline's move every total difference alike, so
+    they never change the ranking. The identity behind the upper
     bound, p(y_i | y_-i) = 1 / E_post[1 / p_i], is Gelfand, Dey & Chang
     (1992), the one PSIS-LOO estimates (Vehtari, Gelman & Gabry 2017, whose
     rule, as the loo package's reloo, refits every such point); skipping
@@ -175,16 +175,31 @@ def _leader_certain(scores: list[Score], worst: list[float], best: list[float], 
 
 def _verdict_fixed(scores: list[Score], worst: list[float], best: list[float], leader: int) -> bool:
     """The leader's gain over the baseline is credible (above CREDIBLE_SES
-    ses) at both fits' worst ends, or not credible at their best ends."""
-    bar = CREDIBLE_SES * _se(scores[leader], scores[0])
-    return worst[leader] - best[0] > bar or best[leader] - worst[0] <= bar
+    ses, and SETTLED_SES more where the leader's lower bound is the
+    pragmatic one) at both fits' worst ends: the leader at its lower
+    bounds, the baseline at its upper ones. The se is the larger of the
+    PSIS one and the one at those ends: the totals move alike, the
+    pointwise differences do not. "Not credible" is never taken as fixed:
+    it would rest on the baseline's lower bound, which a high Pareto k
+    leaves open (the exact value can fall below every draw's)."""
+    leader_score, baseline = scores[leader], scores[0]
+    se = max(_se(leader_score, baseline),
+             _se(replace(leader_score, elpd_i=_bounded(leader_score, leader_score.lowest_i)),
+                 replace(baseline, elpd_i=_bounded(baseline, baseline.in_sample_i))))
+    margin = SETTLED_SES * se if leader_score.unreliable.size else 0.0
+    return worst[leader] - best[0] > CREDIBLE_SES * se + margin
+
+
+def _bounded(score: Score, bound: np.ndarray) -> np.ndarray:
+    """The score's pointwise ELPD with ``bound`` in place of PSIS where its Pareto k is high."""
+    elpd = score.elpd_i.copy()
+    elpd[score.unreliable] = bound[score.unreliable]
+    return elpd
 
 
 def _total(score: Score, bound: np.ndarray) -> float:
     """The score's total ELPD with ``bound`` in place of PSIS where its Pareto k is high."""
-    elpd = score.elpd_i.copy()
-    elpd[score.unreliable] = bound[score.unreliable]
-    return float(elpd.sum())
+    return float(_bounded(score, bound).sum())
 
 
 def kfold_tests(n: int, k: int, seed: int) -> list[np.ndarray]:
