@@ -4,7 +4,8 @@
 // feedback from the physical data into the emulator. Given the runs, the
 // emulator at (x_i, theta) is normal with mean m(theta) and covariance
 // V(theta); V is carried into the likelihood:
-//   y ~ N(rho * m(theta) + h' beta, rho^2 V(theta) + K_delta + diag(noise variances)),
+//   y ~ N(rho * m(theta) + h' beta, rho^2 (V(theta) + nugget^2 S) + K_delta + diag(noise variances)),
+//   S_ij = 1 where points i and j are one (the emulator's misfit there, below),
 // with the measurement noise of functions/noise.stan (Student-t: given its mixture weights),
 // with optional discrepancy mean terms h (a candidate unmodelled effect).
 // The runs may come from simulators of several fidelities, cheapest first

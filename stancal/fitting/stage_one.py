@@ -152,8 +152,11 @@ def emulator_mean_function(data: CalibrationData, hyperparameters: dict[str, Any
     s = data.scaling
     mean = (_fidelity_mean(data, hyperparameters["levels"]) if hyperparameters.get("levels")
             else _one_fidelity_mean(data, hyperparameters, kernel_id))
+    theta_low = (hyperparameters.get("levels") or [{}])[-1].get("theta_low_unit")
 
     def at(points, theta_unit: np.ndarray) -> np.ndarray:
+        if theta_low is not None:  # a cheap level's own theta_l (Goh et al. 2013), at stage 1's value
+            theta_unit = np.hstack([theta_unit, np.tile(theta_low, (len(theta_unit), 1))])
         x_unit = s.to_unit(points, data.inputs)
         S, P = len(theta_unit), len(x_unit)
         xt = np.hstack([np.repeat(x_unit, S, axis=0), np.tile(theta_unit, (P, 1))])
