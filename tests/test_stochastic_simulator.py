@@ -207,6 +207,7 @@ def test_the_deterministic_emulator_takes_the_simulators_noise_for_its_misfit(ca
     assert nuggets[True] < 0.1 * nuggets[False]
 
 
+@pytest.mark.slow  # a fit with stage 1 on 300 runs, about a minute: the default run checks the model against numpy
 def test_the_stochastic_fit_recovers_k_and_the_measurement_sd(case, tmp_path):
     """A small fit of the case study (truth k = 0.05 1/min, measurement sd
     0.1 deg C): k's 90 % interval holds the truth and is narrow (0.0018

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from stancal.problem.codes import NOISE_MODES
-from stancal.problem.noise import HETEROSCEDASTIC, NOISES, NOT_BUILT
+from stancal.problem.noise import HETEROSCEDASTIC, NOISES
 from stancal.problem.observations import LIKELIHOODS
 from stancal.problem.options import (
     APPROXIMATIONS,
@@ -173,9 +173,8 @@ TABLES: tuple[Table, ...] = (
         Key("upper", "string", "none", "gaussian only: a column of censoring upper bounds", SCALAR),
         Key("noise", "string", '"iid" (scalar); "one", or "known" with noise_sd (vector)', "the measurement "
             "noise (docs/noise.md). A scalar output: " + ", ".join(NOISES)
-            + (" (" + ", ".join(NOT_BUILT) + " not built yet)" if NOT_BUILT else "")
             + "; a vector output: " + ", ".join(sorted(NOISE_MODES)),
-            choices=(*NOISES, *NOT_BUILT, *NOISE_MODES)),
+            choices=(*NOISES, *NOISE_MODES)),
         Key("noise_inputs", "list of names (or one name)", "every simulator input", f"noise = \"{HETEROSCEDASTIC}\": "
             "the simulator inputs the log noise sd varies over (docs/noise.md)", SCALAR),
         Key("variance_share", "number", str(DEFAULT_VARIANCE_SHARE), "the share of the runs' variance the "

@@ -23,8 +23,6 @@ from stancal.problem.validation import DataError, numeric_values, row_labels
 
 NOISES = tuple(code.name.lower() for code in Noise)  # iid, per_source, student_t, heteroscedastic
 HETEROSCEDASTIC = Noise.HETEROSCEDASTIC.name.lower()
-# noise models of issue 33 not built yet: refused by name, never silently replaced
-NOT_BUILT: tuple[str, ...] = ()
 # a row whose posterior mean Student-t weight is below this counts at most a
 # quarter as much as a row of the prior mean weight, 1: the report lists it as an
 # outlier. Without a GP that is a residual beyond sqrt(3 nu + 4) scales: 3.6 at
@@ -106,10 +104,7 @@ def read_measurement_noise(frame: pd.DataFrame, noise_sd: str | None, source: st
 
 
 def check_noise_name(noise: str) -> None:
-    """A noise model stancal has (one not built yet is named as such)."""
-    if noise in NOT_BUILT:
-        raise ValueError(f"{config_key('model', 'noise', noise)}: the {noise} noise model is not built yet; "
-                         f"choose one of {', '.join(NOISES)}")
+    """A noise model stancal has."""
     if noise not in NOISES:
         raise ValueError(f"noise must be one of {', '.join(NOISES)}; got {noise!r}")
 
