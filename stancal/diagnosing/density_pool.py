@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import multiprocessing
 import os
-import signal
 import sys
 from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor, wait
@@ -29,7 +28,7 @@ from typing import Any
 import numpy as np
 
 from stancal.stan.backends import get_backend
-from stancal.stan.backends.base import end_when_orphaned
+from stancal.stan.backends.base import child_process_started
 from stancal.stan.source import FlatProgram
 
 # fewer draws than this per worker: the processes' round trip costs more than it saves
@@ -49,13 +48,6 @@ def _functions(key: str, backend: str | None, program: FlatProgram,
         _IN_WORKER[key] = (stan_backend.log_density_functions(program, stan_data)[1],
                            stan_backend.unconstrained_quantities_function(program, stan_data))
     return _IN_WORKER[key]
-
-
-def _worker_started(parent: int) -> None:
-    """A worker leaves Ctrl-C to the command, and ends within a second of
-    it when the command is killed (a killed command leaves nothing running)."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    end_when_orphaned(parent)
 
 
 def _log_density(spec: tuple, points: np.ndarray) -> np.ndarray:
@@ -105,7 +97,7 @@ class DensityPool:
         # a daemonic process (a stock Dask worker, its nanny's child) may not start processes
         if self.workers > 1 and not multiprocessing.current_process().daemon:
             self._pool = ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("spawn"),
-                                             initializer=_worker_started, initargs=(os.getpid(),))
+                                             initializer=child_process_started, initargs=(os.getpid(),))
             try:
                 with _main_hidden():  # every worker starts now, while the user's script is out of sight
                     for started in wait([self._pool.submit(os.getpid) for _ in range(self.workers)]).done:

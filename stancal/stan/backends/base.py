@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import signal
 import threading
 import time
 from collections.abc import Callable
@@ -21,6 +22,14 @@ def cache_root() -> Path:
     if os.environ.get("STANCAL_CACHE"):
         return Path(os.environ["STANCAL_CACHE"])
     return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "stancal"
+
+
+def child_process_started(parent: int) -> None:
+    """A worker process of the command ``parent`` (a chain's, a density
+    pool's): it leaves Ctrl-C to the command, as httpstan's do, and ends
+    within a second of the command's end (end_when_orphaned)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    end_when_orphaned(parent)
 
 
 def end_when_orphaned(parent: int, every: float = 0.5, clean_up: Callable[[], None] | None = None) -> None:

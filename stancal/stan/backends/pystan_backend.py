@@ -8,7 +8,6 @@ import json
 import logging
 import multiprocessing
 import os
-import signal
 import subprocess
 import tempfile
 import time
@@ -25,7 +24,7 @@ from stancal.stan.backends.base import (
     SampleOutput,
     StanRuntimeError,
     WarmStart,
-    end_when_orphaned,
+    child_process_started,
     fresh_prediction_normals,
     warm_windows,
 )
@@ -88,11 +87,6 @@ def _interior_point(model) -> dict[str, Any]:
     return {name: np.full(dims, 0.1).tolist() for name, dims in zip(model.param_names, model.dims, strict=True)}
 
 
-def _chain_process_started(parent: int) -> None:
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # as httpstan's: Ctrl-C is the command's to handle
-    end_when_orphaned(parent)
-
-
 _chain_pool: ProcessPoolExecutor | None = None
 
 
@@ -114,7 +108,7 @@ def _chains_in_processes_that_end_with_this_one() -> None:
         process.daemon = False
     if _chain_pool is None or httpstan.services_stub.executor is not _chain_pool:
         _chain_pool = ProcessPoolExecutor(mp_context=multiprocessing.get_context("fork"),
-                                          initializer=_chain_process_started, initargs=(os.getpid(),))
+                                          initializer=child_process_started, initargs=(os.getpid(),))
         httpstan.services_stub.executor = _chain_pool
 
 
