@@ -114,11 +114,23 @@ def test_chains_start_in_every_comparable_mode_and_none_far_below(caplog):
     assert [m.chains for m in modes] == [(0, 2), (1, 3), ()]
     assert [m.below_best for m in modes] == [0.0, 3.0, 15.0]
     assert [m.starts for m in modes] == [4, 2, 1]
-    # a mode's chains at its own optima, best first
-    assert [i["theta_unit"] for i in inits] == [[0.50, 0.50], [0.90, 0.10], [0.50, 0.50], [0.90, 0.10]]
+    # each chain at the spread start of one of its mode's L-BFGS runs (best first): in the mode's basin, and
+    # apart, so that R-hat still compares chains from overdispersed starts (BDA3 section 11.4)
+    assert [i["theta_unit"] for i in inits] == [backend.starts[s]["theta_unit"] for s in (0, 1, 7, 5)]
+    assert inits[0]["theta_unit"] != inits[2]["theta_unit"]
     assert "(0.020, 0.030) on the unit box (1 of 8 starts) gets no chain" in caplog.text
     assert modes[2].to_dict([Parameter("k", 0.0, 2.0), Parameter("T", 10.0, 20.0)])["theta"] \
         == pytest.approx({"k": 0.04, "T": 10.3})
+
+
+def test_more_comparable_modes_than_chains_are_warned_of():
+    from stancal.fitting.inits import mode_inits
+    from stancal.results.modes import MultimodalWarning
+
+    backend = _Optima([([0.2, 0.2], -10.0), ([0.5, 0.5], -10.5), ([0.8, 0.8], -11.0)])
+    with pytest.warns(MultimodalWarning, match="3 theta modes within 10 log density units of the best; 2 chains"):
+        _, modes = mode_inits(backend, None, {}, chains=2, n_theta=2, seed=1)
+    assert [m.chains for m in modes] == [(0,), (1,), ()]
 
 
 def test_chains_start_spread_when_no_start_reaches_a_finite_density():

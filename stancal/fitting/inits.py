@@ -4,10 +4,13 @@ found by optimisation before sampling, so chains can find separate modes."""
 from __future__ import annotations
 
 import logging
+import warnings
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+
+from stancal.results.modes import MultimodalWarning
 
 logger = logging.getLogger("stancal")
 
@@ -71,11 +74,12 @@ def _unit(draws: dict[str, np.ndarray], name: str) -> np.ndarray:
     return np.asarray(draws[name][0, 0], dtype=float) if name in draws else np.zeros(0)
 
 
-def group_optima(optima: list[tuple[dict[str, np.ndarray], float]]) -> list[list[tuple[dict, float]]]:
-    """The finite optima grouped by theta (within SAME_MODE on the unit box,
-    shared and per experiment), best first; each group's members best first."""
+def group_optima(optima: list[tuple[dict[str, np.ndarray], float, int]]) -> list[list[tuple[dict, float, int]]]:
+    """The finite optima (draws, lp__, the index of the start it came from)
+    grouped by theta (within SAME_MODE on the unit box, shared and per
+    experiment), best first; each group's members best first."""
     found = sorted((o for o in optima if np.isfinite(o[1])), key=lambda o: -o[1])
-    groups: list[list[tuple[dict, float]]] = []
+    groups: list[list[tuple[dict, float, int]]] = []
     for optimum in found:
         at = np.concatenate([_unit(optimum[0], "theta_unit").ravel(), _unit(optimum[0], "theta_exp_unit").ravel()])
         for group in groups:
@@ -94,6 +98,10 @@ def _start_modes(groups: list[list[tuple[dict, float]]], chains: int) -> list[St
     MINOR_OPTIMUM_GAP of the best, so comparable modes each get chains."""
     best = groups[0][0][1]
     kept = [g for g in groups if best - g[0][1] <= MINOR_OPTIMUM_GAP]
+    if len(kept) > chains:
+        warnings.warn(MultimodalWarning(
+            f"{len(kept)} theta modes within {MINOR_OPTIMUM_GAP:g} log density units of the best; {chains} chains "
+            f"start in the best {chains} only: run at least {len(kept)} chains so that each gets one"), stacklevel=3)
     dealt = {k: tuple(c for c in range(chains) if c % len(kept) == k) for k in range(len(kept))}
     return [StartMode(tuple(_unit(g[0][0], "theta_unit").tolist()),
                       tuple(map(tuple, _unit(g[0][0], "theta_exp_unit").tolist())), g[0][1], best - g[0][1],
@@ -114,12 +122,14 @@ def mode_inits(stan_backend, program, stan_json: dict[str, Any], chains: int, n_
     started in a minor mode far below would stay there and carry a weight
     its mass does not have (Yao, Vehtari & Gelman 2022, "Stacking for
     non-mixing Bayesian computations", JMLR 23(79)). The modes far below
-    get no chain and are logged and returned. Each chain starts theta (shared
-    and per experiment) at one of its mode's optima; Stan draws the rest.
+    get no chain and are logged and returned. Each chain starts its shared
+    theta at the spread start of one of its mode's runs (per-experiment
+    theta at that run's optimum); Stan draws the rest.
     Where no start reaches a finite density: theta spread over its box."""
     rng = np.random.default_rng(seed)
     starts = spread_theta_inits(max(START_OPTIMA, chains), n_theta, rng)
-    groups = group_optima(stan_backend.optima(program, stan_json, starts=starts, seed=seed))
+    ends = stan_backend.optima(program, stan_json, starts=starts, seed=seed)
+    groups = group_optima([(draws, lp, i) for i, (draws, lp) in enumerate(ends)])
     if not groups:
         logger.info("no start of %d reached a finite log density: chains start spread over theta's box", len(starts))
         return spread_theta_inits(chains, n_theta, np.random.default_rng(seed)), []
@@ -127,11 +137,14 @@ def mode_inits(stan_backend, program, stan_json: dict[str, Any], chains: int, n_
     inits = []
     for chain in range(chains):
         k = next(k for k, m in enumerate(modes) if chain in m.chains)
-        # each of a mode's chains at its own optimum of that mode, where the mode has several
-        draws = groups[k][modes[k].chains.index(chain) % len(groups[k])][0]
-        # an optimum far out on the unconstrained scale rounds to a bound of the box, where Stan's init fails
-        inits.append({name: np.clip(_unit(draws, name), 1e-9, 1 - 1e-9).tolist()
-                      for name in ("theta_unit", "theta_exp_unit") if name in draws})
+        # each of a mode's chains at the spread start of one of its runs, where the mode has several: in the mode's
+        # basin, and apart, so that R-hat still compares chains from overdispersed starts (BDA3 section 11.4)
+        draws, _, start = groups[k][modes[k].chains.index(chain) % len(groups[k])]
+        # per-experiment theta, which the starts leave to Stan, at the optimum: inside the mode too
+        init = {"theta_unit": list(starts[start]["theta_unit"])}
+        if "theta_exp_unit" in draws:  # rounded off a bound of the box, where Stan's init would fail
+            init["theta_exp_unit"] = np.clip(_unit(draws, "theta_exp_unit"), 1e-9, 1 - 1e-9).tolist()
+        inits.append(init)
     _log(modes, len(starts))
     return inits, modes
 
@@ -145,7 +158,7 @@ def _log(modes: list[StartMode], starts: int) -> None:
                 "; ".join(f"{at(m)} on the unit box, {m.below_best:.1f} below the best: chains {list(m.chains)}"
                           for m in sampled))
     for m in modes:
-        if not m.chains:
+        if not m.chains and m.below_best > MINOR_OPTIMUM_GAP:  # within it, more modes than chains: warned of
             logger.info("theta mode at %s on the unit box (%d of %d starts) gets no chain: its log density is "
                         "%.1f below the best (relative density %.1e < e^-%g)", at(m), m.starts, starts,
                         m.below_best, np.exp(-m.below_best), MINOR_OPTIMUM_GAP)

@@ -373,7 +373,11 @@ class PyStanBackend:
             point = _by_variable_first(np.asarray([values], dtype=float), model, count)
             point.update(start)
             found = run(np.asarray(services.transform_inits(model.data, point), dtype=float))
-            at = services.write_array(model.data, found.x.tolist(), True, True)
+            try:
+                at = services.write_array(model.data, found.x.tolist(), True, True)
+            except (RuntimeError, ValueError):  # a rejection in transformed parameters or generated quantities
+                out.append(({}, -np.inf))
+                continue
             out.append((_by_variable(np.asarray([at], dtype=float), model, (1, 1)), -float(found.fun)))
         return out
 
