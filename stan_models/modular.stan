@@ -149,20 +149,6 @@ model {
   delta_relevance ~ covariate_relevance();           // half-normal(0, 2)
   rho_free ~ koh_scale();                            // normal(1, 0.25), rho > 0
   beta ~ normal(0, beta_prior_sd);
-  // theta_l moves the expensive runs' cheap part, so the runs' own density depends on it: theta_l is
-  // learned from the runs and the data together (Goh et al. 2013), and a prior-only fit (SBC's) draws it
-  // given the runs, which stay data there
-  array[Q_low > 0 ? M : 0] vector[D + Q + Q_low] xt_run;
-  matrix[Q_low > 0 ? M : 0, Q_low > 0 ? M : 0] L_run;
-  vector[Q_low > 0 ? M : 0] alpha_run;
-  if (Q_low > 0) {
-    xt_run = runs_at_theta_low(x_sim, theta_sim, run_level, theta_low_unit);
-    L_run = cholesky_decompose(
-      fidelity_run_cov(xt_run, w_sim, w_top, kernel_id, emulator_sd, emulator_length_scale, run_nugget_sd));
-    vector[M] z_run = mdivide_left_tri_low(L_run, y_sim - w_sim * to_vector(emulator_mean));
-    alpha_run = mdivide_right_tri_low(z_run', L_run)';
-    target += -0.5 * dot_self(z_run) - sum(log(diagonal(L_run)));  // log p(y_sim | theta_l), up to a constant
-  }
   if (!prior_only) {
     tuple(vector[N], matrix[N, N]) emulated;  // the top level's mean and covariance at the points
     if (Q_low == 0) {  // the runs' covariance is data
@@ -180,6 +166,13 @@ model {
       }
       emulated = fidelity_at_points(K_obs_sim, L_sim, alpha_sim, top_mean, K_obs);
     } else {  // theta_l moves the expensive runs' cheap part (functions/fidelity_theta.stan)
+      // the runs condition the emulator at theta_l; their own density p(y_sim | theta_l) is left out, as
+      // stage 2 leaves out the runs' density everywhere (docs/multifidelity.md: a choice, with its cost)
+      array[M] vector[D + Q + Q_low] xt_run = runs_at_theta_low(x_sim, theta_sim, run_level, theta_low_unit);
+      matrix[M, M] L_run = cholesky_decompose(
+        fidelity_run_cov(xt_run, w_sim, w_top, kernel_id, emulator_sd, emulator_length_scale, run_nugget_sd));
+      vector[M] alpha_run = mdivide_right_tri_low(
+        mdivide_left_tri_low(L_run, y_sim - w_sim * to_vector(emulator_mean))', L_run)';
       emulated = fidelity_at_points(
         fidelity_points_runs_cov(K_obs_sim_x, x, append_row(theta_unit, theta_low_unit), xt_run, w_obs, w_sim,
                                  kernel_id, emulator_sd, emulator_length_scale),

@@ -106,8 +106,9 @@ def test_the_cokriging_with_a_cheap_theta_matches_the_formulas_written_out():
 
 def quadrature_posterior(data: stancal.CalibrationData, levels: list[mf.Level]) -> dict[str, np.ndarray]:
     """(theta, theta_l)'s posterior quantiles (5, 50, 95 %) under modular.stan's
-    model with no discrepancy: p(y_sim | theta_l) p(y | y_sim, theta, theta_l),
-    y ~ N(m, V + nugget^2 + noise_sd^2 I), m and V the co-kriging at
+    model with no discrepancy: p(y | y_sim, theta, theta_l) (the runs' own
+    density left out, as modular.stan does), y ~ N(m, V + nugget^2 S +
+    noise_sd^2 I), m and V the co-kriging at
     (x, theta, theta_l) with the expensive runs' cheap part at theta_l;
     uniform priors, noise_sd half-normal(0, 1); on a grid."""
     x = data.scaling.to_unit(data.physical, data.inputs)
@@ -118,8 +119,6 @@ def quadrature_posterior(data: stancal.CalibrationData, levels: list[mf.Level]) 
     misfit = top.hyperparameters.nugget**2 * same_point(x)  # the emulator's nugget at the points (modular.stan)
     for j, a in enumerate(grid):
         at = [levels[0], replace(top, xt=np.hstack([top.xt[:, :-1], np.full((len(top.xt), 1), a)]))]
-        runs = stats.multivariate_normal(cov=mf.joint_covariance(at)).logpdf(  # the runs' own density moves with a
-            np.concatenate([lv.y - mf.level_mean(at, level) for level, lv in enumerate(at)]))
         for i, k in enumerate(grid):
             mean, cov = mf.predictive(at, np.hstack([x, np.full((len(x), 1), k), np.full((len(x), 1), a)]))
             cov = cov + misfit
@@ -127,7 +126,7 @@ def quadrature_posterior(data: stancal.CalibrationData, levels: list[mf.Level]) 
             projected = vectors.T @ (y - mean)
             variance = np.maximum(values, 0)[:, None] + noise[None, :] ** 2
             log_post[i, j] = (-0.5 * (projected[:, None] ** 2 / variance).sum(0) - 0.5 * np.log(variance).sum(0)
-                              + stats.halfnorm.logpdf(noise) + runs)
+                              + stats.halfnorm.logpdf(noise))
     w = np.exp(log_post - log_post.max()).sum(axis=2)
     w /= w.sum()
     out = {}

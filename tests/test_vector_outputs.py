@@ -485,12 +485,14 @@ def test_modular_vector_chains_start_in_the_main_mode_and_the_far_ones_are_repor
                                                                                      vector_reference):
     """modular's chains start theta in the modes of its own density found by
     L-BFGS before sampling (stancal.fitting.inits.mode_inits): here every
-    chain within 0.5 sd of the quadrature's posterior mean (mode and mean
-    differ by less: the posterior is near normal at 40 runs), where theta
-    spread over the box started one chain at (0.12, 0.62), from which the
-    sampler stayed in a second mode of weight 0.000; the optima far below
-    the best (on a bound of the box here) get no chain and are reported."""
-    from stancal.fitting.inits import MINOR_OPTIMUM_GAP, spread_theta_inits
+    run from a spread start but those that ended far below reached one mode
+    within 0.5 sd of the quadrature's posterior mean (mode and mean differ
+    by less: the posterior is near normal at 40 runs), and the chains start
+    at those runs' spread starts, apart; theta spread over the box alone
+    started one chain at (0.12, 0.62), from which the sampler stayed in a
+    second mode of weight 0.000; the optima far below the best (on a bound
+    of the box here) get no chain and are reported."""
+    from stancal.fitting.inits import MINOR_OPTIMUM_GAP, START_OPTIMA, spread_theta_inits
     from stancal.fitting.plan import plan_vector
     from stancal.fitting.vector_calibrate import chain_inits, prediction_rows
     from stancal.problem.options import VectorOptions
@@ -504,9 +506,11 @@ def test_modular_vector_chains_start_in_the_main_mode_and_the_far_ones_are_repor
     spread = np.array([i["theta_unit"] for i in spread_theta_inits(4, 2, np.random.default_rng(3))])
     assert np.any(np.abs(spread - mean) > 0.5 * sd)  # the check below is not one spread starts pass
     inits, modes = chain_inits(plan.program, get_backend(None), plan.main_program(), stan_data, emulator, 4, seed=3)
-    theta = np.array([i["theta_unit"] for i in inits])
-    assert np.all(np.abs(theta - mean) <= 0.5 * sd), (theta, mean, sd)
+    assert np.all(np.abs(np.array(modes[0].theta_unit) - mean) <= 0.5 * sd), (modes[0], mean, sd)
     assert modes[0].chains == (0, 1, 2, 3) and modes[0].below_best == 0
+    starts = {tuple(i["theta_unit"]) for i in spread_theta_inits(START_OPTIMA, 2, np.random.default_rng(3))}
+    theta = [tuple(i["theta_unit"]) for i in inits]
+    assert set(theta) <= starts and len(set(theta)) == min(4, modes[0].starts)  # the main mode's runs' starts: apart
     far = [m for m in modes if not m.chains]
     assert far and all(m.below_best > MINOR_OPTIMUM_GAP for m in far), modes
 
