@@ -8,7 +8,7 @@ import logging
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 
-from stancal.fitting.run_variance import run_replicates
+from stancal.fitting.run_variance import require_replicates, run_replicates
 from stancal.numerics.hsgp import first_basis
 from stancal.numerics.parametrization import choose_parametrization
 from stancal.problem.data import CalibrationData
@@ -309,9 +309,7 @@ def _check_stochastic(data: CalibrationData, chosen: Program, options: ModelOpti
     if data.fidelities > 1:
         raise ValueError("stochastic = true with low-fidelity runs is not built: give the stochastic "
                          "simulator's runs alone")
-    if not run_replicates(data).replicated.any():
-        raise ValueError("stochastic = true needs replicated runs (equal inputs and theta) to estimate the "
-                         "simulator's own variance; the runs have none")
+    require_replicates(run_replicates(data))
 
 
 def _check_noise(chosen: Program, options: ModelOptions, data: CalibrationData) -> None:

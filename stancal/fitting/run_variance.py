@@ -25,6 +25,13 @@ def run_replicates(data: CalibrationData) -> RunReplicates:
     return RunReplicates.of(np.hstack([runs["x_sim"], runs["theta_sim"]]), runs["y_sim"])
 
 
+def require_replicates(replicates: RunReplicates) -> None:
+    """A stochastic simulator's runs must repeat some setting: its own variance is estimated there."""
+    if not replicates.replicated.any():
+        raise ValueError(f"{config_key('simulator', 'stochastic', True)} needs replicated runs (equal inputs and "
+                         "theta) to estimate the simulator's own variance; the runs have none")
+
+
 def intrinsic_variance(data: CalibrationData, stochastic: bool, seed: int) -> tuple[IntrinsicVariance | None, dict]:
     """The replicated runs' summary (output units, logged), and for a
     stochastic simulator its intrinsic variance surface (standardised units);
@@ -39,9 +46,7 @@ def intrinsic_variance(data: CalibrationData, stochastic: bool, seed: int) -> tu
                            "emulator's one nugget takes that scatter as the same everywhere; if the simulator is "
                            "stochastic, set %s", pooled, config_key("simulator", "stochastic", True))
         return None, summary
-    if not summary["replicated_settings"]:
-        raise ValueError(f"{config_key('simulator', 'stochastic', True)} needs replicated runs (equal inputs and "
-                         "theta) to estimate the simulator's own variance; the runs have none")
+    require_replicates(replicates)
     chosen = replicates.replicated
     xt = replicates.settings[chosen]
     surface = IntrinsicVariance.fit(xt, replicates.counts[chosen], replicates.variances[chosen], seed)

@@ -215,9 +215,9 @@ def fit_fidelity_emulator(data: CalibrationData, seed: int) -> dict[str, Any]:
     level's GP, from few runs, has its variance scaled by its plug-in
     predictor's mean squared error under its hyperparameters' posterior
     over its own variance (stancal.numerics.multifidelity_variance)."""
-    started = time.perf_counter()
-    if data.theta_low_names:
+    if data.theta_low_names:  # a cheap level's own theta_l: fitted with it (timed there)
         return fit_theta_low_emulator(data, seed)
+    started = time.perf_counter()
     runs = fidelity_runs(data)
     correction = variance_correction(fit_levels([xt for xt, _ in runs], [y for _, y in runs], seed), seed)
     levels = correction.levels

@@ -27,6 +27,7 @@ import numpy as np
 from scipy import linalg, special
 
 from stancal.numerics.scalable_emulator import Hyperparameters, fit_hyperparameters, run_covariance, se_correlation
+from stancal.problem.run_replicates import pooled_variance
 
 MIN_SETTINGS = 4  # replicated settings for a variance surface; fewer: the pooled variance
 SCALE_FLOOR = 1e-8  # log variances this alike (relative to their level) are one level: the pooled variance
@@ -54,7 +55,7 @@ class IntrinsicVariance:
     def fit(cls, settings: np.ndarray, counts: np.ndarray, variances: np.ndarray, seed: int) -> IntrinsicVariance:
         """From the replicated settings (unit cube), their runs and sample variances (n >= 2 each)."""
         counts, variances = np.asarray(counts, float), np.asarray(variances, float)
-        pooled = float(np.sum((counts - 1) * variances) / np.sum(counts - 1))
+        pooled = pooled_variance(counts, variances)
         # a setting whose runs agree exactly (discrete output) has no log variance: the others carry the surface
         scattered = variances > 0
         settings, counts, variances = np.asarray(settings, float)[scattered], counts[scattered], variances[scattered]

@@ -13,6 +13,13 @@ from dataclasses import dataclass
 import numpy as np
 
 
+def pooled_variance(counts: np.ndarray, variances: np.ndarray) -> float:
+    """Sample variances of replicated settings (``counts`` runs each, >= 2)
+    pooled: sum (n_i - 1) s_i^2 / sum (n_i - 1)."""
+    dof = np.asarray(counts, float) - 1
+    return float(np.sum(dof * np.asarray(variances, float)) / dof.sum())
+
+
 @dataclass(frozen=True)
 class RunReplicates:
     """The runs grouped by their setting (inputs and theta)."""
@@ -45,10 +52,9 @@ class RunReplicates:
     def pooled_variance(self) -> float:
         """The within-replicate variance pooled over the replicated settings,
         sum (n_i - 1) s_i^2 / sum (n_i - 1); nan without replicates."""
-        dof = self.counts[self.replicated] - 1
-        if dof.sum() == 0:
+        if not self.replicated.any():
             return float("nan")
-        return float(np.sum(dof * self.variances[self.replicated]) / dof.sum())
+        return pooled_variance(self.counts[self.replicated], self.variances[self.replicated])
 
     def summary(self, scale: float = 1.0) -> dict:
         """For summary.json and the report: the runs, the settings, those run
