@@ -140,7 +140,8 @@ def fit(name: str, data, emulator, chains: int, warmup: int, draws: int, seed: i
             "divergences": int(sample.sample_stats["diverging"].sum()), "seconds": round(seconds, 1),
             "start_search_s": round(search_s, 1), "start_modes": [
                 {"theta_unit": np.round(m.theta_unit, 3).tolist(), "below_best": round(m.below_best, 1),
-                 "starts": m.starts, "chains": list(m.chains)} for m in start_modes]}
+                 "mass_below_best": round(m.mass_below_best, 1), "starts": m.starts, "chains": list(m.chains)}
+                for m in start_modes]}
 
 
 def main() -> None:

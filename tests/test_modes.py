@@ -92,8 +92,9 @@ class _Optima:
 
     def optima(self, program, data, *, starts, seed):
         self.starts = starts
-        return [({"theta_unit": np.array([[theta]])}, lp) for theta, lp in
-                (self.ends[i % len(self.ends)] for i in range(len(starts)))]
+        # (theta, lp) or (theta, lp, log Laplace mass); without a mass, one that keeps the peaks' order and gaps
+        return [({"theta_unit": np.array([[end[0]]])}, end[1], end[2] if len(end) > 2 else end[1])
+                for end in (self.ends[i % len(self.ends)] for i in range(len(starts)))]
 
 
 def test_chains_start_in_every_comparable_mode_and_none_far_below(caplog):
@@ -128,7 +129,7 @@ def test_more_comparable_modes_than_chains_are_warned_of():
     from stancal.results.modes import MultimodalWarning
 
     backend = _Optima([([0.2, 0.2], -10.0), ([0.5, 0.5], -10.5), ([0.8, 0.8], -11.0)])
-    with pytest.warns(MultimodalWarning, match="3 theta modes within 10 log density units of the best; 2 chains"):
+    with pytest.warns(MultimodalWarning, match=r"3 theta modes within 10 log units of the best \(by density or Laplace mass\); 2 chains"):
         _, modes = mode_inits(backend, None, {}, chains=2, n_theta=2, seed=1)
     assert [m.chains for m in modes] == [(0,), (1,), ()]
 
@@ -138,3 +139,47 @@ def test_chains_start_spread_when_no_start_reaches_a_finite_density():
 
     inits, modes = mode_inits(_Optima([([0.5, 0.5], -np.inf)]), None, {}, chains=2, n_theta=2, seed=1)
     assert modes == [] and inits == spread_theta_inits(2, 2, np.random.default_rng(1))
+
+
+def test_laplace_mass_is_exact_for_a_gaussian_and_unknown_at_a_saddle():
+    """log ∫ exp(lp) of a Gaussian log density, from a point off its peak
+    (L-BFGS stops near, not at, the optimum): log c + d/2 log 2π − ½ log
+    det(Σ⁻¹) exactly, whatever the point; NaN at a saddle (no mass to
+    approximate) and where the gradient fails."""
+    from stancal.numerics.laplace import laplace_log_mass
+
+    precision = np.array([[4.0, 1.0, 0.0], [1.0, 3.0, 0.5], [0.0, 0.5, 0.25]])
+    peak, c = np.array([0.3, -1.0, 2.0]), -7.0
+
+    def lp(x):
+        return c - 0.5 * (x - peak) @ precision @ (x - peak)
+
+    def gradient(x):
+        return -precision @ (x - peak)
+
+    exact = c + 1.5 * np.log(2 * np.pi) - 0.5 * np.log(np.linalg.det(precision))
+    for at in (peak, peak + [0.01, -0.02, 0.05]):
+        assert laplace_log_mass(lp(at), gradient, at) == pytest.approx(exact, abs=1e-7)
+    saddle = np.diag([1.0, -1.0, 1.0])
+    assert np.isnan(laplace_log_mass(0.0, lambda x: -saddle @ x, np.zeros(3)))
+    assert np.isnan(laplace_log_mass(0.0, lambda x: np.full(3, np.nan), np.zeros(3)))
+
+
+def test_a_low_but_wide_mode_gets_chains_and_a_low_narrow_one_none(caplog):
+    """A mode 15 log units below the best by its peak but within 10 of its
+    mass (it is wider: Laplace) may hold comparable mass, so it gets chains;
+    one below by both gets none; without masses (NaN, as from cmdstanpy)
+    the peaks alone decide, as before."""
+    from stancal.fitting.inits import mode_inits
+    from stancal.problem.data import Parameter
+
+    ends = [([0.5, 0.5], -10.0, -12.0), ([0.9, 0.1], -25.0, -14.0), ([0.1, 0.9], -25.0, -40.0)]
+    with caplog.at_level("INFO", logger="stancal"):
+        _, modes = mode_inits(_Optima(ends), None, {}, chains=4, n_theta=2, seed=1)
+    assert [m.chains for m in modes] == [(0, 2), (1, 3), ()]
+    assert [m.mass_below_best for m in modes] == [0.0, 2.0, 28.0]
+    assert "Laplace mass 2.0 below the largest: chains [1, 3]" in caplog.text
+    unknown = [(theta, lp, np.nan) for theta, lp, _ in ends]
+    _, modes = mode_inits(_Optima(unknown), None, {}, chains=4, n_theta=2, seed=1)
+    assert [m.chains for m in modes] == [(0, 1, 2, 3), (), ()]
+    assert modes[1].to_dict([Parameter("k", 0.0, 1.0), Parameter("T", 0.0, 1.0)])["log_mass"] is None

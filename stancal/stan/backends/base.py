@@ -218,12 +218,14 @@ class StanBackend(Protocol):
 
     def optima(
         self, program: FlatProgram, data: dict[str, Any], *, starts: list[dict[str, Any]], seed: int
-    ) -> list[tuple[Draws, float]]:
+    ) -> list[tuple[Draws, float, float]]:
         """One L-BFGS run on the unconstrained scale (the log density with its
         Jacobian, as lp__) from each start: a start gives some parameters'
         values (theta_unit, say), Stan's random inits give the rest. Per start,
         every variable of the program at the optimum it reached, as one draw
-        (1, 1, ...), and its lp (-inf where the run found no finite density)."""
+        (1, 1, ...), its lp (-inf where the run found no finite density), and
+        the log of its mode's mass by the Laplace approximation
+        (stancal.numerics.laplace; NaN where the backend cannot tell)."""
         ...
 
     def log_density_functions(

@@ -190,18 +190,20 @@ class CmdStanPyBackend:
         return best
 
     def optima(self, program: FlatProgram, data: dict[str, Any], *, starts: list[dict[str, Any]],
-               seed: int) -> list[tuple[Draws, float]]:
+               seed: int) -> list[tuple[Draws, float, float]]:
         model = self._model(program)
-        out: list[tuple[Draws, float]] = []
+        out: list[tuple[Draws, float, float]] = []
         for number, start in enumerate(starts):
             try:  # CmdStan fills what a partial init leaves out with its random inits
                 fit = model.optimize(data=data, inits=start, seed=seed + number, jacobian=True, algorithm="lbfgs")
             except RuntimeError as err:
                 logger.info("optimisation from start %d failed: %s", number + 1, err)
-                out.append(({}, -np.inf))
+                out.append(({}, -np.inf, -np.inf))
                 continue
+            # no mass: CmdStan gives no gradients at chosen points here (BridgeStan would), so the peak's height
+            # alone sorts the modes
             out.append(({name: np.asarray(v).reshape(1, 1, *np.shape(v)) for name, v in fit.stan_variables().items()},
-                        float(fit.optimized_params_dict["lp__"])))
+                        float(fit.optimized_params_dict["lp__"]), float("nan")))
         return out
 
     def start_error(self, program: FlatProgram, data: dict[str, Any],

@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from stancal.numerics.laplace import laplace_log_mass
 from stancal.stan.backends.base import (
     SAMPLER_STATS,
     Draws,
@@ -362,8 +363,15 @@ class PyStanBackend:
         return _by_variable(np.asarray([at_mode], dtype=float), model, (1, 1)), -float(best.fun)
 
     def optima(self, program: FlatProgram, data: dict[str, Any], *, starts: list[dict[str, Any]],
-               seed: int) -> list[tuple[Draws, float]]:
+               seed: int) -> list[tuple[Draws, float, float]]:
         model, services, dimension, run = self._optimiser(program, data, seed)
+
+        def gradient(point: np.ndarray) -> np.ndarray:
+            try:
+                return np.asarray(services.log_prob_grad(model.data, point.tolist(), True))
+            except (RuntimeError, ValueError):  # a difference step left the support
+                return np.full(dimension, np.nan)
+
         count = len(self.parameter_names(program))  # write_array gives the parameters first, in order
         rng = np.random.default_rng(seed)
         out = []
@@ -376,9 +384,10 @@ class PyStanBackend:
             try:
                 at = services.write_array(model.data, found.x.tolist(), True, True)
             except (RuntimeError, ValueError):  # a rejection in transformed parameters or generated quantities
-                out.append(({}, -np.inf))
+                out.append(({}, -np.inf, -np.inf))
                 continue
-            out.append((_by_variable(np.asarray([at], dtype=float), model, (1, 1)), -float(found.fun)))
+            out.append((_by_variable(np.asarray([at], dtype=float), model, (1, 1)), -float(found.fun),
+                        laplace_log_mass(-float(found.fun), gradient, found.x)))
         return out
 
     def log_density_functions(self, program: FlatProgram, data: dict[str, Any]):
