@@ -22,7 +22,11 @@ per row rising from 0.1 to 1 degC, or with Student-t noise (its mixture
 weights sampled beside a GP, its density used as it is without one).
 Heteroscedastic noise runs on case_studies/hetero_noise (80 readings, 4
 replicates at each of 20 settings; the cooling runs for modular), its log sd
-a GP over t.
+a GP over t. A stochastic simulator (stochastic kriging) runs on
+case_studies/stochastic_cooling, shrunk to keep each fit cheap: every other
+reading (20) and 4 of the 5 replicated runs at 31 of its 60 settings, spread over t (124
+runs), so its intrinsic variance surface is still fitted (>= 4 replicated
+settings).
 """
 
 from __future__ import annotations
@@ -82,11 +86,23 @@ def noise_design(**columns) -> stancal.CalibrationData:
                                    **columns)
 
 
+def stochastic_design() -> stancal.CalibrationData:
+    """stochastic_cooling's readings and replicated runs, shrunk (the module docstring)."""
+    problem = load_config(ROOT / "case_studies" / "stochastic_cooling" / "config.toml")
+    data = problem.data
+    # settings ranked by t: every other one, and the last, so the runs still span the readings' t
+    rank = data.runs.groupby(["t", "T0", "k"]).ngroup()
+    kept = (rank % 2 == 0) | (rank == rank.max())
+    runs = data.runs[kept].groupby(rank[kept]).head(4).reset_index(drop=True)
+    return stancal.CalibrationData(data.source.iloc[::2].reset_index(drop=True), data.inputs, data.output,
+                                   bounds_of(data.parameters), runs=runs)
+
+
 DESIGNS = {"counts": lambda: exact_counts("poisson", seed=1), "binomial": binomial_design,
            "censored": censored_design, "beam": beam_data,
            "two_sources": lambda: noise_design(source="instrument"), "known_sd": lambda: noise_design(noise_sd="sd"),
            "cooling": lambda: cooling_data(seed=7), "hetero_noise": hetero_design,
-           "theta_low": theta_low_design,
+           "theta_low": theta_low_design, "stochastic_cooling": stochastic_design,
            "cooling_fidelity": lambda: load_config(ROOT / "case_studies" / "cooling_fidelity" / "config.toml").data}
 LATENT = {
     "koh_latent_poisson": ("counts", {"simulator": COUNTS / "simulator.stan", "method": "koh", "discrepancy": "gp"}),
@@ -113,6 +129,7 @@ NOISE = {
        for method in ("koh", "modular")},
     "koh_none_heteroscedastic": ("hetero_noise", {"simulator": SIMULATOR, "method": "koh", "discrepancy": "none",
                                                   "noise": "heteroscedastic", "noise_inputs": ["t"]}),
+    "modular_stochastic": ("stochastic_cooling", {"method": "modular", "discrepancy": "gp", "stochastic": True}),
 }
 FIDELITY = {"modular_multifidelity": ("cooling_fidelity", {"method": "modular", "discrepancy": "none"}),
             "modular_multifidelity_theta_low": ("theta_low", {"method": "modular", "discrepancy": "none"})}

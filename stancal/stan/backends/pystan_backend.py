@@ -55,12 +55,13 @@ def _by_chain(flat: np.ndarray, dims: list[int], chains: int) -> np.ndarray:
     return np.moveaxis(flat.reshape(*dims, draws, chains), [-1, -2], [0, 1])
 
 
-def _by_variable(flat: np.ndarray, model, leading: tuple[int, ...]) -> Draws:
+def _by_variable(flat: np.ndarray, model, leading: tuple[int, ...], count: int | None = None) -> Draws:
     """Rows of write_array's output (every variable, flattened column-major as
-    Stan does) -> variable name -> (*leading, *its shape)."""
+    Stan does; or its first ``count`` variables, the parameters, where it was
+    asked for those alone) -> variable name -> (*leading, *its shape)."""
     out: Draws = {}
     offset = 0
-    for name, shape in zip(model.param_names, model.dims, strict=True):
+    for name, shape in list(zip(model.param_names, model.dims, strict=True))[:count]:
         size = int(np.prod(shape))
         block = flat[:, offset : offset + size].reshape(*leading, *reversed(shape))
         n = len(leading)
@@ -72,13 +73,7 @@ def _by_variable(flat: np.ndarray, model, leading: tuple[int, ...]) -> Draws:
 def _by_variable_first(flat: np.ndarray, model, count: int) -> dict[str, Any]:
     """One row of write_array's parameters alone (its first ``count``
     variables) -> name -> nested lists, as transform_inits takes them."""
-    out: dict[str, Any] = {}
-    offset = 0
-    for name, shape in list(zip(model.param_names, model.dims, strict=True))[:count]:
-        size = int(np.prod(shape))
-        out[name] = flat[0, offset : offset + size].reshape(*reversed(shape)).T.tolist()  # column-major, as Stan's
-        offset += size
-    return out
+    return {name: value[0].tolist() for name, value in _by_variable(flat[:1], model, (1,), count).items()}
 
 
 def _interior_point(model) -> dict[str, Any]:
