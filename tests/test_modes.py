@@ -183,3 +183,31 @@ def test_a_low_but_wide_mode_gets_chains_and_a_low_narrow_one_none(caplog):
     _, modes = mode_inits(_Optima(unknown), None, {}, chains=4, n_theta=2, seed=1)
     assert [m.chains for m in modes] == [(0, 1, 2, 3), (), ()]
     assert modes[1].to_dict([Parameter("k", 0.0, 1.0), Parameter("T", 0.0, 1.0)])["log_mass"] is None
+
+
+def test_a_mode_beyond_the_runs_is_named_and_the_heaviest_one_warned_of():
+    """A mode whose theta mean lies beyond the runs the emulator learned
+    from (there it extrapolates: the multi-fidelity case's edge mode at
+    k = 1.964, beyond the highest expensive run at 1.756) is named in the
+    modes' warning and in its summary; when the heaviest mode (or the one
+    posterior) lies there, an InputRangeWarning says so; no emulator (None),
+    or modes inside the runs, say nothing."""
+    from stancal.problem.data import InputRangeWarning
+    from stancal.results.modes import Mode, MultimodalWarning, beyond_runs, report
+
+    def mode(k, a, weight):
+        return Mode(chains=[0], theta_mean={"k": k, "a": a}, theta_q05={"k": k, "a": a}, theta_q95={"k": k, "a": a},
+                    mean_log_density=0.0, weight=weight, weight_q05=weight, weight_q95=weight)
+
+    runs = pd.DataFrame({"k": [0.2, 1.0, 1.756], "a": [0.1, 0.5, 0.9]})
+    modes = beyond_runs([mode(1.2, 0.5, 0.998), mode(1.964, 0.05, 0.002)], runs)
+    assert modes[0].beyond_runs == [] and modes[0].to_dict()["beyond_runs"] == []
+    assert modes[1].beyond_runs == ["k 1.964 above the highest run's 1.756", "a 0.05 below the lowest run's 0.1"]
+    with pytest.warns(MultimodalWarning) as caught:
+        report(modes)
+    assert len(caught) == 1 and ("mode 2 (chains [0], weight 0.002 [0.002, 0.002]): k 1.964 [1.964, 1.964], a 0.05 "
+                                 "[0.05, 0.05] (beyond the simulator runs: k 1.964 above the highest run's 1.756, a 0.05 "
+                                 "below the lowest run's 0.1; the emulator extrapolates there)") in str(caught[0].message)
+    with pytest.warns(InputRangeWarning, match="theta's posterior lies beyond the simulator runs: k 1.964 above"):
+        report(beyond_runs([mode(1.964, 0.5, None)], runs))
+    assert beyond_runs([mode(1.964, 0.5, None)], None)[0].beyond_runs == []

@@ -270,4 +270,5 @@ def calibrate(
             lambda: stan_backend.log_density_functions(flat, fit.stan_json)),
         max_treedepth=max_treedepth, seed=seed,
         diagnosed=lambda names: [v for v in names if v in _DIAGNOSED or v in fit.parameter_names],
-        advice=lambda d: parametrization_advice(options, d) + messages, out_dir=out_dir)
+        advice=lambda d: parametrization_advice(options, d) + messages, out_dir=out_dir,
+        runs_theta=data.runs[data.theta_names] if plan.program.runs else None)

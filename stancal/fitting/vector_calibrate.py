@@ -177,4 +177,5 @@ def calibrate_vector(
     return check_fit(result, theta_names=data.theta_names,
                      theta_widths=np.array([p.upper - p.lower for p in data.parameters]),
                      log_density_functions=lambda: stan_backend.log_density_functions(flat, stan_json),
-                     max_treedepth=max_treedepth, diagnosed=lambda names: names, seed=seed, out_dir=out_dir)
+                     max_treedepth=max_treedepth, diagnosed=lambda names: names, seed=seed, out_dir=out_dir,
+                     runs_theta=data.run_settings[data.theta_names] if row.runs else None)

@@ -4,12 +4,14 @@ instead of reporting a blended mean."""
 from __future__ import annotations
 
 import warnings
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
+import pandas as pd
 
 from stancal.numerics.mode_mass import bridge_log_mass, mode_weights
 from stancal.problem import advice
+from stancal.problem.data import InputRangeWarning
 
 
 class MultimodalWarning(UserWarning):
@@ -30,6 +32,8 @@ class Mode:
     weight_q95: float | None = None
     log_mass: float | None = None
     log_mass_se: float | None = None
+    # where its theta mean lies beyond the simulator runs' range, one phrase per theta (beyond_runs)
+    beyond_runs: list[str] = field(default_factory=list)
 
     def to_dict(self) -> dict:
         return {
@@ -39,7 +43,7 @@ class Mode:
             "mean_log_density": self.mean_log_density,
             "weight": None if self.weight is None else {
                 "mean": self.weight, "q05": self.weight_q05, "q95": self.weight_q95},
-            "log_mass": self.log_mass, "log_mass_se": self.log_mass_se,
+            "log_mass": self.log_mass, "log_mass_se": self.log_mass_se, "beyond_runs": self.beyond_runs,
         }
 
 
@@ -125,6 +129,30 @@ def modes_of(tree, names: list[str], widths: np.ndarray, log_density_functions,
     return weigh(modes, unconstrain(parameters), log_density, lp, np.random.default_rng(seed)), None
 
 
+def beyond_runs(modes: list[Mode], runs_theta: pd.DataFrame | None) -> list[Mode]:
+    """Each mode with the theta whose mean lies beyond the range of the runs
+    the emulator was trained on (``runs_theta``: their theta columns, the
+    calibrated simulator's runs alone where there are several fidelities;
+    None: no emulator). There the emulator extrapolates, its mean returns
+    to its trend and its variance to its prior's, so the mode may be the
+    emulator's rather than the simulator's (docs/multifidelity.md: a mode of
+    weight 0.002 at k = 1.964, beyond the highest expensive run at 1.756)."""
+    if runs_theta is None:
+        return modes
+    marked = []
+    for mode in modes:
+        notes = []
+        for name, value in mode.theta_mean.items():
+            if name in runs_theta:
+                low, high = float(runs_theta[name].min()), float(runs_theta[name].max())
+                if value > high:
+                    notes.append(f"{name} {value:.4g} above the highest run's {high:.4g}")
+                elif value < low:
+                    notes.append(f"{name} {value:.4g} below the lowest run's {low:.4g}")
+        marked.append(replace(mode, beyond_runs=notes))
+    return marked
+
+
 def describe(modes: list[Mode]) -> str:
     parts = []
     for k, m in enumerate(modes, start=1):
@@ -132,7 +160,9 @@ def describe(modes: list[Mode]) -> str:
                           for n in m.theta_mean)
         mass = (f"weight {m.weight:.3f} [{m.weight_q05:.3f}, {m.weight_q95:.3f}]" if m.weight is not None
                 else f"mean log density {m.mean_log_density:.1f}")
-        parts.append(f"mode {k} (chains {m.chains}, {mass}): {theta}")
+        beyond = (f" (beyond the simulator runs: {', '.join(m.beyond_runs)}; the emulator extrapolates there)"
+                  if m.beyond_runs else "")
+        parts.append(f"mode {k} (chains {m.chains}, {mass}): {theta}{beyond}")
     return "; ".join(parts)
 
 
@@ -151,3 +181,9 @@ def report(modes: list[Mode], weights_unavailable: str | None = None) -> None:
             "show whether there are modes no chain found."
         )
         warnings.warn(message, MultimodalWarning, stacklevel=3)
+    if modes and modes[0].beyond_runs:  # the posterior itself, or its heaviest mode
+        where = "theta's posterior" if len(modes) == 1 else "theta's heaviest mode"
+        warnings.warn(InputRangeWarning(
+            f"{where} lies beyond the simulator runs: {', '.join(modes[0].beyond_runs)}; the emulator extrapolates "
+            "there (its mean returns to its trend, its variance to its prior's), so the posterior rests on the "
+            "emulator's prior more than on the simulator: add runs that reach it"), stacklevel=3)
