@@ -1,0 +1,90 @@
+"""stancal against SEPIA on the same 100 Al-5083 runs (docs/al5083.md):
+stancal's side, run here, beside SEPIA's numbers, measured in a scratch
+environment by benchmarks/al5083_sepia_run.py and recorded, with SEPIA's
+commit and the command run, under "sepia" in benchmarks/al5083_sepia.json.
+
+    nice -n 5 python benchmarks/al5083_sepia.py [--chains 2 --warmup 1000 --draws 1000 --seed 1]
+
+The problem is SEPIA's examples/Al_5083 (Walters et al. 2018, J. Appl.
+Phys., doi:10.1063/1.5051442) on the runs of case_studies/al5083/runs_subset.csv
+(make_subset.py: 100 of the 1,000 runs, seed 20261126), with the config's
+theta box as both tools' uniform prior. Both follow Higdon et al. (2008,
+JASA 103): principal components of the runs' features, one GP per
+component's weight; stancal's stage 2 is modular (Liu, Bayarri & Berger
+2009, Bayesian Analysis 4), SEPIA samples the emulator's hyperparameters
+with theta. Per theta: |mean difference| / SEPIA's sd and the ratio of the
+sds. Writes the "stancal" entry of the JSON and, under --out, shots.png.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+import time
+from pathlib import Path
+
+import pandas as pd
+
+ROOT = Path(__file__).resolve().parents[1]
+CASE = ROOT / "case_studies" / "al5083"
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(CASE))
+
+from compare import plot_shots, theta_table  # noqa: E402
+
+from stancal.fitting.vector_calibrate import calibrate_vector  # noqa: E402
+from stancal.problem.config import load_config  # noqa: E402
+
+RECORD = ROOT / "benchmarks" / "al5083_sepia.json"
+
+
+def sepia_reference(record: dict) -> pd.DataFrame:
+    """SEPIA's posterior mean and sd per theta, in the config's units."""
+    theta = record["sepia"]["theta"]
+    return pd.DataFrame([{"name": p, "mean": v["mean"], "sd": v["sd"]} for p, v in theta.items()]).set_index("name")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--chains", type=int, default=2)
+    parser.add_argument("--warmup", type=int, default=1000)
+    parser.add_argument("--draws", type=int, default=1000)
+    parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--out", type=Path, default=Path("out/al5083-subset"))
+    args = parser.parse_args()
+    logging.basicConfig(format="%(name)s: %(message)s")
+    logging.getLogger("stancal").setLevel(logging.INFO)
+    record = json.loads(RECORD.read_text())
+    problem = load_config(CASE / "config_subset.toml")
+    args.out.mkdir(parents=True, exist_ok=True)
+    started = time.perf_counter()
+    result = calibrate_vector(problem.data, chains=args.chains, warmup=args.warmup, draws=args.draws,
+                              seed=args.seed, out_dir=args.out, **problem.model)
+    wall = time.perf_counter() - started
+    table = theta_table(result, sepia_reference(record))
+    table["abs_gap_in_sepia_sds"] = table["gap_in_reference_sds"].abs()
+    sample_s = result.timing["sample_s"]
+    record["stancal"] = {
+        "command": " ".join(["python benchmarks/al5083_sepia.py", *sys.argv[1:]]),
+        "method": result.method, "chains": args.chains, "warmup": args.warmup, "draws": args.draws,
+        "seed": args.seed, "wall_s": wall, "timing": result.timing, "max_rhat": result.diagnostics.max_rhat,
+        "divergences": result.diagnostics.divergences,
+        "theta_ess_bulk_min": float(table["ess_bulk"].min()),
+        "theta_min_ess_per_s_sampling": float(table["ess_bulk"].min() / sample_s),
+        "theta_min_ess_per_s_wall": float(table["ess_bulk"].min() / wall),
+        "max_abs_gap_in_sepia_sds": float(table["abs_gap_in_sepia_sds"].max()),
+        "theta": json.loads(table.to_json(orient="index")),
+    }
+    RECORD.write_text(json.dumps(record, indent=2) + "\n")
+    plot_shots(result, args.out / "shots.png")
+    with pd.option_context("display.width", 200, "display.float_format", "{:.4g}".format):
+        print(table[["mean", "sd", "reference_mean", "reference_sd", "gap_in_reference_sds", "sd_ratio",
+                     "sd_over_prior_sd", "ess_bulk", "rhat"]])
+    print(f"{wall:.0f} s in all, {sample_s:.0f} s sampling; R-hat {result.diagnostics.max_rhat:.3f}; "
+          f"max |gap| {record['stancal']['max_abs_gap_in_sepia_sds']:.2f} SEPIA sds")
+
+
+if __name__ == "__main__":
+    main()
