@@ -4,6 +4,12 @@ environment by benchmarks/al5083_sepia_run.py and recorded, with SEPIA's
 commit and the command run, under "sepia" in benchmarks/al5083_sepia.json.
 
     nice -n 5 python benchmarks/al5083_sepia.py [--chains 2 --warmup 1000 --draws 1000 --seed 1]
+    python benchmarks/al5083_sepia.py --sepia /tmp/al5083_sepia.json   # record SEPIA's run, then stop
+
+``--sepia``: the JSON benchmarks/al5083_sepia_run.py wrote (its theta draws
+beside it, .theta.npy) becomes the record's "sepia" entry, with the SEPIA
+commit, the command, and theta's bulk ESS and R-hat over the kept draws
+split into two halves (SEPIA runs one chain).
 
 The problem is SEPIA's examples/Al_5083 (Walters et al. 2018, J. Appl.
 Phys., doi:10.1063/1.5051442) on the runs of case_studies/al5083/runs_subset.csv
@@ -25,6 +31,8 @@ import sys
 import time
 from pathlib import Path
 
+import arviz_stats as ast
+import numpy as np
 import pandas as pd
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -38,6 +46,25 @@ from stancal.fitting.vector_calibrate import calibrate_vector  # noqa: E402
 from stancal.problem.config import load_config  # noqa: E402
 
 RECORD = ROOT / "benchmarks" / "al5083_sepia.json"
+SEPIA_COMMIT = "309890423a121919dc09a678c65a21748bbefb4b"  # github.com/lanl/SEPIA, 2 Oct 2023 (SEPIA 1.2)
+SEPIA_COMMAND = ("OPENBLAS_NUM_THREADS=1 nice -n 5 python benchmarks/al5083_sepia_run.py "
+                 "--data SEPIA/examples/Al_5083/data --subset case_studies/al5083/runs_subset.csv "
+                 "--iterations 5000 --seed 1 --out al5083_sepia.json")
+
+
+def record_sepia(path: Path) -> None:
+    """SEPIA's run as the record's "sepia" entry: its summary, where and how
+    it ran, and theta's bulk ESS and R-hat (the kept draws as two halves)."""
+    run = json.loads(path.read_text())
+    theta = np.load(path.with_suffix(".theta.npy"))
+    halves = theta[: 2 * (len(theta) // 2)].reshape(2, len(theta) // 2, -1)
+    for q, entry in enumerate(run["theta"].values()):  # in the design's column order, as theta
+        entry["ess_bulk"] = float(ast.ess(halves[..., q], method="bulk"))
+        entry["rhat_halves"] = float(ast.rhat(halves[..., q]))
+        entry["ess_per_s"] = entry["ess_bulk"] / run["mcmc_s"]
+    record = json.loads(RECORD.read_text()) if RECORD.exists() else {}
+    record["sepia"] = {"commit": SEPIA_COMMIT, "command": SEPIA_COMMAND, **run}
+    RECORD.write_text(json.dumps(record, indent=2) + "\n")
 
 
 def sepia_reference(record: dict) -> pd.DataFrame:
@@ -53,7 +80,10 @@ def main() -> None:
     parser.add_argument("--draws", type=int, default=1000)
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--out", type=Path, default=Path("out/al5083-subset"))
+    parser.add_argument("--sepia", type=Path, help="record this SEPIA run (al5083_sepia_run.py's JSON) and stop")
     args = parser.parse_args()
+    if args.sepia:
+        return record_sepia(args.sepia)
     logging.basicConfig(format="%(name)s: %(message)s")
     logging.getLogger("stancal").setLevel(logging.INFO)
     record = json.loads(RECORD.read_text())
