@@ -4,7 +4,7 @@ environment by benchmarks/al5083_sepia_run.py and recorded, with SEPIA's
 commit and the command run, under "sepia" in benchmarks/al5083_sepia.json.
 
     nice -n 5 python benchmarks/al5083_sepia.py [--chains 2 --warmup 1000 --draws 1000 --seed 1]
-    python benchmarks/al5083_sepia.py --sepia /tmp/al5083_sepia.json   # record SEPIA's run, then stop
+    python benchmarks/al5083_sepia.py --sepia /tmp/al5083_sepia*.json   # record SEPIA's runs, then stop
 
 ``--sepia``: the JSON benchmarks/al5083_sepia_run.py wrote (its theta draws
 beside it, .theta.npy) becomes the record's "sepia" entry, with the SEPIA
@@ -46,24 +46,43 @@ from stancal.fitting.vector_calibrate import calibrate_vector  # noqa: E402
 from stancal.problem.config import load_config  # noqa: E402
 
 RECORD = ROOT / "benchmarks" / "al5083_sepia.json"
+sys.path.insert(0, str(ROOT / "benchmarks"))
+from al5083_sepia_run import BOX  # noqa: E402  (the config's theta box; that module imports SEPIA only to run it)
+
 SEPIA_COMMIT = "309890423a121919dc09a678c65a21748bbefb4b"  # github.com/lanl/SEPIA, 2 Oct 2023 (SEPIA 1.2)
 SEPIA_COMMAND = ("OPENBLAS_NUM_THREADS=1 nice -n 5 python benchmarks/al5083_sepia_run.py "
                  "--data SEPIA/examples/Al_5083/data --subset case_studies/al5083/runs_subset.csv "
-                 "--iterations 5000 --seed 1 --out al5083_sepia.json")
+                 "--iterations 5000 --seed SEED --out al5083_sepia_SEED.json")  # SEED = 1, 2, ...
 
 
-def record_sepia(path: Path) -> None:
-    """SEPIA's run as the record's "sepia" entry: its summary, where and how
-    it ran, and theta's bulk ESS and R-hat (the kept draws as two halves)."""
-    run = json.loads(path.read_text())
-    theta = np.load(path.with_suffix(".theta.npy"))
-    halves = theta[: 2 * (len(theta) // 2)].reshape(2, len(theta) // 2, -1)
-    for q, entry in enumerate(run["theta"].values()):  # in the design's column order, as theta
-        entry["ess_bulk"] = float(ast.ess(halves[..., q], method="bulk"))
-        entry["rhat_halves"] = float(ast.rhat(halves[..., q]))
-        entry["ess_per_s"] = entry["ess_bulk"] / run["mcmc_s"]
+def record_sepia(paths: list[Path]) -> None:
+    """SEPIA's runs (one chain each, same settings, their own seeds) as the
+    record's "sepia" entry: where and how they ran, theta's mean and sd over
+    all kept draws, its bulk ESS and R-hat (with one chain, its kept draws
+    as two halves) and the Monte Carlo error of the mean."""
+    runs = [json.loads(p.read_text()) for p in paths]
+    draws = [np.load(p.with_suffix(".theta.npy")) for p in paths]
+    if len(draws) == 1:
+        half = len(draws[0]) // 2
+        draws = [draws[0][:half], draws[0][half: 2 * half]]
+    chains = np.stack([d[: min(len(d) for d in draws)] for d in draws])  # (chain, draw, theta), unit scale
+    names, mcmc_s = list(runs[0]["theta"]), sum(r["mcmc_s"] for r in runs)
+    theta = {}
+    for q, name in enumerate(names):  # in the design's column order, as SEPIA's theta
+        lo, hi = BOX[name]
+        u = chains[..., q].ravel()
+        ess = float(ast.ess(chains[..., q], method="bulk"))
+        theta[name] = {"mean_unit": float(u.mean()), "sd_unit": float(u.std(ddof=1)),
+                       "mean": float(lo + (hi - lo) * u.mean()), "sd": float((hi - lo) * u.std(ddof=1)),
+                       "sd_over_prior_sd": float(u.std(ddof=1) * np.sqrt(12)), "ess_bulk": ess,
+                       "rhat": float(ast.rhat(chains[..., q])), "mcse_mean_over_sd": 1 / np.sqrt(ess),
+                       "ess_per_s": ess / mcmc_s}
     record = json.loads(RECORD.read_text()) if RECORD.exists() else {}
-    record["sepia"] = {"commit": SEPIA_COMMIT, "command": SEPIA_COMMAND, **run}
+    record["sepia"] = {"commit": SEPIA_COMMIT, "command": SEPIA_COMMAND, "chains": len(runs),
+                       "seeds": [r["seed"] for r in runs], "runs": runs[0]["runs"],
+                       "iterations": runs[0]["iterations"], "burn": runs[0]["burn"],
+                       "tune_s": [r["tune_s"] for r in runs], "mcmc_s": [r["mcmc_s"] for r in runs],
+                       "s_per_iteration": [r["s_per_iteration"] for r in runs], "theta": theta}
     RECORD.write_text(json.dumps(record, indent=2) + "\n")
 
 
@@ -80,7 +99,8 @@ def main() -> None:
     parser.add_argument("--draws", type=int, default=1000)
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--out", type=Path, default=Path("out/al5083-subset"))
-    parser.add_argument("--sepia", type=Path, help="record this SEPIA run (al5083_sepia_run.py's JSON) and stop")
+    parser.add_argument("--sepia", type=Path, nargs="+",
+                        help="record these SEPIA runs (al5083_sepia_run.py's JSONs, one chain each) and stop")
     args = parser.parse_args()
     if args.sepia:
         return record_sepia(args.sepia)
