@@ -78,12 +78,25 @@ def record_sepia(paths: list[Path]) -> None:
                        "rhat": float(ast.rhat(chains[..., q])), "mcse_mean_over_sd": 1 / np.sqrt(ess),
                        "ess_per_s": ess / mcmc_s}
     record = json.loads(RECORD.read_text()) if RECORD.exists() else {}
+    if "stancal" in record:  # stancal's fit compared again, with the new reference
+        compare_with(record["stancal"], theta)
     record["sepia"] = {"commit": SEPIA_COMMIT, "command": SEPIA_COMMAND, "chains": len(runs),
                        "seeds": [r["seed"] for r in runs], "runs": runs[0]["runs"],
                        "iterations": runs[0]["iterations"], "burn": runs[0]["burn"],
                        "tune_s": [r["tune_s"] for r in runs], "mcmc_s": [r["mcmc_s"] for r in runs],
                        "s_per_iteration": [r["s_per_iteration"] for r in runs], "theta": theta}
     RECORD.write_text(json.dumps(record, indent=2) + "\n")
+
+
+def compare_with(stancal: dict, sepia: dict) -> None:
+    """stancal's recorded theta against SEPIA's: the mean's gap in SEPIA's
+    sds and the ratio of the sds (as compare.theta_table has them)."""
+    for name, entry in stancal["theta"].items():
+        ref = sepia[name]
+        gap = (entry["mean"] - ref["mean"]) / ref["sd"]
+        entry |= {"reference_mean": ref["mean"], "reference_sd": ref["sd"], "gap_in_reference_sds": gap,
+                  "sd_ratio": entry["sd"] / ref["sd"], "abs_gap_in_sepia_sds": abs(gap)}
+    stancal["max_abs_gap_in_sepia_sds"] = max(e["abs_gap_in_sepia_sds"] for e in stancal["theta"].values())
 
 
 def sepia_reference(record: dict) -> pd.DataFrame:
