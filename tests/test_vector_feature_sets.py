@@ -171,3 +171,28 @@ def test_a_feature_set_config_keeps_every_value_on_the_grid():
     variance = data.basis.independent_variance_at(data.physical[data.output_index].to_numpy())
     assert data.basis.interpolation_variance > 1  # between features: meaningless, and large
     np.testing.assert_allclose(variance, data.basis.truncation_variance)
+
+
+def test_stage_one_fits_the_weight_gps_on_one_blas_thread(monkeypatch):
+    """Stage 1's weight GPs run on one BLAS thread whatever the caller's
+    setting: thousands of small factorisations gain nothing from threads,
+    and OpenBLAS's threads spin-wait on busy cores (Al-5083's 100-run stage 1
+    on 2 shared cores: 78 s with 2 threads, 2.7 s with one)."""
+    from types import SimpleNamespace
+
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    from stancal.fitting import stage_one
+    from stancal.problem.config import load_config
+
+    seen = []
+
+    def fit(basis, xt, outputs, seed):
+        seen.extend(pool["num_threads"] for pool in threadpool_info() if pool["user_api"] == "blas")
+        return SimpleNamespace(hyperparameter_runs=len(xt))
+
+    monkeypatch.setattr(stage_one.VectorEmulator, "fit", staticmethod(fit))
+    data = load_config(ROOT / "case_studies" / "al5083" / "config_subset.toml").data
+    with threadpool_limits(limits=2, user_api="blas"):
+        stage_one.fit_vector_emulator(data, seed=1)
+    assert seen and set(seen) == {1}

@@ -5,6 +5,7 @@ and the per-shot features against the predictive bands (shots.png).
 
     .venv/bin/python case_studies/al5083/compare.py [--out out/al5083] [--chains 4]
         [--warmup 500] [--draws 500] [--seed 1] [--reference sepia_posterior.csv]
+        [--config config_subset.toml]
 
 ``--reference``: a CSV with columns name, mean, sd (theta in the config's
 units): the posterior to compare with. SEPIA's example (Al_5083_calibration.py:
@@ -43,6 +44,8 @@ def arguments() -> argparse.Namespace:
     parser.add_argument("--draws", type=int, default=500)
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--reference", type=Path, default=HERE / "sepia_posterior.csv")
+    parser.add_argument("--config", type=Path, default=HERE / "config.toml",
+                        help="config_subset.toml: the 100 runs SEPIA was run on (benchmarks/al5083_sepia.py)")
     return parser.parse_args()
 
 
@@ -103,7 +106,7 @@ def main() -> None:
     logging.basicConfig(format="%(name)s: %(message)s")
     logging.getLogger("stancal").setLevel(logging.INFO)  # stage 1 and sampling progress, as the CLI shows them
     args.out.mkdir(parents=True, exist_ok=True)
-    problem = load_config(HERE / "config.toml")
+    problem = load_config(args.config)
     started = time.perf_counter()
     result = calibrate_vector(problem.data, chains=args.chains, warmup=args.warmup, draws=args.draws, seed=args.seed,
                               out_dir=args.out, **problem.model)

@@ -12,6 +12,7 @@ import time
 from typing import Any
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from stancal.fitting.run_variance import intrinsic_variance
 from stancal.fitting.stage_one_theta_low import fit_theta_low_emulator
@@ -135,7 +136,11 @@ def fit_vector_emulator(data: VectorCalibrationData, seed: int) -> VectorEmulato
     columns = [*data.inputs, *(p.name for p in data.all_parameters)]
     xt = data.scaling.to_unit(data.run_settings, columns)
     started = time.perf_counter()
-    emulator = VectorEmulator.fit(data.basis, xt, data.run_outputs, seed)
+    # One BLAS thread: the fit is thousands of small (<= 400 x 400) factorisations, which threads barely
+    # speed up, and OpenBLAS's threads spin-wait when the cores are busy. On 2 shared cores (load 10-14)
+    # Al-5083's 100-run stage 1 took 78 s with 2 threads against 2.7 s with one (docs/al5083.md).
+    with threadpool_limits(limits=1, user_api="blas"):
+        emulator = VectorEmulator.fit(data.basis, xt, data.run_outputs, seed)
     logger.info("stage 1: %s; one GP per component, hyperparameters at their posterior mode (scipy L-BFGS "
                 "on %d of %d runs) in %.1f s", data.basis.describe(), emulator.hyperparameter_runs,
                 len(xt), time.perf_counter() - started)
