@@ -7,12 +7,14 @@ flag, and the refusals."""
 import numpy as np
 import pandas as pd
 import pytest
+from conftest import assert_healthy, fit
 from scipy import linalg
 
 import stancal
-from stancal.problem.config import ConfigError, load_config
+from stancal.fitting.stage_one import fidelity_levels
 from stancal.numerics import multifidelity as mf
 from stancal.numerics.scalable_emulator import Hyperparameters, run_covariance, run_factor, se_correlation
+from stancal.problem.config import ConfigError, load_config
 from stancal.problem.validation import DataError
 
 
@@ -176,3 +178,59 @@ def test_a_config_reads_the_rho_form_and_refuses_an_unknown_one(tmp_path):
     (tmp_path / "bad.toml").write_text(text.format("quadratic"))
     with pytest.raises(ConfigError, match=r"\[simulator.low_fidelity\] rho must be one of constant, linear"):
         load_config(tmp_path / "bad.toml")
+
+
+def test_the_summary_and_report_give_rho_over_the_inputs():
+    """rho_of_inputs (summary.json's emulator entry) and the report's lines for a linear rho."""
+    from stancal.fitting.stage_one import rho_of_inputs
+    from stancal.reporting.report import rho_lines
+
+    physical, low, high = cooling_frames()
+    data = stancal.CalibrationData(physical, ["t"], "y", {"k": (0.5, 2.0)}, runs=[low, high],
+                                   low_fidelity_rho="linear")
+    h = Hyperparameters(0.0, 1.0, np.array([0.3, 0.5]), 0.01)
+    levels = [mf.Level(h, 1.0, np.zeros((3, 2)), np.zeros(3)), mf.Level(h, 0.4, np.zeros((3, 2)), np.zeros(3),
+                                                                         np.array([0.8]))]
+    entry = rho_of_inputs(data, levels)
+    assert entry["level_rho_slope"] == [{"t": 0.8}]
+    assert entry["level_rho_range"] == [pytest.approx([0.4, 1.2])]
+    t_low, t_width = data.scaling.low["t"], data.scaling.width["t"]
+    assert entry["level_rho_profile"][0]["inputs"]["t"] == pytest.approx(t_low + t_width * np.linspace(0, 1, 5))
+    assert entry["level_rho_profile"][0]["rho"]["t"] == pytest.approx([0.4, 0.6, 0.8, 1.0, 1.2])
+    text = "\n".join(rho_lines({"level_rho": [0.4], **entry}))
+    assert "rho(x) = 0.4 +0.8 u_t" in text and "from 0.4 to 1.2 over the inputs' box" in text
+    assert "| t | 0, 0.25, 0.5, 0.75, 1 | 0.4, 0.6, 0.8, 1, 1.2 |" in text
+    constant = [levels[0], mf.Level(h, 0.4, np.zeros((3, 2)), np.zeros(3))]
+    assert rho_of_inputs(data, constant) == {}
+    assert rho_lines({"level_rho": [0.4]}) == ["- each level's scale on the one below: 0.4"]
+
+
+@pytest.fixture(scope="module")
+def linear_fit():
+    from test_multifidelity import problem
+
+    return fit(problem(low_fidelity_rho="linear"), method="modular", discrepancy="none", draws=1000)
+
+
+@pytest.mark.slow  # one fit with its stage 1, about a minute on two shared cores
+def test_modular_with_rho_of_x_matches_quadrature_of_the_same_model(linear_fit):
+    """modular.stan's per-point weights against the numpy co-kriging with rho(x), by quadrature."""
+    from test_multifidelity import K_TRUE, quadrature_posterior
+
+    assert_healthy(linear_fit)
+    levels = fidelity_levels(linear_fit.data, linear_fit.emulator["hyperparameters"]["levels"])
+    assert len(levels[1].rho_slope) == 1 and levels[1].rho_slope[0] != 0
+    mean, sd = quadrature_posterior(linear_fit.data, levels)
+    k = np.asarray(linear_fit.idata["posterior"]["theta"]).reshape(-1)
+    # the same tolerances as the constant rho's test (tests/test_multifidelity.py)
+    assert abs(k.mean() - mean) < 0.2 * sd, (k.mean(), mean, sd)
+    assert k.std() == pytest.approx(sd, rel=0.15)
+    assert abs(mean - K_TRUE) < 3 * sd
+
+
+@pytest.mark.slow
+def test_the_summary_json_and_report_of_a_fit_show_rho_of_x(linear_fit, tmp_path):
+    emulator = linear_fit.to_summary_json()["emulator"]
+    assert len(emulator["level_rho_slope"]) == 1 and "t" in emulator["level_rho_profile"][0]["rho"]
+    stancal.write_calibration(linear_fit, tmp_path)
+    assert "linear in the inputs: rho(x) =" in (tmp_path / "report.md").read_text()
