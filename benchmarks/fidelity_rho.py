@@ -16,8 +16,10 @@ fresh expensive runs (RMS error, share inside its 90 % band), and with
 ``--fit`` modular's 90 % interval of k (2 x (300 + 500)).
 
     python benchmarks/fidelity_rho.py [--case drifting] [--seeds 5] [--fit]
+    python benchmarks/fidelity_rho.py --figure docs/img/multifidelity_rho.png
 
-Writes benchmarks/fidelity_rho_CASE.json and prints one row per seed and form.
+Writes benchmarks/fidelity_rho_CASE.json and prints one row per seed and form;
+``--figure``: stage 1's linear rho along t on the drifting case (seed 0) against the truth.
 """
 
 from __future__ import annotations
@@ -95,9 +97,35 @@ def one(case_name: str, seed: int, form: str, sample: bool) -> dict:
     levels = fidelity_levels(data, emulator["hyperparameters"]["levels"])
     row |= holdout(data, levels, expensive, case) | {
         "level_rho": emulator["level_rho"], "level_rho_range": emulator.get("level_rho_range"),
+        "level_rho_slope": emulator.get("level_rho_slope"),
         "loo_rmse": emulator["loo_rmse"], "top_level_variance_factor": emulator["top_level_variance_factor"],
         "seconds": time.perf_counter() - started}
     return row
+
+
+def figure(path: Path) -> None:
+    """Stage 1's rho(t) (T0 at its centre) on the drifting case, seed 0, against the truth 1 - DRIFT t."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    data, _ = problem("drifting", 0, "linear")
+    emulator = fit_fidelity_emulator(data, 0)
+    profile = emulator["level_rho_profile"][0]
+    t = np.asarray(profile["inputs"]["t"])
+    fig, ax = plt.subplots(figsize=(5, 3))
+    ax.plot(t, profile["rho"]["t"], "o-", label="stage 1's linear rho (150 + 15 runs)")
+    ax.plot(t, 1 - DRIFT * t, "k--", lw=1, label="truth: 1 - 0.006 t")
+    constant = fit_fidelity_emulator(problem("drifting", 0, "constant")[0], 0)["level_rho"][0]
+    ax.axhline(constant, color="C1", lw=1, label=f"constant rho: {constant:.3g}")
+    ax.set_xlabel("t (min), T0 at its centre")
+    ax.set_ylabel("rho: expensive on cheap (-)")
+    ax.legend(fontsize=8)
+    ax.set_title("The scale between the fidelities along t", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=150)
+    plt.close(fig)
 
 
 def main() -> None:
@@ -105,7 +133,11 @@ def main() -> None:
     parser.add_argument("--case", default="drifting", choices=["drifting", "cooling_fidelity"])
     parser.add_argument("--seeds", type=int, default=5)
     parser.add_argument("--fit", action="store_true", help="also calibrate (modular, 2 x (300 + 500))")
+    parser.add_argument("--figure", type=Path, help="only draw stage 1's rho(t) on the drifting case to this PNG")
     args = parser.parse_args()
+    if args.figure:
+        figure(args.figure)
+        return
     rows = []
     for seed in range(args.seeds):
         for form in FORMS:
