@@ -9,23 +9,24 @@ use it in calibration): constant, or linear in the simulator's inputs,
 rho_k(x) = beta_0 + x' beta_x on the unit cube (Le Gratiet & Garnier 2014,
 section 2: rho as a regression on the inputs; Kennedy & O'Hagan 2000,
 section 2.1). rho depends on x alone, not on theta, so at the physical
-points (which share theta) the levels' weights are data. The top level is the simulator that is
-calibrated; the cheaper ones teach it where their runs are dense.
+points (which share theta) the levels' weights are data. The top level is
+the simulator that is calibrated; the cheaper ones teach it where their
+runs are dense.
 
 - Hyperparameters, level by level (the recursive formulation of Le Gratiet
   & Garnier 2014): g_1's are emulator.stan's posterior mode on the cheapest
   runs; g_k's and rho_k's coefficients are the mode of the same priors
   (rho_k's flat) on the residuals y_k - rho_k(x) z_{k-1}; at that mode the
   coefficients are their generalised least-squares estimate given g_k's
-  hyperparameters (Le Gratiet & Garnier 2014, section 3.1), where z_{k-1} is level k-1 at level k's
-  runs: its own output where a run was made at both levels (nested
-  designs), else the emulator's mean of level k-1 there.
+  hyperparameters, in closed form (Le Gratiet & Garnier 2014). z_{k-1} is
+  level k-1 at level k's runs: its own output where a run was made at both
+  levels (nested designs), else the emulator's mean of level k-1 there.
 - Prediction: co-kriging given every level's runs at once (Kennedy &
   O'Hagan 2000, section 2.2), exact for nested and non-nested designs
   alike: the levels' joint covariance is
       cov(f_a(s), f_b(t)) = sum_{j <= min(a, b)} P(j, a) P(j, b) k_j(s, t),
-  P(j, a) = rho_{j+1} ... rho_a (P(a, a) = 1), each rho at the point. For nested designs without
-  noise it equals Le Gratiet & Garnier's recursive formulas
+  P(j, a) = rho_{j+1} ... rho_a (P(a, a) = 1), each rho at the point.
+  For nested designs without noise it equals Le Gratiet & Garnier's recursive formulas
   (tests/test_multifidelity_numerics.py keeps them as the check).
 - Leave-one-out errors at the top level's runs, with and without the
   cheaper runs (Dubrule 1983: the left-out residual is alpha_i / [K^-1]_ii),
@@ -200,7 +201,7 @@ def level_objective(v: np.ndarray, xt: np.ndarray, y: np.ndarray, below: np.ndar
 
 def gls_rho(levels: list[Level], level: int) -> np.ndarray:
     """rho_k's coefficients by generalised least squares given g_k's
-    hyperparameters (Le Gratiet & Garnier 2014, section 3.1):
+    hyperparameters, in closed form (Le Gratiet & Garnier 2014):
     (G' K^-1 G)^-1 G' K^-1 (y_k - m_k), G = diag(z_{k-1}) F, F rho_design at
     level k's runs and K g_k's covariance of them. At stage 1's mode the
     coefficients equal it (rho's prior is flat)."""
