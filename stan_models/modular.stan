@@ -67,7 +67,9 @@ data {
   int<lower=0, upper=1> prior_only;     // 1 = ignore y (the runs still inform the emulator)
   int<lower=1> L;                       // fidelity levels of the runs: 1 = the calibrated simulator only
   array[M] int<lower=1, upper=L> run_level;  // each run's level: 1 the cheapest, L the calibrated simulator
-  vector[L - 1] level_rho;              // stage 1: each level's scale on the level below
+  vector[L - 1] level_rho;              // stage 1: each level's scale on the level below (its intercept: at x = 0)
+  matrix[L - 1, D] level_rho_slope;     // stage 1: its slopes on the inputs, unit cube: rho_k(x) = level_rho[k - 1]
+                                        // + level_rho_slope[k - 1] * x (Le Gratiet & Garnier 2014); zeros: constant
   array[L] real emulator_mean;          // stage-1 hyperparameters of each level's GP, standardised units
   array[L] real<lower=0> emulator_sd;   // see emulator_mean
   array[L, D + Q + Q_low] real<lower=0> emulator_length_scale;  // inputs, theta, theta_l; unit-cube units
@@ -82,17 +84,17 @@ data {
 transformed data {
   array[M] vector[D + Q + Q_low] xt_sim;
   for (j in 1:M) xt_sim[j] = append_row(x_sim[j], theta_sim[j]);
-  // each run's weights on the levels' GPs; the physical points are at the top level
-  matrix[L, L] weights = fidelity_weights(level_rho);
-  matrix[M, L] w_sim = weights[run_level, :];
-  row_vector[L] w_top = weights[L, :];
-  matrix[N, L] w_obs = rep_matrix(w_top, N);
+  // each run's weights on the levels' GPs at its inputs; the physical and prediction points are at the top level
+  matrix[M, L] w_sim = fidelity_point_weights(level_rho, level_rho_slope, x_sim, run_level);
+  matrix[N, L] w_obs = fidelity_point_weights(level_rho, level_rho_slope, x, rep_array(L, N));
+  matrix[P, L] w_new = fidelity_point_weights(level_rho, level_rho_slope, x_new, rep_array(L, P));
+  row_vector[L] w_top = fidelity_widest(w_obs, emulator_sd);  // the jitter's scale
   // each run's own variance: its level's nugget and, for a stochastic simulator, its intrinsic variance
   vector[M] run_nugget_sd = sqrt(square(to_vector(emulator_nugget)[run_level]) + square(run_intrinsic_sd));
   // the emulator's misfit at the physical points: the top level's nugget where two points are one
   // (Higdon et al. 2008), not the intrinsic variance
   matrix[N, N] nugget_obs = square(emulator_nugget[L]) * same_point(x);
-  real top_mean = w_top * to_vector(emulator_mean);
+  vector[N] top_mean = w_obs * to_vector(emulator_mean);  // the top level's prior mean at each point
   real top_variance = fidelity_variance(w_top, emulator_sd);
   matrix[M, M] L_sim = cholesky_decompose(
     fidelity_run_cov(xt_sim, w_sim, w_top, kernel_id, emulator_sd, emulator_length_scale, run_nugget_sd));
@@ -105,8 +107,8 @@ transformed data {
   matrix[N, N] K_obs = fidelity_cov(x, w_obs, kernel_id, emulator_sd, emulator_length_scale[:, 1:D]);
   array[L] matrix[N, M] K_obs_sim_x;
   for (j in 1:L) {
-    K_obs_sim_x[j] = diag_post_multiply(gp_exp_quad_cov(x, x_sim, emulator_sd[j], emulator_length_scale[j, 1:D]),
-                                        w_top[j] * col(w_sim, j));
+    K_obs_sim_x[j] = diag_pre_multiply(col(w_obs, j), diag_post_multiply(
+      gp_exp_quad_cov(x, x_sim, emulator_sd[j], emulator_length_scale[j, 1:D]), col(w_sim, j)));
   }
   check_given_normals(P_normals, P);
 }
@@ -209,7 +211,7 @@ generated quantities {
       = koh_joint_quantities_rng(y_sim, y, Q_low == 0 ? xt_sim : runs_at_theta_low(x_sim, theta_sim, run_level,
                                                                                      theta_low_unit),
                                  x, append_row(theta_unit, theta_low_unit), x_delta, h, beta, x_new, x_delta_new,
-                                 h_new, normals_new, prior_only, kernel_id, w_sim, w_top, emulator_mean,
+                                 h_new, normals_new, prior_only, kernel_id, w_sim, w_obs, w_new, emulator_mean,
                                  emulator_sd, emulator_length_scale, run_nugget_sd, rho, delta_sd,
                                  delta_length_scale, weighted_noise_variance(noise_var, noise_weight),
                                  square(rho) * nugget_obs,

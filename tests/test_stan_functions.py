@@ -161,6 +161,20 @@ def test_fidelity_covariance_is_the_numpy_co_kriging_one(gq):
     np.testing.assert_allclose(gq["fidelity_cross"], expected, rtol=1e-10)
 
 
+def test_fidelity_point_weights_are_the_numpy_scales_at_each_point(gq):
+    """fidelity_point_weights against stancal.numerics.multifidelity's rho(x)
+    (three levels, rho_k(x) = beta_0 + x' beta_x; Le Gratiet & Garnier 2014),
+    and fidelity_widest, the row of the largest prior variance."""
+    h = Hyperparameters(0.0, 1.0, LS, 0.0)
+    levels = [Level(h, 1.0, X2, np.zeros(4)), Level(h, 1.7, X2, np.zeros(4), np.array([0.5, -0.4])),
+              Level(h, 0.6, X2, np.zeros(4), np.array([-0.3, 0.9]))]
+    rho2, rho3 = levels[1].rho_at(X2), levels[2].rho_at(X2)
+    expected = np.array([[1, 0, 0], [rho2[1], 1, 0], [rho2[2] * rho3[2], rho3[2], 1], [rho2[3] * rho3[3], rho3[3], 1]])
+    np.testing.assert_allclose(gq["fidelity_point_w"], expected, rtol=1e-12)
+    variance = (expected * [SD, 0.5, 0.2]) ** 2 @ np.ones(3)
+    np.testing.assert_allclose(gq["fidelity_widest_w"], expected[variance.argmax()], rtol=1e-12)
+
+
 def test_orthogonal_gp_covariance(gq):
     """K - K A (A'KA)^-1 A'K: the functionals A' delta have zero prior variance."""
     K = se(X1, X1)

@@ -8,6 +8,8 @@
  *   cov(f_a(s), f_b(t)) = sum_j w_aj w_bj k_j(s, t).
  * Each run carries its level's weights; the calibrated simulator is the top
  * level. With one level every weight is 1 and this is the usual emulator.
+ * A scale may depend on the simulator's inputs, rho_k(x) = beta_0 + x' beta_x
+ * (Le Gratiet & Garnier 2014, section 2): the weights are then each point's.
  */
 
 /**
@@ -23,6 +25,24 @@ matrix fidelity_weights(vector level_rho) {
     w[k, k] = 1;
     for (j in 1:(k - 1)) w[k, j] = w[k - 1, j] * level_rho[k - 1];
   }
+  return w;
+}
+
+/**
+ * Each point's weights at its level with scales linear in the inputs,
+ * rho_k(x) = level_rho[k - 1] + level_rho_slope[k - 1] * x (Le Gratiet &
+ * Garnier 2014, section 2; zero slopes: constant scales).
+ *
+ * @param level_rho each level's scale on the one below at x = 0 (its intercept), size L - 1
+ * @param level_rho_slope its slopes on the inputs, (L - 1) x D, unit-cube units
+ * @param x the points' simulator inputs on the unit cube
+ * @param level each point's level
+ * @return size(x) x L matrix: row i holds w_kj(x_i), k point i's level
+ */
+matrix fidelity_point_weights(vector level_rho, matrix level_rho_slope, array[] vector x, array[] int level) {
+  int L = rows(level_rho) + 1;
+  matrix[size(x), L] w;
+  for (i in 1:size(x)) w[i] = fidelity_weights(level_rho + level_rho_slope * x[i])[level[i], :];
   return w;
 }
 
@@ -75,6 +95,20 @@ matrix fidelity_cov(array[] vector xt, matrix w, int kernel_id, array[] real lev
  */
 real fidelity_variance(row_vector w_top, array[] real level_sd) {
   return dot_self(w_top' .* to_vector(level_sd));
+}
+
+/**
+ * The widest of some points' weights: the row whose prior variance
+ * (fidelity_variance) is largest, the scale of the jitter (add_jitter).
+ *
+ * @param w the points' weights, one row per point
+ * @param level_sd each level's GP marginal sd
+ * @return one row of w
+ */
+row_vector fidelity_widest(matrix w, array[] real level_sd) {
+  vector[rows(w)] variance;
+  for (i in 1:rows(w)) variance[i] = fidelity_variance(w[i], level_sd);
+  return w[sort_indices_desc(variance)[1]];
 }
 
 /**

@@ -44,11 +44,11 @@ array[] vector runs_at_theta_low(array[] vector x_sim, array[] vector theta_sim,
  * @param K_obs_run covariance of the points with the runs
  * @param L_run Cholesky factor of the runs' covariance
  * @param alpha_run K_run^-1 (y_sim - mean)
- * @param top_mean the top level's prior mean
+ * @param top_mean the top level's prior mean at each point
  * @param K_obs the points' prior covariance
  * @return (mean, covariance) at the points
  */
-tuple(vector, matrix) fidelity_at_points(matrix K_obs_run, matrix L_run, vector alpha_run, real top_mean,
+tuple(vector, matrix) fidelity_at_points(matrix K_obs_run, matrix L_run, vector alpha_run, vector top_mean,
                                          matrix K_obs) {
   matrix[cols(K_obs_run), rows(K_obs_run)] A = mdivide_left_tri_low(L_run, K_obs_run');
   return (top_mean + K_obs_run * alpha_run, K_obs - crossprod(A));

@@ -9,7 +9,7 @@
  * @param xt_sim emulator inputs of the runs, (x, theta) on the unit cube
  * @param w_sim the runs' weights on the levels' GPs (one column for one fidelity)
  * @param xt_obs emulator inputs of the physical points at the current theta
- * @param w_top the top level's weights
+ * @param w_obs the physical points' weights at the top level, one row per point (fidelity.stan)
  * @param x_delta discrepancy inputs of the physical points
  * @param kernel_id 1 = squared exponential, 2 = Matern 5/2
  * @param level_sd each level's emulator GP marginal sd
@@ -22,16 +22,15 @@
  * @param noise_var each physical point's noise variance (noise.stan's weighted_noise_variance)
  * @param point_cov the emulator's misfit among the physical points: its nugget where two
  *        points are one (Higdon et al. 2008), times rho^2; zeros where the program has none
- * @return covariance matrix of size M + N, with the jitter (add_jitter) of the top level's variance
+ * @return covariance matrix of size M + N, with the jitter (add_jitter) of the top level's widest variance
  */
-matrix koh_joint_cov(array[] vector xt_sim, matrix w_sim, array[] vector xt_obs, row_vector w_top,
+matrix koh_joint_cov(array[] vector xt_sim, matrix w_sim, array[] vector xt_obs, matrix w_obs,
                      array[] vector x_delta, int kernel_id, array[] real level_sd,
                      array[,] real level_length_scale, vector run_nugget_sd, real rho,
                      array[] real delta_sd, array[] real delta_length_scale, vector noise_var,
                      matrix point_cov) {
   int m = size(xt_sim);
   int n = size(xt_obs);
-  matrix[n, cols(w_sim)] w_obs = rep_matrix(w_top, n);
   matrix[m + n, m + n] K;
   K[1:m, 1:m] = add_diag(fidelity_cov(xt_sim, w_sim, kernel_id, level_sd, level_length_scale),
                          square(run_nugget_sd));
@@ -44,7 +43,19 @@ matrix koh_joint_cov(array[] vector xt_sim, matrix w_sim, array[] vector xt_obs,
     K_obs += ard_cov(x_delta, kernel_id, delta_sd[1], delta_length_scale);
   }
   K[(m + 1):(m + n), (m + 1):(m + n)] = add_diag(K_obs, noise_var);
-  return add_jitter(K, fidelity_variance(w_top, level_sd));
+  return add_jitter(K, fidelity_variance(fidelity_widest(w_obs, level_sd), level_sd));
+}
+
+/**
+ * koh_joint_cov with every physical point at the same weights w_top (constant scales).
+ */
+matrix koh_joint_cov(array[] vector xt_sim, matrix w_sim, array[] vector xt_obs, row_vector w_top,
+                     array[] vector x_delta, int kernel_id, array[] real level_sd,
+                     array[,] real level_length_scale, vector run_nugget_sd, real rho,
+                     array[] real delta_sd, array[] real delta_length_scale, vector noise_var,
+                     matrix point_cov) {
+  return koh_joint_cov(xt_sim, w_sim, xt_obs, rep_matrix(w_top, size(xt_obs)), x_delta, kernel_id, level_sd,
+                       level_length_scale, run_nugget_sd, rho, delta_sd, delta_length_scale, noise_var, point_cov);
 }
 
 /**
@@ -94,7 +105,8 @@ matrix same_point(array[] vector x) {
  * @param z standard normals, size 2P: f's, then delta's
  * @param kernel_id 1 = squared exponential, 2 = Matern 5/2
  * @param w_sim the runs' weights on the levels' GPs (fidelity.stan)
- * @param w_top the top level's weights: the physical and new points'
+ * @param w_obs the physical points' weights at the top level, one row per point
+ * @param w_new the new points' weights at the top level, one row per point
  * @param level_sd each level's emulator GP marginal sd
  * @param level_length_scale each level's emulator GP length scales: inputs first, then theta
  * @param rho the Kennedy-O'Hagan scale on the simulator
@@ -105,14 +117,12 @@ matrix same_point(array[] vector x) {
 vector koh_joint_predict(vector resid, matrix L_joint, array[] vector xt_sim,
                          array[] vector xt_obs, array[] vector x_delta,
                          array[] vector xt_new, array[] vector x_delta_new,
-                         int kernel_id, matrix w_sim, row_vector w_top, array[] real level_sd,
+                         int kernel_id, matrix w_sim, matrix w_obs, matrix w_new, array[] real level_sd,
                          array[,] real level_length_scale, real rho,
                          array[] real delta_sd, array[] real delta_length_scale, vector z) {
   int m = size(xt_sim);
   int n = size(xt_obs);
   int p = size(xt_new);
-  matrix[n, cols(w_sim)] w_obs = rep_matrix(w_top, n);
-  matrix[p, cols(w_sim)] w_new = rep_matrix(w_top, p);
   matrix[2 * p, m + n] K_cross = rep_matrix(0, 2 * p, m + n);
   matrix[2 * p, 2 * p] K_new = rep_matrix(0, 2 * p, 2 * p);
   K_cross[1:p, 1:m] = fidelity_cross_cov(xt_new, w_new, xt_sim, w_sim, kernel_id, level_sd,
@@ -127,6 +137,20 @@ vector koh_joint_predict(vector resid, matrix L_joint, array[] vector xt_sim,
       = ard_cov(x_delta_new, kernel_id, delta_sd[1], delta_length_scale);
   }
   return gp_conditional_draw(resid, L_joint, K_cross, K_new, z);
+}
+
+/**
+ * koh_joint_predict with every physical and new point at the same weights w_top (constant scales).
+ */
+vector koh_joint_predict(vector resid, matrix L_joint, array[] vector xt_sim,
+                         array[] vector xt_obs, array[] vector x_delta,
+                         array[] vector xt_new, array[] vector x_delta_new,
+                         int kernel_id, matrix w_sim, row_vector w_top, array[] real level_sd,
+                         array[,] real level_length_scale, real rho,
+                         array[] real delta_sd, array[] real delta_length_scale, vector z) {
+  return koh_joint_predict(resid, L_joint, xt_sim, xt_obs, x_delta, xt_new, x_delta_new, kernel_id, w_sim,
+                           rep_matrix(w_top, size(xt_obs)), rep_matrix(w_top, size(xt_new)), level_sd,
+                           level_length_scale, rho, delta_sd, delta_length_scale, z);
 }
 
 /**
@@ -147,7 +171,7 @@ vector koh_joint_predict(vector resid, matrix L_joint, array[] vector xt_sim,
  * @param xt_new emulator inputs of the prediction points
  * @param x_delta_new discrepancy inputs of the prediction points
  * @param kernel_id 1 = squared exponential, 2 = Matern 5/2
- * @param w_sim, w_top, level_sd, level_length_scale the emulator, as in koh_joint_predict
+ * @param w_sim, w_obs, w_new, level_sd, level_length_scale the emulator, as in koh_joint_predict
  * @param rho the Kennedy-O'Hagan scale on the simulator
  * @param delta_sd the discrepancy GP's marginal sd (an empty array: no discrepancy)
  * @param delta_length_scale the discrepancy GP's length scales, one per discrepancy input
@@ -157,7 +181,7 @@ vector koh_joint_predict(vector resid, matrix L_joint, array[] vector xt_sim,
 matrix koh_joint_draw(vector resid, matrix L_joint, int prior_only,
                       array[] vector xt_sim, array[] vector xt_obs,
                       array[] vector x_delta, array[] vector xt_new,
-                      array[] vector x_delta_new, int kernel_id, matrix w_sim, row_vector w_top,
+                      array[] vector x_delta_new, int kernel_id, matrix w_sim, matrix w_obs, matrix w_new,
                       array[] real level_sd, array[,] real level_length_scale, real rho,
                       array[] real delta_sd, array[] real delta_length_scale,
                       vector z_f, vector z_delta) {
@@ -167,7 +191,7 @@ matrix koh_joint_draw(vector resid, matrix L_joint, int prior_only,
   if (p == 0) return rep_matrix(0, 0, 2);
   vector[2 * p] f_delta = koh_joint_predict(
     resid[1:(m + n_cond)], L_joint[1:(m + n_cond), 1:(m + n_cond)], xt_sim,
-    xt_obs[1:n_cond], x_delta[1:n_cond], xt_new, x_delta_new, kernel_id, w_sim, w_top, level_sd,
+    xt_obs[1:n_cond], x_delta[1:n_cond], xt_new, x_delta_new, kernel_id, w_sim, w_obs[1:n_cond], w_new, level_sd,
     level_length_scale, rho, delta_sd, delta_length_scale, append_row(z_f, z_delta));
   return append_col(f_delta[1:p], f_delta[(p + 1):(2 * p)]);
 }
@@ -194,7 +218,8 @@ matrix koh_joint_draw(vector resid, matrix L_joint, int prior_only,
  * @param prior_only 1 = draws from the prior (the data ignored)
  * @param kernel_id 1 = squared exponential, 2 = Matern 5/2
  * @param w_sim the runs' weights on the levels' GPs (fidelity.stan; one column for one fidelity)
- * @param w_top the top level's weights: the physical and new points'
+ * @param w_obs the physical points' weights at the top level, one row per point
+ * @param w_new the prediction points' weights at the top level, one row per point
  * @param level_mean each level's emulator GP constant mean
  * @param level_sd each level's emulator GP marginal sd
  * @param level_length_scale each level's GP length scales: inputs first, then theta
@@ -214,7 +239,7 @@ tuple(vector, vector, vector, vector, vector, vector, vector, vector) koh_joint_
     vector y_sim, vector y, array[] vector xt_sim, array[] vector x, vector theta_unit,
     array[] vector x_delta, matrix h, vector beta, array[] vector x_new,
     array[] vector x_delta_new, matrix h_new, matrix normals_new, int prior_only,
-    int kernel_id, matrix w_sim, row_vector w_top, array[] real level_mean, array[] real level_sd,
+    int kernel_id, matrix w_sim, matrix w_obs, matrix w_new, array[] real level_mean, array[] real level_sd,
     array[,] real level_length_scale, vector run_nugget_sd, real rho, array[] real delta_sd,
     array[] real delta_length_scale, vector noise_var, matrix point_cov, real y_center, real y_scale) {
   int m = size(xt_sim);
@@ -222,23 +247,24 @@ tuple(vector, vector, vector, vector, vector, vector, vector, vector) koh_joint_
   int p = size(x_new);
   array[n] vector[num_elements(xt_sim[1])] xt_obs = append_theta(x, theta_unit);
   matrix[m + n, m + n] L = cholesky_decompose(
-    koh_joint_cov(xt_sim, w_sim, xt_obs, w_top, x_delta, kernel_id, level_sd, level_length_scale,
+    koh_joint_cov(xt_sim, w_sim, xt_obs, w_obs, x_delta, kernel_id, level_sd, level_length_scale,
                   run_nugget_sd, rho, delta_sd, delta_length_scale, noise_var, point_cov));
-  real top_mean = w_top * to_vector(level_mean);
+  vector[n] top_mean = w_obs * to_vector(level_mean);  // the top level's prior mean at each point
+  vector[p] top_mean_new = w_new * to_vector(level_mean);
   vector[m + n] resid = append_row(y_sim, y) - append_row(w_sim * to_vector(level_mean),
                                                           rho * top_mean + h * beta);
   tuple(vector[m + n], vector[m + n]) loo = mvn_loo(resid, L);
   // (f, delta) at the physical points, then at the prediction points, whose
   // standard normals stancal may give
   matrix[n, 2] f_delta_obs = koh_joint_draw(
-    resid, L, prior_only, xt_sim, xt_obs, x_delta, xt_obs, x_delta, kernel_id, w_sim, w_top, level_sd,
+    resid, L, prior_only, xt_sim, xt_obs, x_delta, xt_obs, x_delta, kernel_id, w_sim, w_obs, w_obs, level_sd,
     level_length_scale, rho, delta_sd, delta_length_scale, std_normals_rng(n), std_normals_rng(n));
   matrix[p, 2] f_delta_new = koh_joint_draw(
     resid, L, prior_only, xt_sim, xt_obs, x_delta, append_theta(x_new, theta_unit), x_delta_new,
-    kernel_id, w_sim, w_top, level_sd, level_length_scale, rho, delta_sd, delta_length_scale,
+    kernel_id, w_sim, w_obs, w_new, level_sd, level_length_scale, rho, delta_sd, delta_length_scale,
     prediction_normals_rng(normals_new, 1, p), prediction_normals_rng(normals_new, 2, p));
   vector[n] zeta_obs = rho * (top_mean + f_delta_obs[:, 1]) + h * beta + f_delta_obs[:, 2];
-  vector[p] f_new = top_mean + f_delta_new[:, 1];
+  vector[p] f_new = top_mean_new + f_delta_new[:, 1];
   vector[p] delta_new = h_new * beta + f_delta_new[:, 2];
   vector[n] delta_gp_mean = rep_vector(0, n);
   if (size(delta_sd) > 0 && !prior_only) {
@@ -259,7 +285,8 @@ tuple(vector, vector, vector, vector, vector, vector, vector, vector) koh_joint_
 }
 
 /**
- * koh_joint_quantities_rng without an emulator misfit at the physical points.
+ * koh_joint_quantities_rng with every physical and new point at the same weights w_top (constant
+ * scales) and without an emulator misfit at the physical points.
  */
 tuple(vector, vector, vector, vector, vector, vector, vector, vector) koh_joint_quantities_rng(
     vector y_sim, vector y, array[] vector xt_sim, array[] vector x, vector theta_unit,
@@ -269,7 +296,8 @@ tuple(vector, vector, vector, vector, vector, vector, vector, vector) koh_joint_
     array[,] real level_length_scale, vector run_nugget_sd, real rho, array[] real delta_sd,
     array[] real delta_length_scale, vector noise_var, real y_center, real y_scale) {
   return koh_joint_quantities_rng(y_sim, y, xt_sim, x, theta_unit, x_delta, h, beta, x_new, x_delta_new, h_new,
-                                  normals_new, prior_only, kernel_id, w_sim, w_top, level_mean, level_sd,
+                                  normals_new, prior_only, kernel_id, w_sim, rep_matrix(w_top, size(x)),
+                                  rep_matrix(w_top, size(x_new)), level_mean, level_sd,
                                   level_length_scale, run_nugget_sd, rho, delta_sd, delta_length_scale, noise_var,
                                   rep_matrix(0, size(x), size(x)), y_center, y_scale);
 }

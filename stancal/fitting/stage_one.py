@@ -17,7 +17,7 @@ from threadpoolctl import threadpool_limits
 from stancal.fitting.run_variance import intrinsic_variance
 from stancal.fitting.stage_one_theta_low import fit_theta_low_emulator
 from stancal.numerics.kernels import ard_cross_cov
-from stancal.numerics.multifidelity import Level, cheap_runs_value, fit_levels, mean_function
+from stancal.numerics.multifidelity import Level, cheap_runs_value, fit_levels, mean_function, rho_profile, rho_range
 from stancal.numerics.multifidelity_variance import variance_correction
 from stancal.numerics.scalable_emulator import (
     ERROR_RANK_SHARE,
@@ -29,6 +29,7 @@ from stancal.numerics.scalable_emulator import (
 )
 from stancal.numerics.vector_emulator import VectorEmulator
 from stancal.problem.data import CalibrationData
+from stancal.problem.fidelity_rho import rho_slopes
 from stancal.problem.options import ModelOptions
 from stancal.problem.vector_data import VectorCalibrationData
 from stancal.stan.registry import STAGE_ONE_BASIS, STAGE_ONE_FIDELITY, STAGE_ONE_GP, STAGE_ONE_SCALABLE
@@ -208,8 +209,23 @@ def fidelity_levels(data: CalibrationData, per_level: list[dict[str, Any]]) -> l
     """The multi-fidelity emulator that stage 1's per-level hyperparameters
     describe, on the data's runs (a cheap level's own theta_l at stage 1's estimate)."""
     theta_low = per_level[-1].get("theta_low_unit")
-    return [Level(Hyperparameters.from_stan(h), float(h["rho"]), xt, y)
+    return [Level(Hyperparameters.from_stan(h), float(h["rho"]), xt, y, np.asarray(h.get("rho_slope", []), float))
             for h, (xt, y) in zip(per_level, fidelity_runs(data, theta_low), strict=True)]
+
+
+def rho_of_inputs(data: CalibrationData, levels: list[Level]) -> dict[str, Any]:
+    """A linear rho's coefficients (on the unit cube: rho at the inputs' low
+    corner, then each input's slope over its range), its least and largest
+    value over the inputs' box, and its profile along each input (the others
+    at their centre), the input in its own units; empty for a constant rho."""
+    if not any(len(lv.rho_slope) for lv in levels[1:]):
+        return {}
+    low, width = data.scaling.low, data.scaling.width
+    grid = {name: (low[name] + width[name] * np.linspace(0, 1, 5)).tolist() for name in data.inputs}
+    return {"level_rho_slope": [dict(zip(data.inputs, lv.rho_slope.tolist(), strict=True)) for lv in levels[1:]],
+            "level_rho_range": [list(rho_range(lv)) for lv in levels[1:]],
+            "level_rho_profile": [{"inputs": grid, "rho": dict(zip(data.inputs, rho_profile(lv).tolist(), strict=True))}
+                                  for lv in levels[1:]]}
 
 
 def fit_fidelity_emulator(data: CalibrationData, seed: int) -> dict[str, Any]:
@@ -224,14 +240,15 @@ def fit_fidelity_emulator(data: CalibrationData, seed: int) -> dict[str, Any]:
         return fit_theta_low_emulator(data, seed)
     started = time.perf_counter()
     runs = fidelity_runs(data)
-    correction = variance_correction(fit_levels([xt for xt, _ in runs], [y for _, y in runs], seed), seed)
+    slopes = rho_slopes(data.low_fidelity_rho, len(data.inputs))  # rho linear in the inputs, or constant
+    correction = variance_correction(fit_levels([xt for xt, _ in runs], [y for _, y in runs], seed, slopes), seed)
     levels = correction.levels
     value = cheap_runs_value(levels, seed)
     seconds = time.perf_counter() - started
     logger.info("stage 1: %d levels of fidelity (%s runs, cheapest first), hyperparameters level by level "
                 "in %.1f s; scale on the level below %s; leave-one-out error at the calibrated simulator's runs "
                 "%.3g with the cheaper runs, %.3g without (standardised units)", len(levels),
-                " + ".join(str(len(y)) for _, y in runs), seconds, ", ".join(f"{r:.3g}" for r in value.rho),
+                " + ".join(str(len(y)) for _, y in runs), seconds, value.rho_text(),
                 value.loo_with, value.loo_without)
     logger.info("stage 1: the calibrated simulator's own GP has its variance times %.3g: its plug-in's mean squared "
                 "error under its hyperparameters' posterior is %.3g (Monte Carlo sd %.2g) times its variance, "
@@ -239,13 +256,15 @@ def fit_fidelity_emulator(data: CalibrationData, seed: int) -> dict[str, Any]:
                 " that pin them loosely" if correction.factor > 1 else "")
     if value.warning():
         logger.warning("%s", value.warning())
-    per_level = [{**lv.hyperparameters.as_stan(), "rho": lv.rho} for lv in levels]  # the cheapest's rho: 1, unused
+    per_level = [{**lv.hyperparameters.as_stan(), "rho": lv.rho, "rho_slope": lv.rho_slope.tolist()}
+                 for lv in levels]  # the cheapest's rho: 1, unused
     return {
         # every level's GP; no single-level names, which would read as the top level's emulator
         "hyperparameters": {"levels": per_level},
         "loo_rmse": value.loo_with,
         "loo_rmse_without_low_fidelity": value.loo_without,
         "level_rho": value.rho,
+        **rho_of_inputs(data, levels),
         "top_level_variance_factor": correction.applied,
         "top_level_variance_error_ratio": [correction.factor, correction.factor_sd],  # measured, its MC sd
         "warning": value.warning(),

@@ -40,7 +40,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy import linalg
 
-from stancal.numerics.multifidelity import Level, level_below, level_objective, predict
+from stancal.numerics.multifidelity import Level, level_below, level_objective, predict, rho_design
 from stancal.numerics.scalable_emulator import negative_log_posterior, pack, unpack
 
 CHAIN = 12000  # Metropolis steps for the top level's hyperparameters (the factor's Monte Carlo sd: VarianceCorrection)
@@ -68,21 +68,23 @@ def hessian(fun, v: np.ndarray, step: float = HESSIAN_STEP) -> np.ndarray:
 
 
 def top_level_draws(levels: list[Level], rng: np.random.Generator, draws: int = MIXED) -> np.ndarray:
-    """Draws of v = (rho_K, pack(g_K's hyperparameters)) from the posterior
-    stage 1 maximised (rho_K flat, g_K with emulator.stan's priors, the
+    """Draws of v = (rho_K's coefficients, pack(g_K's hyperparameters)) from the posterior
+    stage 1 maximised (rho_K's coefficients flat, g_K with emulator.stan's priors, the
     levels below fixed), by a random-walk Metropolis chain from the mode
     whose proposal is the inverse Hessian there, scaled by 2.38^2 / dim
     (Roberts, Gelman & Gilks 1997), thinned to ``draws``."""
     top = levels[-1]
     below = level_below(levels[:-1], top.xt)
+    design = rho_design(top.xt, len(top.rho_slope))
+    r = design.shape[1]
 
     def objective(v):
-        return level_objective(v, top.xt, top.y, below)
+        return level_objective(v, top.xt, top.y, below, design)
 
     def energy(v):  # the objective's value alone: the proposal needs no gradient
-        return negative_log_posterior(v[1:], top.xt, top.y - v[0] * below)[0]
+        return negative_log_posterior(v[r:], top.xt, top.y - design @ v[:r] * below)[0]
 
-    current = np.concatenate([[top.rho], pack(top.hyperparameters)])
+    current = np.concatenate([top.rho_coefficients, pack(top.hyperparameters)])
     values, vectors = linalg.eigh(hessian(objective, current))
     # a flat direction (a nugget far below the runs' scale) gets a bounded step (curvature at least 0.25),
     # not a singular or endless one
@@ -101,8 +103,9 @@ def top_level_draws(levels: list[Level], rng: np.random.Generator, draws: int = 
 
 
 def with_top(levels: list[Level], v: np.ndarray) -> list[Level]:
-    """The levels with the top one's rho and hyperparameters set to v."""
-    return [*levels[:-1], replace(levels[-1], rho=float(v[0]), hyperparameters=unpack(v[1:]))]
+    """The levels with the top one's rho coefficients and hyperparameters set to v."""
+    r = 1 + len(levels[-1].rho_slope)
+    return [*levels[:-1], replace(levels[-1], rho=float(v[0]), rho_slope=v[1:r], hyperparameters=unpack(v[r:]))]
 
 
 def variance_correction(levels: list[Level], seed: int = 0) -> VarianceCorrection:

@@ -123,6 +123,7 @@ def _problem(raw: dict[str, Any], base: Path) -> Problem:
         **observation,
         low_fidelity_runs=_low_fidelity_runs(simulator, base),
         theta_low={k: tuple(v) for k, v in simulator.get("low_fidelity", {}).get("theta", {}).items()},
+        low_fidelity_rho=simulator.get("low_fidelity", {}).get("rho", "constant"),
     )
     _check_noise(model.get("noise", "iid"), data, model.get("noise_inputs", []))
     candidates = _candidates(raw.get("candidates", {}), base)

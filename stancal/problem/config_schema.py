@@ -11,6 +11,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from stancal.problem.codes import NOISE_MODES
+from stancal.problem.fidelity_rho import RHO_FORMS
 from stancal.problem.noise import HETEROSCEDASTIC, NOISES
 from stancal.problem.observations import LIKELIHOODS
 from stancal.problem.options import (
@@ -122,6 +123,9 @@ TABLES: tuple[Table, ...] = (
           "physics): the emulator of `runs` learns from them too (docs/multifidelity.md)", keys=(
         Key("runs", "path (or a list of paths)", "required", "CSV(s) of the cheaper simulators' runs, with the "
             "columns of [simulator] runs; several files are levels, cheapest first", SCALAR),
+        Key("rho", "string", '"constant"', "each level's scale on the one below: constant, or linear in the "
+            "simulator's inputs, rho(x) = beta_0 + x' beta_x (Le Gratiet & Garnier 2014; not with "
+            "[simulator.low_fidelity.theta])", SCALAR, choices=RHO_FORMS),
     )),
     Table("simulator.low_fidelity.theta", "The cheapest simulator's own calibration parameters theta_l, "
           "`name = [lower, upper]` (Goh et al. 2013): its runs carry these columns in place of theta's, and theta_l "

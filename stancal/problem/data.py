@@ -11,6 +11,7 @@ import numpy as np
 import pandas as pd
 
 from stancal.problem.categories import covariate_columns, covariate_levels, one_hot
+from stancal.problem.fidelity_rho import check_low_fidelity_rho
 from stancal.problem.low_fidelity_theta import check_low_fidelity_theta
 from stancal.problem.noise import MeasurementNoise, read_measurement_noise, row_noise_sd, with_known_sd
 from stancal.problem.observations import LINKS, read_observations
@@ -176,6 +177,9 @@ class CalibrationData:
         columns in place of theta's, and the calibrated simulator is
         rho f_low(x, theta_l) + g(x, theta); theta_l is sampled with theta.
         Two levels only; the names must differ from theta's.
+    low_fidelity_rho : the scale between levels, "constant" (default) or
+        "linear" in the simulator's inputs, rho(x) = beta_0 + x' beta_x (Le
+        Gratiet & Garnier 2014; stancal.problem.fidelity_rho).
     noise_sd : gaussian only: a column of each row's known measurement sd,
         added in quadrature to the estimated noise (stancal.problem.noise).
     source : a column naming each row's measurement source (instrument),
@@ -202,6 +206,7 @@ class CalibrationData:
         source: str | None = None,
         sources: Sequence[str] | None = None,
         theta_low: Mapping[str, tuple[float, float]] | None = None,
+        low_fidelity_rho: str = "constant",
     ) -> None:
         self.inputs = list(inputs)
         self.output = output
@@ -238,6 +243,8 @@ class CalibrationData:
             *low_fidelity_runs, runs = runs
         self.runs = None if runs is None else self._check_runs(runs)
         self.low_fidelity_runs = self._check_low_fidelity(low_fidelity_runs)
+        self.low_fidelity_rho = check_low_fidelity_rho(low_fidelity_rho, len(self.low_fidelity_runs),
+                                                       bool(self.low_parameters))
         if self.runs is not None:  # every simulator's runs teach the emulator
             warn_outside_runs(self.physical, pd.concat(self.runs_by_fidelity()), self.inputs, stacklevel=3)
         self.scaling = self._scaling()
@@ -287,7 +294,8 @@ class CalibrationData:
                                self.covariates if covariates is None else covariates,
                                runs, levels=self.levels, sources=self.noise.given_sources, **self.observation_columns,
                                low_fidelity_runs=self.low_fidelity_runs if runs is not None else (),
-                               theta_low=bounds_of(self.low_parameters) if runs is not None else None)
+                               theta_low=bounds_of(self.low_parameters) if runs is not None else None,
+                               low_fidelity_rho=self.low_fidelity_rho if runs is not None else "constant")
 
     def subset(self, rows: Sequence[int]) -> CalibrationData:
         """The same problem on some physical rows (positions), same categories."""
@@ -488,6 +496,7 @@ class CalibrationData:
             "runs": None if self.runs is None else self.runs.to_dict(orient="list"),
             "low_fidelity_runs": [runs.to_dict(orient="list") for runs in self.low_fidelity_runs],
             "theta_low": bounds_of(self.low_parameters),
+            "low_fidelity_rho": self.low_fidelity_rho,
             "levels": self.levels,
             "sources": self.noise.given_sources,
             **self.observation_columns,
@@ -502,4 +511,5 @@ class CalibrationData:
                    trials=d.get("trials"), lower=d.get("lower"), upper=d.get("upper"),
                    noise_sd=d.get("noise_sd"), source=d.get("source"),
                    low_fidelity_runs=[pd.DataFrame(r) for r in d.get("low_fidelity_runs", [])],
-                   theta_low={k: tuple(v) for k, v in d.get("theta_low", {}).items()})
+                   theta_low={k: tuple(v) for k, v in d.get("theta_low", {}).items()},
+                   low_fidelity_rho=d.get("low_fidelity_rho", "constant"))

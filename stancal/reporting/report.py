@@ -87,13 +87,33 @@ def fidelity_lines(emulator: dict) -> list[str]:
         return []
     return ["", "## Emulator of several fidelities (Kennedy & O'Hagan 2000)", "",
             f"- {emulator['stage1']}",
-            f"- each level's scale on the one below: {', '.join(f'{r:.3g}' for r in emulator['level_rho'])}",
+            *rho_lines(emulator),
             (f"- leave-one-out error at the calibrated simulator's runs: {emulator['loo_rmse']:.3g} with the "
              f"cheaper runs, {emulator['loo_rmse_without_low_fidelity']:.3g} without (standardised units)"),
             *([(f"- the calibrated simulator's own GP: its variance times "
                 f"{emulator['top_level_variance_factor']:.3g} for its hyperparameters' uncertainty "
                 "(docs/multifidelity.md)")] if "top_level_variance_factor" in emulator else []),
             *([f"- **warning**: {emulator['warning']}"] if emulator.get("warning") else [])]
+
+
+def rho_lines(emulator: dict) -> list[str]:
+    """Each level's scale on the one below: a number, or a linear rho(x)'s
+    coefficients, range and profile along each input (Le Gratiet & Garnier 2014)."""
+    if "level_rho_slope" not in emulator:
+        return [f"- each level's scale on the one below: {', '.join(f'{r:.3g}' for r in emulator['level_rho'])}"]
+    lines = []
+    for k, (rho, slopes, (low, high), profile) in enumerate(zip(
+            emulator["level_rho"], emulator["level_rho_slope"], emulator["level_rho_range"],
+            emulator["level_rho_profile"], strict=True), start=2):
+        terms = " ".join(f"{b:+.3g} u_{name}" for name, b in slopes.items())
+        lines += [(f"- level {k}'s scale on the one below, linear in the inputs: rho(x) = {rho:.3g} {terms} "
+                   f"(u: each input on [0, 1] over its range), from {low:.3g} to {high:.3g} over the inputs' box"),
+                  "", "  | along | the input at | rho there (the other inputs at their centre) |", "  |---|---|---|"]
+        lines += [(f"  | {name} | {', '.join(f'{v:.3g}' for v in values)} | "
+                   f"{', '.join(f'{r:.3g}' for r in profile['rho'][name])} |")
+                  for name, values in profile["inputs"].items()]
+        lines.append("")
+    return lines
 
 
 def replicated_run_lines(emulator: dict) -> list[str]:

@@ -202,8 +202,17 @@ def fidelity_emulator(inputs: StanInputs) -> dict[str, Any]:
             "y_sim": np.concatenate([r["y_sim"] for r in runs]),
             "run_level": np.concatenate([np.full(r["M"], k + 1) for k, r in enumerate(runs)]),
             "level_rho": [float(level["rho"]) for level in levels[1:]],
+            "level_rho_slope": rho_slope_matrix(levels, len(data.inputs)),
             **theta_low_bounds(data),
             **{name: [level[name] for level in levels] for name in EMULATOR_HYPERPARAMETERS}}
+
+
+def rho_slope_matrix(levels: list[dict[str, Any]], inputs: int) -> np.ndarray:
+    """modular.stan's level_rho_slope: each level's rho slopes on the inputs (zeros: a constant rho)."""
+    slopes = np.zeros((len(levels) - 1, inputs))
+    for k, level in enumerate(levels[1:]):
+        slopes[k] = level.get("rho_slope") or 0.0
+    return slopes
 
 
 def fixed_emulator(inputs: StanInputs) -> dict[str, Any]:

@@ -141,6 +141,9 @@ generated quantities {
   // two fidelities (level 2 = 1.7 level 1 + its own GP): the top level at x1 against runs at x2 of
   // levels 1, 2, 1, 2
   matrix[2, 2] fidelity_w = fidelity_weights([1.7]');
+  // three levels, scales linear in two inputs (x2's points), each point at its own level
+  matrix[n2, 3] fidelity_point_w = fidelity_point_weights([1.7, 0.6]', [[0.5, -0.4], [-0.3, 0.9]], x2, {1, 2, 3, 3});
+  row_vector[3] fidelity_widest_w = fidelity_widest(fidelity_point_w, {sd_, 0.5, 0.2});
   matrix[n1, n2] fidelity_cross = fidelity_cross_cov(x1, rep_matrix(fidelity_w[2, :], n1), x2,
                                                      fidelity_w[{1, 2, 1, 2}, :], 1, {sd_, 0.5},
                                                      {ls, {0.2, 0.9}});
