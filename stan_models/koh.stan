@@ -77,16 +77,15 @@ transformed data {
   array[U] vector[D_delta] x_U = scaled ? x_delta : x_quad;
   array[0] vector[D_delta] no_points = rep_array(rep_vector(0, D_delta), 0);  // the model block's prediction points
   check_given_normals(P_normals, P);
-  // Student-t noise: the weights of its scale mixture are sampled where the GP is integrated out
-  int n_weight = noise_id == 3 && use_discrepancy ? N : 0;
+  // a GP integrated out of the likelihood: the discrepancy's, or biased sources' (source_bias.stan)
+  int gp_integrated = use_discrepancy || n_biased > 0;
+  // Student-t noise: the weights of its scale mixture are sampled where a GP is integrated out
+  int n_weight = noise_id == 3 && gp_integrated ? N : 0;
   // the biases' inputs: the simulator inputs, scaled to [0, 1] (source_bias.stan)
   array[N] vector[D] x_bias;
   array[P] vector[D] x_bias_new;
   for (i in 1:N) x_bias[i] = x_delta[i][1:D];
   for (i in 1:P) x_bias_new[i] = x_delta_new[i][1:D];
-  if (n_biased > 0 && !use_discrepancy) {
-    reject("biased sources sit beside the discrepancy GP: set use_discrepancy = 1");
-  }
 }
 parameters {
   vector<lower=0, upper=1>[Q] theta_unit;                // theta rescaled to [0, 1]
@@ -132,18 +131,20 @@ model {
   if (!prior_only) {
     vector[N] resid = y - rho * standardized_simulator(X, theta, y_center, y_scale) - h * beta;
     vector[N] noise_var = row_noise_variance(noise_sd, source, known_sd, noise_log_scale, noise_loc);
-    if (use_discrepancy) {
-      // the restriction's map A (no rows: unrestricted) and ridge (restricted_gp.stan)
-      matrix[U, n_functionals] A = U > 0 ? restriction_map(orthogonal, X_quad, w_quad, theta, theta_lower,
-                                                           theta_upper, y_center, y_scale, N)
-                                         : rep_matrix(0, U, n_functionals);
-      real ridge = scaled ? square(delta_sd[1]) * N / scaled_lambda : 0;
-      // the GP's covariance at the points, restricted when U > 0 (no prediction points here)
-      matrix[N, N] K = restricted_gp_cov(x_delta, no_points, x_U, A, kernel_id,
-                                         delta_sd[1], delta_length_scale, ridge).1
-                       + source_bias_cov(x_bias, bias_of, kernel_id, bias_sd, bias_length_scale);
+    if (gp_integrated) {
+      // the biases' covariance at the points (source_bias.stan), and the discrepancy's
+      matrix[N, N] K = source_bias_cov(x_bias, bias_of, kernel_id, bias_sd, bias_length_scale);
+      if (use_discrepancy) {
+        // the restriction's map A (no rows: unrestricted) and ridge (restricted_gp.stan)
+        matrix[U, n_functionals] A = U > 0 ? restriction_map(orthogonal, X_quad, w_quad, theta, theta_lower,
+                                                             theta_upper, y_center, y_scale, N)
+                                           : rep_matrix(0, U, n_functionals);
+        real ridge = scaled ? square(delta_sd[1]) * N / scaled_lambda : 0;
+        // the GP's covariance at the points, restricted when U > 0 (no prediction points here)
+        K += restricted_gp_cov(x_delta, no_points, x_U, A, kernel_id, delta_sd[1], delta_length_scale, ridge).1;
+      }
       resid ~ multi_normal_cholesky(rep_vector(0, N), cholesky_decompose(
-        add_jitter(add_diag(K, weighted_noise_variance(noise_var, noise_weight)), square(delta_sd[1]))));
+        add_jitter(add_diag(K, weighted_noise_variance(noise_var, noise_weight)), gp_variance(delta_sd, bias_sd))));
     } else {
       resid ~ independent_noise(noise_var, nu);
     }
@@ -174,34 +175,41 @@ generated quantities {
     vector[N] delta_obs_mean = rep_vector(0, N);
     vector[P] delta_new_std = rep_vector(0, P);
     vector[N] bias_obs = rep_vector(0, N);  // the biases at the rows (0 at a reference source's)
-    if (use_discrepancy) {
-      delta_sd_original[1] = delta_sd[1] * y_scale;
-      // the restriction's map A (no rows: unrestricted) and ridge (restricted_gp.stan)
-      matrix[U, n_functionals] A = U > 0 ? restriction_map(orthogonal, X_quad, w_quad, theta, theta_lower,
-                                                           theta_upper, y_center, y_scale, N)
-                                         : rep_matrix(0, U, n_functionals);
-      real ridge = scaled ? square(delta_sd[1]) * N / scaled_lambda : 0;
-      // the GP's covariances at the points and the prediction points, restricted when U > 0
-      tuple(matrix[N, N], matrix[P, N], matrix[P, P]) K_all = restricted_gp_cov(
-        x_delta, x_delta_new, x_U, A, kernel_id, delta_sd[1], delta_length_scale,
-        ridge);
-      matrix[N, N] K_delta = K_all.1;
-      matrix[P, N] K_cross = K_all.2;
-      matrix[P, P] K_new = K_all.3;
+    if (gp_integrated) {
+      matrix[N, N] K_delta = rep_matrix(0, N, N);
+      matrix[P, N] K_cross = rep_matrix(0, P, N);
+      matrix[P, P] K_new = rep_matrix(0, P, P);
+      if (use_discrepancy) {
+        delta_sd_original[1] = delta_sd[1] * y_scale;
+        // the restriction's map A (no rows: unrestricted) and ridge (restricted_gp.stan)
+        matrix[U, n_functionals] A = U > 0 ? restriction_map(orthogonal, X_quad, w_quad, theta, theta_lower,
+                                                             theta_upper, y_center, y_scale, N)
+                                           : rep_matrix(0, U, n_functionals);
+        real ridge = scaled ? square(delta_sd[1]) * N / scaled_lambda : 0;
+        // the GP's covariances at the points and the prediction points, restricted when U > 0
+        tuple(matrix[N, N], matrix[P, N], matrix[P, P]) K_all = restricted_gp_cov(
+          x_delta, x_delta_new, x_U, A, kernel_id, delta_sd[1], delta_length_scale,
+          ridge);
+        K_delta = K_all.1;
+        K_cross = K_all.2;
+        K_new = K_all.3;
+      }
       matrix[N, N] K_bias = source_bias_cov(x_bias, bias_of, kernel_id, bias_sd, bias_length_scale);
       matrix[N, N] L = cholesky_decompose(add_jitter(
-        add_diag(K_delta + K_bias, weighted_noise_variance(noise_var, noise_weight)), square(delta_sd[1])));
+        add_diag(K_delta + K_bias, weighted_noise_variance(noise_var, noise_weight)), gp_variance(delta_sd, bias_sd)));
       tuple(vector[N], vector[N]) loo = mvn_loo(resid, L);
       log_lik = loo.1;
       resid_loo_mean = loo.2;
-      vector[P] z_new = prediction_normals_rng(normals_new, 2, P);
-      if (prior_only) {
-        delta_obs = gp_prior_draw(K_delta, std_normals_rng(N));
-        if (P > 0) delta_new_std = gp_prior_draw(K_new, z_new);
-      } else {
-        delta_obs = gp_conditional_draw(resid, L, K_delta, K_delta, std_normals_rng(N));
-        delta_obs_mean = gp_conditional_mean(resid, L, K_delta);
-        if (P > 0) delta_new_std = gp_conditional_draw(resid, L, K_cross, K_new, z_new);
+      if (use_discrepancy) {
+        vector[P] z_new = prediction_normals_rng(normals_new, 2, P);
+        if (prior_only) {
+          delta_obs = gp_prior_draw(K_delta, std_normals_rng(N));
+          if (P > 0) delta_new_std = gp_prior_draw(K_new, z_new);
+        } else {
+          delta_obs = gp_conditional_draw(resid, L, K_delta, K_delta, std_normals_rng(N));
+          delta_obs_mean = gp_conditional_mean(resid, L, K_delta);
+          if (P > 0) delta_new_std = gp_conditional_draw(resid, L, K_cross, K_new, z_new);
+        }
       }
       // delta's draws above condition on the biases too (L has them) and are delta alone
       bias_obs = source_bias_at_rows_rng(resid, L, K_bias, n_biased, prior_only);

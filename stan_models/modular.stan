@@ -116,9 +116,6 @@ transformed data {
   check_given_normals(P_normals, P);
   array[P] vector[D] x_bias_new;        // the biases' inputs: the simulator inputs (source_bias.stan)
   for (i in 1:P) x_bias_new[i] = x_delta_new[i][1:D];
-  if (n_biased > 0 && !use_discrepancy) {
-    reject("biased sources sit beside the discrepancy GP: set use_discrepancy = 1");
-  }
 }
 parameters {
   vector<lower=0, upper=1>[Q] theta_unit;                // theta rescaled to [0, 1]

@@ -111,3 +111,16 @@ vector source_bias_at_rows_rng(vector resid, matrix L, matrix K_bias, int n_bias
   if (prior_only) return gp_prior_draw(K_bias, std_normals_rng(n));
   return gp_conditional_draw(resid, L, K_bias, K_bias, std_normals_rng(n));
 }
+
+/**
+ * The prior variance of the GPs integrated out beside the noise, the scale of
+ * their covariance's jitter (add_jitter): the discrepancy's and the biases'
+ * marginal variances summed (delta's alone without biased sources).
+ *
+ * @param delta_sd the discrepancy's marginal sd (empty: no discrepancy)
+ * @param bias_sd each biased source's bias GP marginal sd (empty: none)
+ * @return the summed variance
+ */
+real gp_variance(array[] real delta_sd, array[] real bias_sd) {
+  return sum(square(to_vector(delta_sd))) + sum(square(to_vector(bias_sd)));
+}

@@ -331,9 +331,8 @@ def _check_noise(chosen: Program, options: ModelOptions, data: CalibrationData) 
 
 
 def _check_biased_sources(chosen: Program, options: ModelOptions, data: CalibrationData) -> None:
-    """Biased sources (stancal.problem.source_bias) against the data's sources,
-    the chosen program (the registry's ``source_biases``) and the discrepancy
-    they sit beside, before anything compiles."""
+    """Biased sources (stancal.problem.source_bias) against the data's sources
+    and the chosen program (the registry's ``source_biases``), before anything compiles."""
     if not options.biased_sources:
         return
     check_biased_sources(options.biased_sources, data.noise)
@@ -341,9 +340,6 @@ def _check_biased_sources(chosen: Program, options: ModelOptions, data: Calibrat
         taking = [p.name for p in PROGRAMS.values() if p.source_biases]
         raise ValueError(f"biased_sources run on the programs {', '.join(taking)}; this problem runs "
                          f"{chosen.name} ({chosen.description})")
-    if not options.has_discrepancy:
-        raise ValueError("biased_sources sit beside the discrepancy GP, which discrepancy = \"none\" leaves out: "
-                         "use discrepancy = \"gp\"")
 
 
 def _check_options(chosen: Program, options: ModelOptions | VectorOptions) -> None:

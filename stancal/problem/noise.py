@@ -23,6 +23,7 @@ from stancal.problem.validation import DataError, numeric_values, row_labels
 
 NOISES = tuple(code.name.lower() for code in Noise)  # iid, per_source, student_t, heteroscedastic
 HETEROSCEDASTIC = Noise.HETEROSCEDASTIC.name.lower()
+PER_SOURCE = Noise.PER_SOURCE.name.lower()
 # a row whose posterior mean Student-t weight is below this counts at most a
 # quarter as much as a row of the prior mean weight, 1: the report lists it as an
 # outlier. Without a GP that is a residual beyond sqrt(3 nu + 4) scales: 3.6 at
