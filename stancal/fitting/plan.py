@@ -14,8 +14,8 @@ from stancal.numerics.parametrization import choose_parametrization
 from stancal.problem.data import CalibrationData
 from stancal.problem.functional import check_functional
 from stancal.problem.noise import check_noise, check_noise_inputs
-from stancal.problem.source_bias import check_biased_sources
 from stancal.problem.options import EXACT_SIZE_LIMIT, RESTRICTED_DISCREPANCIES, ModelOptions, VectorOptions
+from stancal.problem.source_bias import check_biased_sources
 from stancal.problem.vector_data import VectorCalibrationData
 from stancal.stan.registry import (
     L2,

@@ -288,7 +288,8 @@ def finish(fig, path):
 
 def write_plots(result: CalibrationResult, folder: str | Path, units: dict[str, str] | None = None) -> list[Path]:
     """theta.png, fit.png, and discrepancy.png, theta_functions.png,
-    noise_sd.png (heteroscedastic noise) and source_bias.png (biased sources) where the model has them; ``units``: the config's [units] (name -> unit)."""
+    noise_sd.png (heteroscedastic noise) and source_bias.png (biased sources)
+    where the model has them; ``units``: the config's [units] (name -> unit)."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     paths = [folder / "theta.png", folder / "fit.png"]
