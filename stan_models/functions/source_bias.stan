@@ -1,8 +1,10 @@
 /**
- * Biased measurement sources (docs/noise.md; Gu, Wang & Berger's multi-source
- * calibration, "Calibration of imperfect mathematical models using multiple
- * sources of data", Gu et al. 2023, and RobustCalibration's multi-source model;
- * review section 8.1.3). A reading of row i by source s is
+ * Biased measurement sources (docs/noise.md; review section 8.1.3): the
+ * measurement bias of Gu, Anderson & McPhillips (2023, "Calibration of
+ * imperfect geophysical models by multiple satellite interferograms with
+ * measurement bias", Technometrics 65), a GP over the inputs beside the model
+ * discrepancy, as the R package RobustCalibration fits it for several sources
+ * of data. A reading of row i by source s is
  *   y_i = zeta(x_i) + b_s(x_i) + eps_i,   b_s ~ GP(0, k_s) for each biased source s,
  * and b_s = 0 for a reference source. The biases are independent of each other
  * and of the shared discrepancy delta, so with the GPs integrated out the rows'

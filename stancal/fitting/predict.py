@@ -45,39 +45,16 @@ def predict(result, new_points: pd.DataFrame | None = None, *, backend: str | No
     for name in PREDICTED:
         values = draws[name].reshape(-1, len(points))
         table = table.assign(**interval_table(values, name.removesuffix("_new")))
-    biases = _biases(result, draws, len(points))
+    biases = result.source_biases(draws[BIAS_NEW], len(points)) if result.options.biased_sources else {}
     for name, values in biases.items():
         table = table.assign(**interval_table(values, f"bias_{name}"))
     if new_points is None and NEW_OBSERVATION in draws:  # drawn by the sampler's own RNG
         new_y = draws[NEW_OBSERVATION].reshape(-1, len(points))
     else:  # PyStan reruns generated quantities with one fixed RNG seed: draw the noise here
-        zeta = draws["zeta_new"].reshape(-1, len(points)) + _own_bias(result, biases, points)
+        zeta = draws["zeta_new"].reshape(-1, len(points)) + result.reading_bias(points, biases)
         new_y = _observe(result, zeta, points, seed, step)
     return table.assign(**interval_table(new_y, "y"))
 
-
-def _biases(result, draws: dict, points: int) -> dict[str, np.ndarray]:
-    """Each biased source's bias at the points, (samples, points), by source
-    name (functions/source_bias.stan); none without biased sources."""
-    if not result.options.biased_sources:
-        return {}
-    values = np.asarray(draws[BIAS_NEW])
-    values = values.reshape(-1, len(result.options.biased_sources), points)
-    return {name: values[:, b] for b, name in enumerate(result.options.biased_sources)}
-
-
-def _own_bias(result, biases: dict[str, np.ndarray], points: pd.DataFrame) -> np.ndarray | float:
-    """The bias of each point's own source (0 for a reference source), where
-    the points name their source: a new reading by that instrument; without
-    a source column, a reading free of any instrument's bias."""
-    source, _ = result.data.noise.at(points)
-    if not biases or source is None:
-        return 0.0
-    names = np.asarray(result.data.noise.sources)[source]
-    out = np.zeros_like(next(iter(biases.values())))
-    for name, values in biases.items():
-        out[:, names == name] = values[:, names == name]
-    return out
 
 def _observe(result, zeta: np.ndarray, points: pd.DataFrame, seed: int, step: int = 1) -> np.ndarray:
     """New observations given draws (samples, points) of the mean response,

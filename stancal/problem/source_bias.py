@@ -1,9 +1,10 @@
 """Biased measurement sources (docs/noise.md; stan_models/functions/source_bias.stan):
 ``biased_sources`` names the sources of the ``source`` column whose readings
 carry a bias of their own over the inputs, a GP b_s beside the shared
-discrepancy delta (Gu, Wang & Berger's multi-source calibration: Gu et al.
-2023, "Calibration of imperfect mathematical models using multiple sources of
-data", and the R package RobustCalibration; review section 8.1.3). The other
+discrepancy delta: the measurement bias of Gu, Anderson & McPhillips (2023,
+"Calibration of imperfect geophysical models by multiple satellite
+interferograms with measurement bias", Technometrics 65), as the R package
+RobustCalibration fits it for several sources of data (review section 8.1.3). The other
 sources are references: they see delta alone, and so anchor its level. Here:
 the rules checked before anything compiles, and each row's biased source as
 the programs take it."""

@@ -283,6 +283,25 @@ class CalibrationResult:
                        sd_curve={c: curve[c].tolist() for c in curve.columns})
         return out
 
+    def source_biases(self, bias_new: np.ndarray, points: int) -> dict[str, np.ndarray]:
+        """Each biased source's bias at ``points`` new points, (samples, points),
+        by source name, from the programs' ``bias_new`` draws (functions/source_bias.stan)."""
+        values = np.asarray(bias_new).reshape(-1, len(self.options.biased_sources), points)
+        return {name: values[:, b] for b, name in enumerate(self.options.biased_sources)}
+
+    def reading_bias(self, points: pd.DataFrame, biases: dict[str, np.ndarray]) -> np.ndarray | float:
+        """The bias of each point's own source (0 for a reference source), where
+        the points name their source: a new reading by that instrument; without
+        a source column (or biased sources), a reading free of any instrument's bias."""
+        source, _ = self.data.noise.at(points)
+        if not biases or source is None:
+            return 0.0
+        names = np.asarray(self.data.noise.sources)[source]
+        out = np.zeros_like(next(iter(biases.values())))
+        for name, values in biases.items():
+            out[:, names == name] = values[:, names == name]
+        return out
+
     def noise_sd_at(self, points: pd.DataFrame, rng: np.random.Generator | None = None,
                     step: int = 1, locations: NoiseLocations | None = None) -> np.ndarray:
         """Heteroscedastic noise: the noise sd (output units) at ``points``
