@@ -22,7 +22,8 @@ per row rising from 0.1 to 1 degC, or with Student-t noise (its mixture
 weights sampled beside a GP, its density used as it is without one).
 Heteroscedastic noise runs on case_studies/hetero_noise (80 readings, 4
 replicates at each of 20 settings; the cooling runs for modular), its log sd
-a GP over t.
+a GP over t. Biased sources: the two instruments, the camera with a bias GP
+of its own (koh with and without a discrepancy, modular).
 """
 
 from __future__ import annotations
@@ -113,6 +114,11 @@ NOISE = {
        for method in ("koh", "modular")},
     "koh_none_heteroscedastic": ("hetero_noise", {"simulator": SIMULATOR, "method": "koh", "discrepancy": "none",
                                                   "noise": "heteroscedastic", "noise_inputs": ["t"]}),
+    # one of the two instruments biased, a GP of its own beside the discrepancy (functions/source_bias.stan)
+    **{f"{name}_biased_source": ("two_sources", {**options, "noise": "per_source", "biased_sources": ["camera"]})
+       for name, options in (("koh", {"simulator": SIMULATOR, "method": "koh", "discrepancy": "gp"}),
+                             ("koh_none", {"simulator": SIMULATOR, "method": "koh", "discrepancy": "none"}),
+                             ("modular", {"method": "modular", "discrepancy": "gp"}))},
 }
 FIDELITY = {"modular_multifidelity": ("cooling_fidelity", {"method": "modular", "discrepancy": "none"}),
             "modular_multifidelity_theta_low": ("theta_low", {"method": "modular", "discrepancy": "none"})}

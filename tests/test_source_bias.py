@@ -21,6 +21,7 @@ from stancal.fitting.plan import make_plan
 from stancal.problem.config import load_config
 from stancal.problem.validation import DataError
 from stancal.reporting.report import write_calibration
+from stancal.stan.backends.base import fresh_prediction_normals
 from stancal.stan.standata import build_stan_data, to_stan_json
 
 CASE = ROOT / "case_studies" / "two_instruments"
@@ -141,6 +142,18 @@ def test_a_source_column_serves_biased_sources_with_one_noise_sd():
     stan_data = build_stan_data(case_data(frame), plan.program.data, plan.options, frame.iloc[:1])
     assert stan_data["S"] == 1 and stan_data["n_biased"] == 1
     assert (stan_data["bias_of"] == (frame["instrument"] == "camera")).all()
+
+
+def test_reruns_of_generated_quantities_get_fresh_normals_for_the_bias_curves():
+    """PyStan reruns generated quantities with one RNG seed: the bias curves'
+    normals are given per draw, as the discrepancy's are (else every draw's
+    curve would share its noise and the bands would be too narrow)."""
+    data = {"P": 3, "P_normals": 0, "normals_new": np.zeros((0, 2)), "n_biased": 2,
+            "bias_normals_new": np.zeros((0, 2))}
+    rng = np.random.default_rng(0)
+    first, second = fresh_prediction_normals(data, rng), fresh_prediction_normals(data, rng)
+    assert np.shape(first["bias_normals_new"]) == (3, 2) and first["P_normals"] == 3
+    assert not np.allclose(first["bias_normals_new"], second["bias_normals_new"])
 
 
 def test_the_config_names_an_unknown_biased_source(tmp_path):
