@@ -198,7 +198,7 @@ def plot_source_biases(result: CalibrationResult, path: str | Path | None = None
         ax.set_xlabel(axis_label(curves.along, units))
         ax.set_ylabel(f"bias of {name} in {result.data.output}" + (f" [{unit}]" if unit else ""))
         ax.legend(fontsize=7)
-        _title(ax, f"Bias of source {name} = its reading − reality (beside δ)", curves)
+        _title(ax, f"Bias of source {name} = its reading − the true process", curves)
     return finish(fig, path)
 
 
