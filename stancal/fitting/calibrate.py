@@ -205,7 +205,7 @@ def calibrate(
     carry a bias of their own over the simulator inputs, a GP beside the
     shared discrepancy (Gu et al. 2023's multi-source calibration; review
     section 8.1.3; docs/noise.md); the other sources are references and anchor
-    the discrepancy's level. On koh, koh_emulator and modular, with a GP discrepancy.
+    the discrepancy's level. On koh, koh_emulator and modular, with or without a discrepancy.
     ``mean_formula``: terms h(x, z) of a discrepancy mean h' beta, a formula
     over the physical data's columns such as ``"I(v**2) + C(batch)"``;
     ``mean_intercept`` adds a constant term ``Intercept``; it is dropped when a
