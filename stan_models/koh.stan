@@ -132,8 +132,9 @@ model {
     vector[N] resid = y - rho * standardized_simulator(X, theta, y_center, y_scale) - h * beta;
     vector[N] noise_var = row_noise_variance(noise_sd, source, known_sd, noise_log_scale, noise_loc);
     if (gp_integrated) {
-      // the biases' covariance at the points (source_bias.stan), and the discrepancy's
-      matrix[N, N] K = source_bias_cov(x_bias, bias_of, kernel_id, bias_sd, bias_length_scale);
+      // the discrepancy's covariance at the points, then the biases' (source_bias.stan); without biased
+      // sources the autodiff tape is the one of the program before them, so that its draws are unchanged
+      matrix[N, N] K = rep_matrix(0, N, N);
       if (use_discrepancy) {
         // the restriction's map A (no rows: unrestricted) and ridge (restricted_gp.stan)
         matrix[U, n_functionals] A = U > 0 ? restriction_map(orthogonal, X_quad, w_quad, theta, theta_lower,
@@ -141,10 +142,12 @@ model {
                                            : rep_matrix(0, U, n_functionals);
         real ridge = scaled ? square(delta_sd[1]) * N / scaled_lambda : 0;
         // the GP's covariance at the points, restricted when U > 0 (no prediction points here)
-        K += restricted_gp_cov(x_delta, no_points, x_U, A, kernel_id, delta_sd[1], delta_length_scale, ridge).1;
+        K = restricted_gp_cov(x_delta, no_points, x_U, A, kernel_id, delta_sd[1], delta_length_scale, ridge).1;
       }
+      if (n_biased > 0) K += source_bias_cov(x_bias, bias_of, kernel_id, bias_sd, bias_length_scale);
       resid ~ multi_normal_cholesky(rep_vector(0, N), cholesky_decompose(
-        add_jitter(add_diag(K, weighted_noise_variance(noise_var, noise_weight)), gp_variance(delta_sd, bias_sd))));
+        add_jitter(add_diag(K, weighted_noise_variance(noise_var, noise_weight)),
+                   n_biased > 0 ? gp_variance(delta_sd, bias_sd) : square(delta_sd[1]))));
     } else {
       resid ~ independent_noise(noise_var, nu);
     }

@@ -125,15 +125,15 @@ model {
                                           emulator_nugget);
     y_sim ~ multi_normal_cholesky(rep_vector(emulator_mean, M), cholesky_decompose(K_sim));
   } else {
-    // the biases' covariance among the physical rows (source_bias.stan)
-    matrix[N, N] K_bias = source_bias_cov(x, bias_of, kernel_id, bias_sd, bias_length_scale);
     matrix[M + N, M + N] K = koh_joint_cov(xt_sim, w_sim, append_theta(x, theta_unit), w_top, x_delta,
                                            kernel_id, {emulator_sd}, {emulator_length_scale},
                                            rep_vector(emulator_nugget, M), rho, delta_sd, delta_length_scale,
                                            weighted_noise_variance(row_noise_variance(noise_sd, source, known_sd,
                                                                                       noise_log_scale, noise_loc),
-                                                                   noise_weight),
-                                           K_bias);
+                                                                   noise_weight));
+    if (n_biased > 0) {  // the biases' covariance among the physical rows (source_bias.stan)
+      K[(M + 1):(M + N), (M + 1):(M + N)] += source_bias_cov(x, bias_of, kernel_id, bias_sd, bias_length_scale);
+    }
     vector[M + N] mu = append_row(rep_vector(emulator_mean, M), rho * emulator_mean + h * beta);
     y_joint ~ multi_normal_cholesky(mu, cholesky_decompose(K));
   }
