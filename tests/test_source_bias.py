@@ -228,7 +228,7 @@ def test_the_config_names_an_unknown_biased_source(tmp_path):
 def bias_fit():
     problem = load_config(CASE / "config.toml")
     with no_stancal_warnings():
-        return fit(problem.data, simulator=problem.simulator, **problem.model, chains=2, warmup=500, draws=500)
+        return fit(problem.data, simulator=problem.simulator, **problem.model, chains=2, warmup=1000, draws=1000)
 
 
 def test_the_camera_bias_and_k_are_recovered(bias_fit):
