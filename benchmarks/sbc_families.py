@@ -26,7 +26,8 @@ a GP over t. A stochastic simulator (stochastic kriging) runs on
 case_studies/stochastic_cooling, shrunk to keep each fit cheap: every other
 reading (20) and 4 of the 5 replicated runs at 31 of its 60 settings, spread over t (124
 runs), so its intrinsic variance surface is still fitted (>= 4 replicated
-settings).
+settings). Biased sources: the two instruments, the camera with a bias GP
+of its own (koh with and without a discrepancy, modular).
 """
 
 from __future__ import annotations
@@ -130,6 +131,11 @@ NOISE = {
     "koh_none_heteroscedastic": ("hetero_noise", {"simulator": SIMULATOR, "method": "koh", "discrepancy": "none",
                                                   "noise": "heteroscedastic", "noise_inputs": ["t"]}),
     "modular_stochastic": ("stochastic_cooling", {"method": "modular", "discrepancy": "gp", "stochastic": True}),
+    # one of the two instruments biased, a GP of its own beside the discrepancy (functions/source_bias.stan)
+    **{f"{name}_biased_source": ("two_sources", {**options, "noise": "per_source", "biased_sources": ["camera"]})
+       for name, options in (("koh", {"simulator": SIMULATOR, "method": "koh", "discrepancy": "gp"}),
+                             ("koh_none", {"simulator": SIMULATOR, "method": "koh", "discrepancy": "none"}),
+                             ("modular", {"method": "modular", "discrepancy": "gp"}))},
 }
 FIDELITY = {"modular_multifidelity": ("cooling_fidelity", {"method": "modular", "discrepancy": "none"}),
             "modular_multifidelity_theta_low": ("theta_low", {"method": "modular", "discrepancy": "none"})}

@@ -3,7 +3,8 @@
 //   y_i = rho * f(x_i, theta) + delta(x_i, z_i) + eps_i,
 //   delta = h(x_i, z_i)' beta + GP(0, ARD kernel), eps_i the measurement noise:
 //   normal, one sd or one per source, plus any known sd, or Student-t
-//   (functions/noise.stan).
+//   (functions/noise.stan); a reading by a biased source adds that source's
+//   bias GP b_s(x_i) (functions/source_bias.stan).
 // The GP may be restricted for an identifiable theta (section 6.3): orthogonal
 // to df/dtheta (Plumlee 2017) or scaled (S-GaSP, Gu & Wang 2018); see
 // functions/restricted_gp.stan.
@@ -21,6 +22,7 @@ functions {
 #include restricted_gp.stan
 #include given_normals.stan
 #include noise.stan
+#include source_bias.stan
 }
 data {
   int<lower=1> N;                       // number of physical observations
@@ -56,11 +58,14 @@ data {
   array[N_loc] vector[D_noise] x_noise; // heteroscedastic: the distinct locations, scaled to [0, 1]
   array[N_loc > 0 ? N : 0] int<lower=1, upper=N_loc> noise_loc;  // heteroscedastic: each row's location
   vector[2] noise_length_scale_prior;   // heteroscedastic: lognormal location and scale of its length scales
+  int<lower=0> n_biased;                // biased measurement sources (functions/source_bias.stan); 0 = none
+  array[N] int<lower=0, upper=n_biased> bias_of;  // each row's biased source, 1..n_biased; 0 = a reference source
   int<lower=0> P;                       // number of prediction points
   matrix[P, D] X_new;                   // simulator inputs of the prediction points, original units
   array[P] vector[D_delta] x_delta_new; // discrepancy inputs of the prediction points, scaled to [0, 1]
   matrix[P, H] h_new;                   // mean terms at the prediction points, scaled like h
 #include prediction_normals_data.stan
+  matrix[P_normals, n_biased] bias_normals_new;  // as normals_new, for the bias curves at the prediction points
 }
 transformed data {
   int orthogonal = use_discrepancy && discrepancy_form == 2;
@@ -72,8 +77,15 @@ transformed data {
   array[U] vector[D_delta] x_U = scaled ? x_delta : x_quad;
   array[0] vector[D_delta] no_points = rep_array(rep_vector(0, D_delta), 0);  // the model block's prediction points
   check_given_normals(P_normals, P);
-  // Student-t noise: the weights of its scale mixture are sampled where the GP is integrated out
-  int n_weight = noise_id == 3 && use_discrepancy ? N : 0;
+  // a GP integrated out of the likelihood: the discrepancy's, or biased sources' (source_bias.stan)
+  int gp_integrated = use_discrepancy || n_biased > 0;
+  // Student-t noise: the weights of its scale mixture are sampled where a GP is integrated out
+  int n_weight = noise_id == 3 && gp_integrated ? N : 0;
+  // the biases' inputs: the simulator inputs, scaled to [0, 1] (source_bias.stan)
+  array[N] vector[D] x_bias;
+  array[P] vector[D] x_bias_new;
+  for (i in 1:N) x_bias[i] = x_delta[i][1:D];
+  for (i in 1:P) x_bias_new[i] = x_delta_new[i][1:D];
 }
 parameters {
   vector<lower=0, upper=1>[Q] theta_unit;                // theta rescaled to [0, 1]
@@ -89,6 +101,8 @@ parameters {
   array[use_discrepancy ? D_delta - D : 0] real<lower=0> delta_relevance;  // covariates: inverse length scale
   array[estimate_rho] real<lower=0> rho_free;
   vector[H] beta;                                        // mean-term coefficients, standardised units
+  array[n_biased] real<lower=0> bias_sd;                 // each biased source's bias GP marginal sd, standardised units
+  array[n_biased, D] real<lower=0> bias_length_scale;    // its length scales: fraction of each input's range
 }
 transformed parameters {
   // heteroscedastic: the log noise sd's GP at the distinct settings, before centring (functions/noise.stan)
@@ -112,20 +126,28 @@ model {
   delta_relevance ~ covariate_relevance();           // half-normal(0, 2)
   rho_free ~ koh_scale();                            // normal(1, 0.25), rho > 0
   beta ~ normal(0, beta_prior_sd);
+  bias_sd ~ discrepancy_sd();                        // half-normal(0, 0.5), as delta's
+  to_array_1d(bias_length_scale) ~ discrepancy_length_scale();  // inverse gamma(3, 1), as delta's
   if (!prior_only) {
     vector[N] resid = y - rho * standardized_simulator(X, theta, y_center, y_scale) - h * beta;
     vector[N] noise_var = row_noise_variance(noise_sd, source, known_sd, noise_log_scale, noise_loc);
-    if (use_discrepancy) {
-      // the restriction's map A (no rows: unrestricted) and ridge (restricted_gp.stan)
-      matrix[U, n_functionals] A = U > 0 ? restriction_map(orthogonal, X_quad, w_quad, theta, theta_lower,
-                                                           theta_upper, y_center, y_scale, N)
-                                         : rep_matrix(0, U, n_functionals);
-      real ridge = scaled ? square(delta_sd[1]) * N / scaled_lambda : 0;
-      // the GP's covariance at the points, restricted when U > 0 (no prediction points here)
-      matrix[N, N] K = restricted_gp_cov(x_delta, no_points, x_U, A, kernel_id,
-                                         delta_sd[1], delta_length_scale, ridge).1;
+    if (gp_integrated) {
+      // the discrepancy's covariance at the points, then the biases' (source_bias.stan); without biased
+      // sources the autodiff tape is the one of the program before them, so that its draws are unchanged
+      matrix[N, N] K = rep_matrix(0, N, N);
+      if (use_discrepancy) {
+        // the restriction's map A (no rows: unrestricted) and ridge (restricted_gp.stan)
+        matrix[U, n_functionals] A = U > 0 ? restriction_map(orthogonal, X_quad, w_quad, theta, theta_lower,
+                                                             theta_upper, y_center, y_scale, N)
+                                           : rep_matrix(0, U, n_functionals);
+        real ridge = scaled ? square(delta_sd[1]) * N / scaled_lambda : 0;
+        // the GP's covariance at the points, restricted when U > 0 (no prediction points here)
+        K = restricted_gp_cov(x_delta, no_points, x_U, A, kernel_id, delta_sd[1], delta_length_scale, ridge).1;
+      }
+      if (n_biased > 0) K += source_bias_cov(x_bias, bias_of, kernel_id, bias_sd, bias_length_scale);
       resid ~ multi_normal_cholesky(rep_vector(0, N), cholesky_decompose(
-        add_jitter(add_diag(K, weighted_noise_variance(noise_var, noise_weight)), square(delta_sd[1]))));
+        add_jitter(add_diag(K, weighted_noise_variance(noise_var, noise_weight)),
+                   n_biased > 0 ? gp_variance(delta_sd, bias_sd) : square(delta_sd[1]))));
     } else {
       resid ~ independent_noise(noise_var, nu);
     }
@@ -143,6 +165,8 @@ generated quantities {
   vector[P] f_new;        // simulator output at the prediction points
   vector[P] delta_new;    // discrepancy at the prediction points
   vector[P] zeta_new;     // true process rho * f + delta at the prediction points
+  // each biased source's bias at the prediction points, original units (functions/source_bias.stan)
+  matrix[n_biased, P] bias_new = rep_matrix(0, n_biased, P);
   {
     vector[N] f = standardized_simulator(X, theta, y_center, y_scale);
     vector[N] mean_terms = h * beta;
@@ -153,40 +177,53 @@ generated quantities {
     vector[N] delta_obs = rep_vector(0, N);
     vector[N] delta_obs_mean = rep_vector(0, N);
     vector[P] delta_new_std = rep_vector(0, P);
-    if (use_discrepancy) {
-      delta_sd_original[1] = delta_sd[1] * y_scale;
-      // the restriction's map A (no rows: unrestricted) and ridge (restricted_gp.stan)
-      matrix[U, n_functionals] A = U > 0 ? restriction_map(orthogonal, X_quad, w_quad, theta, theta_lower,
-                                                           theta_upper, y_center, y_scale, N)
-                                         : rep_matrix(0, U, n_functionals);
-      real ridge = scaled ? square(delta_sd[1]) * N / scaled_lambda : 0;
-      // the GP's covariances at the points and the prediction points, restricted when U > 0
-      tuple(matrix[N, N], matrix[P, N], matrix[P, P]) K_all = restricted_gp_cov(
-        x_delta, x_delta_new, x_U, A, kernel_id, delta_sd[1], delta_length_scale,
-        ridge);
-      matrix[N, N] K_delta = K_all.1;
-      matrix[P, N] K_cross = K_all.2;
-      matrix[P, P] K_new = K_all.3;
+    vector[N] bias_obs = rep_vector(0, N);  // the biases at the rows (0 at a reference source's)
+    if (gp_integrated) {
+      matrix[N, N] K_delta = rep_matrix(0, N, N);
+      matrix[P, N] K_cross = rep_matrix(0, P, N);
+      matrix[P, P] K_new = rep_matrix(0, P, P);
+      if (use_discrepancy) {
+        delta_sd_original[1] = delta_sd[1] * y_scale;
+        // the restriction's map A (no rows: unrestricted) and ridge (restricted_gp.stan)
+        matrix[U, n_functionals] A = U > 0 ? restriction_map(orthogonal, X_quad, w_quad, theta, theta_lower,
+                                                             theta_upper, y_center, y_scale, N)
+                                           : rep_matrix(0, U, n_functionals);
+        real ridge = scaled ? square(delta_sd[1]) * N / scaled_lambda : 0;
+        // the GP's covariances at the points and the prediction points, restricted when U > 0
+        tuple(matrix[N, N], matrix[P, N], matrix[P, P]) K_all = restricted_gp_cov(
+          x_delta, x_delta_new, x_U, A, kernel_id, delta_sd[1], delta_length_scale,
+          ridge);
+        K_delta = K_all.1;
+        K_cross = K_all.2;
+        K_new = K_all.3;
+      }
+      matrix[N, N] K_bias = source_bias_cov(x_bias, bias_of, kernel_id, bias_sd, bias_length_scale);
       matrix[N, N] L = cholesky_decompose(add_jitter(
-        add_diag(K_delta, weighted_noise_variance(noise_var, noise_weight)), square(delta_sd[1])));
+        add_diag(K_delta + K_bias, weighted_noise_variance(noise_var, noise_weight)), gp_variance(delta_sd, bias_sd)));
       tuple(vector[N], vector[N]) loo = mvn_loo(resid, L);
       log_lik = loo.1;
       resid_loo_mean = loo.2;
-      vector[P] z_new = prediction_normals_rng(normals_new, 2, P);
-      if (prior_only) {
-        delta_obs = gp_prior_draw(K_delta, std_normals_rng(N));
-        if (P > 0) delta_new_std = gp_prior_draw(K_new, z_new);
-      } else {
-        delta_obs = gp_conditional_draw(resid, L, K_delta, K_delta, std_normals_rng(N));
-        delta_obs_mean = gp_conditional_mean(resid, L, K_delta);
-        if (P > 0) delta_new_std = gp_conditional_draw(resid, L, K_cross, K_new, z_new);
+      if (use_discrepancy) {
+        vector[P] z_new = prediction_normals_rng(normals_new, 2, P);
+        if (prior_only) {
+          delta_obs = gp_prior_draw(K_delta, std_normals_rng(N));
+          if (P > 0) delta_new_std = gp_prior_draw(K_new, z_new);
+        } else {
+          delta_obs = gp_conditional_draw(resid, L, K_delta, K_delta, std_normals_rng(N));
+          delta_obs_mean = gp_conditional_mean(resid, L, K_delta);
+          if (P > 0) delta_new_std = gp_conditional_draw(resid, L, K_cross, K_new, z_new);
+        }
       }
+      // delta's draws above condition on the biases too (L has them) and are delta alone
+      bias_obs = source_bias_at_rows_rng(resid, L, K_bias, n_biased, prior_only);
+      bias_new = y_scale * source_bias_new_rng(resid, L, 0, x_bias, x_bias_new, bias_of, kernel_id, bias_sd,
+                                               bias_length_scale, bias_normals_new, prior_only);
     } else {
       log_lik = noise_log_lik(resid, noise_var, nu);
     }
     row_weight = outlier_weight(resid, noise_var, nu, noise_weight);
     log_lik -= log(y_scale);
-    y_rep = y_center + y_scale * noise_rng(rho * f + mean_terms + delta_obs, noise_var, nu, noise_weight);
+    y_rep = y_center + y_scale * noise_rng(rho * f + mean_terms + delta_obs + bias_obs, noise_var, nu, noise_weight);
     y_loo_mean = y_center + y_scale * (y - resid + resid_loo_mean);
     delta_gp = y_scale * delta_obs;
     delta_gp_mean = y_scale * delta_obs_mean;

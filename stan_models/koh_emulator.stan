@@ -3,7 +3,8 @@
 // joint GP likelihood, and theta, the emulator and the discrepancy
 // hyperparameters are sampled together.
 //   y_sim_j = f(x_sim_j, theta_sim_j) + nugget_j
-//   y_i     = rho * f(x_i, theta) + delta(x_i, z_i) + eps_i (functions/noise.stan)
+//   y_i     = rho * f(x_i, theta) + delta(x_i, z_i) + eps_i (functions/noise.stan),
+//             plus b_s(x_i) for a reading by a biased source s (functions/source_bias.stan)
 //   f ~ GP(emulator_mean, ARD kernel over (x, theta)),
 //   delta = h(x_i, z_i)' beta + GP(0, ARD kernel) (H = 0 mean terms by default)
 // Inputs and theta are scaled to [0, 1]; outputs are standardised.
@@ -17,6 +18,7 @@ functions {
 #include priors.stan
 #include scaling.stan
 #include given_normals.stan
+#include source_bias.stan
 }
 data {
   int<lower=1> N;                       // number of physical observations
@@ -49,12 +51,15 @@ data {
   array[N_loc] vector[D_noise] x_noise; // heteroscedastic: the distinct locations, scaled to [0, 1]
   array[N_loc > 0 ? N : 0] int<lower=1, upper=N_loc> noise_loc;  // heteroscedastic: each row's location
   vector[2] noise_length_scale_prior;   // heteroscedastic: lognormal location and scale of its length scales
+  int<lower=0> n_biased;                // biased measurement sources (functions/source_bias.stan); 0 = none
+  array[N] int<lower=0, upper=n_biased> bias_of;  // each row's biased source, 1..n_biased; 0 = a reference source
   int<lower=0, upper=1> prior_only;     // 1 = ignore y (the runs still train the emulator)
   int<lower=0> P;                       // number of prediction points
   array[P] vector[D] x_new;             // simulator inputs of the prediction points, scaled to [0, 1]
   array[P] vector[D_delta] x_delta_new; // discrepancy inputs of the prediction points, scaled to [0, 1]
   matrix[P, H] h_new;                   // mean terms at the prediction points, scaled like h
 #include prediction_normals_data.stan
+  matrix[P_normals, n_biased] bias_normals_new;  // as normals_new, for the bias curves at the prediction points
 }
 transformed data {
   array[M] vector[D + Q] xt_sim;
@@ -63,6 +68,8 @@ transformed data {
   matrix[M, 1] w_sim = rep_matrix(1, M, 1);  // one fidelity: every run on the one GP (fidelity.stan)
   row_vector[1] w_top = [1];
   check_given_normals(P_normals, P);
+  array[P] vector[D] x_bias_new;        // the biases' inputs: the simulator inputs (source_bias.stan)
+  for (i in 1:P) x_bias_new[i] = x_delta_new[i][1:D];
 }
 parameters {
   vector<lower=0, upper=1>[Q] theta_unit;                // theta rescaled to [0, 1]
@@ -83,6 +90,8 @@ parameters {
   real<lower=0> emulator_sd;
   array[D + Q] real<lower=0> emulator_length_scale;     // inputs first, then theta
   real<lower=0> emulator_nugget;
+  array[n_biased] real<lower=0> bias_sd;                 // each biased source's bias GP marginal sd, standardised units
+  array[n_biased, D] real<lower=0> bias_length_scale;    // its length scales: fraction of each input's range
 }
 transformed parameters {
   // heteroscedastic: the log noise sd's GP at the distinct settings, before centring (functions/noise.stan)
@@ -109,6 +118,8 @@ model {
   emulator_sd ~ emulator_sd();                       // half-normal(0, 1)
   emulator_length_scale ~ emulator_length_scale();   // inverse gamma(2, 1)
   emulator_nugget ~ emulator_nugget();               // half-normal(0, 0.05)
+  bias_sd ~ discrepancy_sd();                        // half-normal(0, 0.5), as delta's
+  to_array_1d(bias_length_scale) ~ discrepancy_length_scale();  // inverse gamma(3, 1), as delta's
   if (prior_only) {
     matrix[M, M] K_sim = emulator_run_cov(xt_sim, kernel_id, emulator_sd, emulator_length_scale,
                                           emulator_nugget);
@@ -120,6 +131,9 @@ model {
                                            weighted_noise_variance(row_noise_variance(noise_sd, source, known_sd,
                                                                                       noise_log_scale, noise_loc),
                                                                    noise_weight));
+    if (n_biased > 0) {  // the biases' covariance among the physical rows (source_bias.stan)
+      K[(M + 1):(M + N), (M + 1):(M + N)] += source_bias_cov(x, bias_of, kernel_id, bias_sd, bias_length_scale);
+    }
     vector[M + N] mu = append_row(rep_vector(emulator_mean, M), rho * emulator_mean + h * beta);
     y_joint ~ multi_normal_cholesky(mu, cholesky_decompose(K));
   }
@@ -136,15 +150,18 @@ generated quantities {
   vector[P] f_new;        // emulated simulator output at the prediction points
   vector[P] delta_new;    // discrepancy at the prediction points
   vector[P] zeta_new;     // true process rho * f + delta at the prediction points
+  // each biased source's bias at the prediction points, original units (functions/source_bias.stan)
+  matrix[n_biased, P] bias_new = rep_matrix(0, n_biased, P);
   if (use_discrepancy) delta_sd_original[1] = delta_sd[1] * y_scale;
   {
     vector[N] noise_var = row_noise_variance(noise_sd, source, known_sd, noise_log_scale, noise_loc);
+    matrix[N, N] K_bias = source_bias_cov(x, bias_of, kernel_id, bias_sd, bias_length_scale);
     tuple(vector[N], vector[N], vector[N], vector[N], vector[N], vector[P], vector[P], vector[P]) q
       = koh_joint_quantities_rng(y_sim, y, xt_sim, x, theta_unit, x_delta, h, beta, x_new, x_delta_new,
                                  h_new, normals_new, prior_only, kernel_id, w_sim, w_top, {emulator_mean},
                                  {emulator_sd}, {emulator_length_scale}, rep_vector(emulator_nugget, M),
                                  rho, delta_sd, delta_length_scale, weighted_noise_variance(noise_var, noise_weight),
-                                 y_center, y_scale);
+                                 K_bias, y_center, y_scale);
     log_lik = q.1;
     y_loo_mean = q.2;
     y_rep = q.3;
@@ -153,5 +170,14 @@ generated quantities {
     f_new = q.6;
     delta_new = q.7;
     zeta_new = q.8;
+    if (n_biased > 0) {  // the joint covariance again, for the bias curves' conditional (source_bias.stan)
+      matrix[M + N, M + N] L_joint = cholesky_decompose(koh_joint_cov(
+        xt_sim, w_sim, append_theta(x, theta_unit), w_top, x_delta, kernel_id, {emulator_sd},
+        {emulator_length_scale}, rep_vector(emulator_nugget, M), rho, delta_sd, delta_length_scale,
+        weighted_noise_variance(noise_var, noise_weight), K_bias));
+      vector[M + N] resid = y_joint - append_row(rep_vector(emulator_mean, M), rho * emulator_mean + h * beta);
+      bias_new = y_scale * source_bias_new_rng(resid, L_joint, M, x, x_bias_new, bias_of, kernel_id, bias_sd,
+                                               bias_length_scale, bias_normals_new, prior_only);
+    }
   }
 }

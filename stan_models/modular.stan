@@ -7,6 +7,7 @@
 //   y ~ N(rho * m(theta) + h' beta, rho^2 (V(theta) + nugget^2 S) + K_delta + diag(noise variances)),
 //   S_ij = 1 where points i and j are one (the emulator's misfit there, below),
 // with the measurement noise of functions/noise.stan (Student-t: given its mixture weights),
+// and each biased source's bias GP beside K_delta (functions/source_bias.stan),
 // with optional discrepancy mean terms h (a candidate unmodelled effect).
 // The runs may come from simulators of several fidelities, cheapest first
 // (Kennedy & O'Hagan 2000; fidelity.stan): the emulator of the calibrated,
@@ -28,6 +29,7 @@ functions {
 #include priors.stan
 #include scaling.stan
 #include given_normals.stan
+#include source_bias.stan
 }
 data {
   int<lower=1> N;                       // number of physical observations
@@ -64,6 +66,8 @@ data {
   array[N_loc] vector[D_noise] x_noise; // heteroscedastic: the distinct locations, scaled to [0, 1]
   array[N_loc > 0 ? N : 0] int<lower=1, upper=N_loc> noise_loc;  // heteroscedastic: each row's location
   vector[2] noise_length_scale_prior;   // heteroscedastic: lognormal location and scale of its length scales
+  int<lower=0> n_biased;                // biased measurement sources (functions/source_bias.stan); 0 = none
+  array[N] int<lower=0, upper=n_biased> bias_of;  // each row's biased source, 1..n_biased; 0 = a reference source
   int<lower=0, upper=1> prior_only;     // 1 = ignore y (the runs still inform the emulator)
   int<lower=1> L;                       // fidelity levels of the runs: 1 = the calibrated simulator only
   array[M] int<lower=1, upper=L> run_level;  // each run's level: 1 the cheapest, L the calibrated simulator
@@ -80,6 +84,7 @@ data {
   array[P] vector[D_delta] x_delta_new; // discrepancy inputs of the prediction points, scaled to [0, 1]
   matrix[P, H] h_new;                   // mean terms at the prediction points, scaled like h
 #include prediction_normals_data.stan
+  matrix[P_normals, n_biased] bias_normals_new;  // as normals_new, for the bias curves at the prediction points
 }
 transformed data {
   array[M] vector[D + Q + Q_low] xt_sim;
@@ -111,6 +116,8 @@ transformed data {
       gp_exp_quad_cov(x, x_sim, emulator_sd[j], emulator_length_scale[j, 1:D]), col(w_sim, j)));
   }
   check_given_normals(P_normals, P);
+  array[P] vector[D] x_bias_new;        // the biases' inputs: the simulator inputs (source_bias.stan)
+  for (i in 1:P) x_bias_new[i] = x_delta_new[i][1:D];
 }
 parameters {
   vector<lower=0, upper=1>[Q] theta_unit;                // theta rescaled to [0, 1]
@@ -128,6 +135,8 @@ parameters {
   array[use_discrepancy ? D_delta - D : 0] real<lower=0> delta_relevance;  // covariates: inverse length scale
   array[estimate_rho] real<lower=0> rho_free;
   vector[H] beta;                                        // mean-term coefficients, standardised units
+  array[n_biased] real<lower=0> bias_sd;                 // each biased source's bias GP marginal sd, standardised units
+  array[n_biased, D] real<lower=0> bias_length_scale;    // its length scales: fraction of each input's range
 }
 transformed parameters {
   // heteroscedastic: the log noise sd's GP at the distinct settings, before centring (functions/noise.stan)
@@ -151,6 +160,8 @@ model {
   delta_relevance ~ covariate_relevance();           // half-normal(0, 2)
   rho_free ~ koh_scale();                            // normal(1, 0.25), rho > 0
   beta ~ normal(0, beta_prior_sd);
+  bias_sd ~ discrepancy_sd();                        // half-normal(0, 0.5), as delta's
+  to_array_1d(bias_length_scale) ~ discrepancy_length_scale();  // inverse gamma(3, 1), as delta's
   if (!prior_only) {
     tuple(vector[N], matrix[N, N]) emulated;  // the top level's mean and covariance at the points
     if (Q_low == 0) {  // the runs' covariance is data
@@ -185,6 +196,7 @@ model {
     if (use_discrepancy) {
       K += ard_cov(x_delta, kernel_id, delta_sd[1], delta_length_scale);
     }
+    if (n_biased > 0) K += source_bias_cov(x, bias_of, kernel_id, bias_sd, bias_length_scale);
     vector[N] noise_var = weighted_noise_variance(
       row_noise_variance(noise_sd, source, known_sd, noise_log_scale, noise_loc), noise_weight);
     y ~ multi_normal_cholesky(rho * emulator_mean_obs + h * beta,
@@ -204,18 +216,23 @@ generated quantities {
   vector[P] f_new;        // emulated simulator output at the prediction points
   vector[P] delta_new;    // discrepancy at the prediction points
   vector[P] zeta_new;     // true process rho * f + delta at the prediction points
+  // each biased source's bias at the prediction points, original units (functions/source_bias.stan)
+  matrix[n_biased, P] bias_new = rep_matrix(0, n_biased, P);
   if (use_discrepancy) delta_sd_original[1] = delta_sd[1] * y_scale;
   {
     vector[N] noise_var = row_noise_variance(noise_sd, source, known_sd, noise_log_scale, noise_loc);
+    // the biases' covariance among the physical rows, beside the emulator's misfit (source_bias.stan)
+    matrix[N, N] point_cov = square(rho) * nugget_obs + source_bias_cov(x, bias_of, kernel_id, bias_sd,
+                                                                         bias_length_scale);
+    array[M] vector[D + Q + Q_low] xt_run = Q_low == 0 ? xt_sim : runs_at_theta_low(x_sim, theta_sim, run_level,
+                                                                                      theta_low_unit);
     tuple(vector[N], vector[N], vector[N], vector[N], vector[N], vector[P], vector[P], vector[P]) q
-      = koh_joint_quantities_rng(y_sim, y, Q_low == 0 ? xt_sim : runs_at_theta_low(x_sim, theta_sim, run_level,
-                                                                                     theta_low_unit),
-                                 x, append_row(theta_unit, theta_low_unit), x_delta, h, beta, x_new, x_delta_new,
-                                 h_new, normals_new, prior_only, kernel_id, w_sim, w_obs, w_new, emulator_mean,
+      = koh_joint_quantities_rng(y_sim, y, xt_run, x, append_row(theta_unit, theta_low_unit), x_delta, h, beta,
+                                 x_new, x_delta_new, h_new, normals_new, prior_only, kernel_id, w_sim, w_obs, w_new,
+                                 emulator_mean,
                                  emulator_sd, emulator_length_scale, run_nugget_sd, rho, delta_sd,
                                  delta_length_scale, weighted_noise_variance(noise_var, noise_weight),
-                                 square(rho) * nugget_obs,
-                                 y_center, y_scale);
+                                 point_cov, y_center, y_scale);
     log_lik = q.1;
     y_loo_mean = q.2;
     y_rep = q.3;
@@ -224,5 +241,15 @@ generated quantities {
     f_new = q.6;
     delta_new = q.7;
     zeta_new = q.8;
+    if (n_biased > 0) {  // the joint covariance again, for the bias curves' conditional (source_bias.stan)
+      matrix[M + N, M + N] L_joint = cholesky_decompose(koh_joint_cov(
+        xt_run, w_sim, append_theta(x, append_row(theta_unit, theta_low_unit)), w_obs, x_delta, kernel_id,
+        emulator_sd, emulator_length_scale, run_nugget_sd, rho, delta_sd, delta_length_scale,
+        weighted_noise_variance(noise_var, noise_weight), point_cov));
+      vector[M + N] resid = append_row(y_sim, y) - append_row(w_sim * to_vector(emulator_mean),
+                                                              rho * top_mean + h * beta);
+      bias_new = y_scale * source_bias_new_rng(resid, L_joint, M, x, x_bias_new, bias_of, kernel_id, bias_sd,
+                                               bias_length_scale, bias_normals_new, prior_only);
+    }
   }
 }

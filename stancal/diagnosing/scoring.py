@@ -15,7 +15,7 @@ from scipy.special import logsumexp
 from stancal.diagnosing.gap_location import discrepancy_parts
 from stancal.diagnosing.moment_match import MatchedPoint
 from stancal.problem.data import CalibrationData
-from stancal.results.result import NOISE_LOCATIONS, CalibrationResult
+from stancal.results.result import BIAS_NEW, NOISE_LOCATIONS, CalibrationResult
 
 PARETO_K_LIMIT = 0.7  # above it PSIS-LOO is unreliable (Vehtari et al. 2024)
 # a candidate that trails the leader by more than this many ses, even with the
@@ -226,6 +226,9 @@ def held_out(data: CalibrationData, test: np.ndarray, result) -> tuple[np.ndarra
     from a fit to the other rows whose predictions are at the test rows."""
     predictions = result.idata["predictions"]
     zeta = np.asarray(predictions["zeta_new" if "zeta_new" in predictions else "zeta"]).reshape(-1, len(test))
+    if BIAS_NEW in predictions:  # a held-out reading by a biased source: the process plus that source's bias
+        points = data.source.iloc[test].reset_index(drop=True)
+        zeta = zeta + result.reading_bias(points, result.source_biases(predictions[BIAS_NEW], len(test)))
     # heteroscedastic noise (the fit sampled its log sd GP at the settings): the sd at the held-out rows from that
     # GP, one draw of it per posterior draw
     estimated_sd = (result.noise_sd_at(data.source.iloc[test].reset_index(drop=True), np.random.default_rng(0))

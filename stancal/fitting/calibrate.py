@@ -145,6 +145,7 @@ def calibrate(
     noise: str = "iid",
     noise_inputs: tuple[str, ...] | list[str] = (),
     stochastic: bool = False,
+    biased_sources: tuple[str, ...] | list[str] = (),
     new_points: pd.DataFrame | None = None,
     chains: int = 4,
     warmup: int = 1000,
@@ -200,6 +201,11 @@ def calibrate(
     from the replicated runs, sits on the emulator runs' diagonal and not at
     the physical points (stochastic kriging, Ankenman, Nelson & Staum 2010;
     docs/noise.md); on modular and modular_hsgp, the default with it.
+    ``biased_sources``: sources of the data's ``source`` column whose readings
+    carry a bias of their own over the simulator inputs, a GP beside the
+    shared discrepancy (Gu et al. 2023's multi-source calibration; review
+    section 8.1.3; docs/noise.md); the other sources are references and anchor
+    the discrepancy's level. On koh, koh_emulator and modular, with or without a discrepancy.
     ``mean_formula``: terms h(x, z) of a discrepancy mean h' beta, a formula
     over the physical data's columns such as ``"I(v**2) + C(batch)"``;
     ``mean_intercept`` adds a constant term ``Intercept``; it is dropped when a
@@ -230,7 +236,7 @@ def calibrate(
     options = model_options(discrepancy, kernel, estimate_rho, mean_formula, mean_intercept, scaled_lambda,
                             functional, functional_inputs, functional_parametrization, approximation,
                             basis_functions, boundary_factor, mean_centred,
-                            discrepancy_parametrization, noise, noise_inputs, stochastic)
+                            discrepancy_parametrization, noise, noise_inputs, stochastic, biased_sources)
     if plan is None:
         plan = plan_scalar(data, simulator, method, options, program)
     else:

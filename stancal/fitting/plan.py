@@ -15,6 +15,7 @@ from stancal.problem.data import CalibrationData
 from stancal.problem.functional import check_functional
 from stancal.problem.noise import check_noise, check_noise_inputs
 from stancal.problem.options import EXACT_SIZE_LIMIT, RESTRICTED_DISCREPANCIES, ModelOptions, VectorOptions
+from stancal.problem.source_bias import check_biased_sources
 from stancal.problem.vector_data import VectorCalibrationData
 from stancal.stan.registry import (
     L2,
@@ -86,7 +87,7 @@ def model_options(discrepancy: str | None = None, kernel: str = "se", estimate_r
                   functional_parametrization: str = "centred", approximation: str = "auto",
                   basis_functions=(), boundary_factor=(), mean_centred: bool = False,
                   discrepancy_parametrization: str = "auto", noise: str = "iid", noise_inputs=(),
-                  stochastic: bool = False) -> ModelOptions:
+                  stochastic: bool = False, biased_sources=()) -> ModelOptions:
     """calibrate()'s model keywords as ModelOptions; the discrepancy defaults
     to gp, or none with functional theta (flexible enough without one,
     review section 8.2)."""
@@ -95,7 +96,7 @@ def model_options(discrepancy: str | None = None, kernel: str = "se", estimate_r
                         tuple(functional_inputs), functional_parametrization, approximation,
                         tuple(basis_functions), tuple(boundary_factor), mean_centred,
                         discrepancy_parametrization, noise=noise, noise_inputs=tuple(noise_inputs),
-                        stochastic=stochastic)
+                        stochastic=stochastic, biased_sources=tuple(biased_sources))
 
 
 def make_plan(data: CalibrationData | VectorCalibrationData, simulator: str | Path | None = None,
@@ -315,8 +316,9 @@ def _check_stochastic(data: CalibrationData, chosen: Program, options: ModelOpti
 def _check_noise(chosen: Program, options: ModelOptions, data: CalibrationData) -> None:
     """The noise model against the data's columns and the chosen program
     (the registry's ``noises``), before anything compiles."""
-    check_noise(options.noise, data.noise)
+    check_noise(options.noise, data.noise, options.biased_sources)
     check_noise_inputs(options.noise, options.noise_inputs, data.inputs)
+    _check_biased_sources(chosen, options, data)
     if options.noise not in chosen.noises:
         taking = [p.name for p in PROGRAMS.values() if options.noise in p.noises and p.output == "scalar"]
         raise ValueError(f"noise {options.noise!r} runs on the programs {', '.join(taking)}; this problem "
@@ -326,6 +328,18 @@ def _check_noise(chosen: Program, options: ModelOptions, data: CalibrationData) 
         taking = [p.name for p in PROGRAMS.values() if p.known_noise_sd]
         raise ValueError(f"a known noise sd (column '{data.noise.noise_sd_column}') runs on the programs "
                          f"{', '.join(taking)}; this problem runs {chosen.name} ({chosen.description})")
+
+
+def _check_biased_sources(chosen: Program, options: ModelOptions, data: CalibrationData) -> None:
+    """Biased sources (stancal.problem.source_bias) against the data's sources
+    and the chosen program (the registry's ``source_biases``), before anything compiles."""
+    if not options.biased_sources:
+        return
+    check_biased_sources(options.biased_sources, data.noise)
+    if not chosen.source_biases:
+        taking = [p.name for p in PROGRAMS.values() if p.source_biases]
+        raise ValueError(f"biased_sources run on the programs {', '.join(taking)}; this problem runs "
+                         f"{chosen.name} ({chosen.description})")
 
 
 def _check_options(chosen: Program, options: ModelOptions | VectorOptions) -> None:

@@ -9,8 +9,8 @@ import pandas as pd
 
 from stancal.fitting.l2 import reproject
 from stancal.problem.codes import Likelihood
-from stancal.problem.noise import HETEROSCEDASTIC, draw_noise, row_noise_sd, with_known_sd
-from stancal.results.result import NEW_OBSERVATION, PREDICTED, interval_table
+from stancal.problem.noise import HETEROSCEDASTIC, PER_SOURCE, draw_noise, row_noise_sd, with_known_sd
+from stancal.results.result import BIAS_NEW, NEW_OBSERVATION, PREDICTED, interval_table
 from stancal.stan.backends import get_backend
 from stancal.stan.standata import build_stan_data, to_stan_json
 
@@ -45,11 +45,16 @@ def predict(result, new_points: pd.DataFrame | None = None, *, backend: str | No
     for name in PREDICTED:
         values = draws[name].reshape(-1, len(points))
         table = table.assign(**interval_table(values, name.removesuffix("_new")))
+    biases = result.source_biases(draws[BIAS_NEW], len(points)) if result.options.biased_sources else {}
+    for name, values in biases.items():
+        table = table.assign(**interval_table(values, f"bias_{name}"))
     if new_points is None and NEW_OBSERVATION in draws:  # drawn by the sampler's own RNG
         new_y = draws[NEW_OBSERVATION].reshape(-1, len(points))
     else:  # PyStan reruns generated quantities with one fixed RNG seed: draw the noise here
-        new_y = _observe(result, draws["zeta_new"].reshape(-1, len(points)), points, seed, step)
+        zeta = draws["zeta_new"].reshape(-1, len(points)) + result.reading_bias(points, biases)
+        new_y = _observe(result, zeta, points, seed, step)
     return table.assign(**interval_table(new_y, "y"))
+
 
 def _observe(result, zeta: np.ndarray, points: pd.DataFrame, seed: int, step: int = 1) -> np.ndarray:
     """New observations given draws (samples, points) of the mean response,
@@ -77,6 +82,8 @@ def _noise(result, posterior, points: pd.DataFrame, rng: np.random.Generator, dr
     the GP's conditional per posterior draw (CalibrationResult.noise_sd_at)."""
     noise = result.data.noise
     source, known = noise.at(points)
+    if result.options.noise != PER_SOURCE:  # one sd for every source (a source column for biased sources)
+        source = None
     if result.options.noise == HETEROSCEDASTIC:
         scale = with_known_sd(result.noise_sd_at(points, rng, step), known)
         return draw_noise(rng, scale, None)

@@ -14,6 +14,7 @@ from stancal.problem.candidates import Candidate, CandidateError
 from stancal.problem.codes import NOISE_MODES
 from stancal.problem.data import CalibrationData
 from stancal.problem.noise import NOISES, check_noise, check_noise_inputs, check_noise_name
+from stancal.problem.source_bias import check_biased_sources
 from stancal.problem.validation import DataError, read_table
 from stancal.problem.vector_data import VectorCalibrationData
 
@@ -107,7 +108,7 @@ def _problem(raw: dict[str, Any], base: Path) -> Problem:
         return _vector_problem(physical, simulator, theta, runs, stan, model, raw, base)
     if "program" in model:
         model["program"] = base / model["program"]
-    for key in ("functional", "functional_inputs", "noise_inputs"):  # one name or a list (the schema checked which)
+    for key in ("functional", "functional_inputs", "noise_inputs", "biased_sources"):  # one name or a list
         if isinstance(model.get(key), str):
             model[key] = [model[key]]
     observation = {key: model.pop(key) for key in _OBSERVATION_KEYS if key in model}
@@ -125,7 +126,7 @@ def _problem(raw: dict[str, Any], base: Path) -> Problem:
         theta_low={k: tuple(v) for k, v in simulator.get("low_fidelity", {}).get("theta", {}).items()},
         low_fidelity_rho=simulator.get("low_fidelity", {}).get("rho", "constant"),
     )
-    _check_noise(model.get("noise", "iid"), data, model.get("noise_inputs", []))
+    _check_noise(model.get("noise", "iid"), data, model.get("noise_inputs", []), model.get("biased_sources", []))
     candidates = _candidates(raw.get("candidates", {}), base)
     return Problem(data=data, simulator=stan, model=model, candidates=candidates, units=dict(raw.get("units", {})),
                    design=dict(raw.get("design", {})))
@@ -138,9 +139,9 @@ def _low_fidelity_runs(simulator: dict[str, Any], base: Path) -> list[pd.DataFra
                                                                              else files)]
 
 
-def _check_noise(noise: str, data: CalibrationData, noise_inputs: list[str]) -> None:
-    """[model] noise against [physical] noise_sd and source, and noise_inputs
-    against the inputs, before anything compiles."""
+def _check_noise(noise: str, data: CalibrationData, noise_inputs: list[str], biased_sources: list[str]) -> None:
+    """[model] noise against [physical] noise_sd and source, noise_inputs
+    against the inputs and biased_sources against the sources, before anything compiles."""
     if noise in NOISE_MODES:
         raise ConfigError(f"[model] noise applies to a vector output only as {noise!r} (a [physical] output_index); "
                           f"a scalar output's noise is one of {', '.join(NOISES)}")
@@ -149,7 +150,8 @@ def _check_noise(noise: str, data: CalibrationData, noise_inputs: list[str]) -> 
         check_noise_inputs(noise, noise_inputs, data.inputs)
     except ValueError as err:
         raise ConfigError(str(err)) from None
-    check_noise(noise, data.noise)  # a DataError naming the key and the column
+    check_noise(noise, data.noise, biased_sources)  # a DataError naming the key and the column
+    check_biased_sources(biased_sources, data.noise)
 
 
 def _vector_problem(physical: dict, simulator: dict, theta: dict, runs: pd.DataFrame | None, stan: Path | None,

@@ -104,7 +104,7 @@ TABLES: tuple[Table, ...] = (
         Key("noise_sd", "string", "none (the noise sd is estimated)", "a column of each reading's known "
             "measurement sd (a scalar output: added in quadrature to the estimated sd, docs/noise.md)"),
         Key("source", "string", "none (one source)", "a column naming each reading's measurement source "
-            "(instrument), for [model] noise = \"per_source\"", SCALAR),
+            "(instrument), for [model] noise = \"per_source\" or biased_sources", SCALAR),
     )),
     Table("simulator", "The computer model: a Stan function, runs of it, or both", required=True, keys=(
         Key("stan", "path", "none", "a Stan file defining vector simulator(matrix X, vector theta), one value "
@@ -181,6 +181,9 @@ TABLES: tuple[Table, ...] = (
             choices=(*NOISES, *NOISE_MODES)),
         Key("noise_inputs", "list of names (or one name)", "every simulator input", f"noise = \"{HETEROSCEDASTIC}\": "
             "the simulator inputs the log noise sd varies over (docs/noise.md)", SCALAR),
+        Key("biased_sources", "list of names (or one name)", "[] (every source a reference)", "sources of "
+            "[physical] source whose readings carry a bias GP of their own over the simulator inputs, beside the "
+            "discrepancy; the others are references (docs/noise.md)", SCALAR),
         Key("variance_share", "number", str(DEFAULT_VARIANCE_SHARE), "the share of the runs' variance the "
             "output basis keeps", VECTOR),
         Key("components", "integer", "by variance_share", "the output basis's number of components (overrides "

@@ -23,6 +23,7 @@ from stancal.problem.validation import DataError, numeric_values, row_labels
 
 NOISES = tuple(code.name.lower() for code in Noise)  # iid, per_source, student_t, heteroscedastic
 HETEROSCEDASTIC = Noise.HETEROSCEDASTIC.name.lower()
+PER_SOURCE = Noise.PER_SOURCE.name.lower()
 # a row whose posterior mean Student-t weight is below this counts at most a
 # quarter as much as a row of the prior mean weight, 1: the report lists it as an
 # outlier. Without a GP that is a residual beyond sqrt(3 nu + 4) scales: 3.6 at
@@ -109,10 +110,12 @@ def check_noise_name(noise: str) -> None:
         raise ValueError(f"noise must be one of {', '.join(NOISES)}; got {noise!r}")
 
 
-def check_noise(noise: str, measurement: MeasurementNoise) -> None:
+def check_noise(noise: str, measurement: MeasurementNoise, biased_sources: Sequence[str] = ()) -> None:
     """The noise model against the data's columns, before anything compiles;
     the message names the key to change. The name itself is checked where
-    it is read (ModelOptions, the config), so it is a name stancal has."""
+    it is read (ModelOptions, the config), so it is a name stancal has. A
+    source column serves per-source noise or biased sources
+    (stancal.problem.source_bias)."""
     column = measurement.source_column
     if noise == "per_source" and column is None:
         raise DataError(f"{config_key('model', 'noise', noise)} needs each row's measurement source: name its "
@@ -120,9 +123,10 @@ def check_noise(noise: str, measurement: MeasurementNoise) -> None:
     if noise == "per_source" and len(measurement.sources) < 2:
         raise DataError(f"{config_key('model', 'noise', noise)}: column '{column}' names one source only "
                         f"({measurement.sources[0]!r}); one sd per source needs two or more, else use noise = \"iid\"")
-    if column is not None and noise != "per_source":
+    if column is not None and noise != "per_source" and not biased_sources:
         raise DataError(f"the physical data name a measurement source (column '{column}'), which only "
-                        f"noise = \"per_source\" uses; set {config_key('model', 'noise', 'per_source')}, or "
+                        f"noise = \"per_source\" uses (or [model] biased_sources); set "
+                        f"{config_key('model', 'noise', 'per_source')}, name [model] biased_sources, or "
                         "leave the source out")
 
 

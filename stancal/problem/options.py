@@ -47,6 +47,9 @@ class ModelOptions:
     noise: str = "iid"
     # heteroscedastic noise: the simulator inputs its log sd varies over (empty: all of them)
     noise_inputs: tuple[str, ...] = ()
+    # the sources (of the data's source column) whose readings carry a bias GP of their own beside
+    # the discrepancy; the others are references (stancal.problem.source_bias, functions/source_bias.stan)
+    biased_sources: tuple[str, ...] = ()
     # a stochastic simulator: its replicated runs' scatter is its own variance, which the emulator of
     # its mean carries (stochastic kriging, Ankenman, Nelson & Staum 2010; docs/noise.md); a property
     # of the simulator, so its config key is in [simulator], not [model]
@@ -54,7 +57,8 @@ class ModelOptions:
 
     def __post_init__(self) -> None:
         # lists from a config or a saved result
-        for name in ("functional", "functional_inputs", "basis_functions", "boundary_factor", "noise_inputs"):
+        for name in ("functional", "functional_inputs", "basis_functions", "boundary_factor", "noise_inputs",
+                     "biased_sources"):
             object.__setattr__(self, name, tuple(getattr(self, name)))
         if self.approximation not in APPROXIMATIONS:
             raise ValueError(f"approximation must be one of {', '.join(APPROXIMATIONS)}; "

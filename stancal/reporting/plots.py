@@ -179,6 +179,29 @@ def plot_discrepancy(result: CalibrationResult, path: str | Path | None = None,
     return finish(fig, path)
 
 
+def plot_source_biases(result: CalibrationResult, path: str | Path | None = None,
+                       units: dict[str, str] | None = None, curves: Curves | None = None):
+    """Each biased source's bias b_s (its readings minus reality, beside the
+    shared discrepancy δ; functions/source_bias.stan, Gu et al. 2023) with its
+    90 % band along the input that varies most, one panel per biased source."""
+    plt = pyplot()
+    curves = fit_curves(result, units) if curves is None else curves
+    names = result.options.biased_sources
+    fig, axes = plt.subplots(1, len(names), figsize=(6 * len(names), 3.8), squeeze=False, layout="constrained")
+    unit = (units or {}).get(result.data.output)
+    for ax, name in zip(axes[0], names, strict=True):
+        if curves.on_grid:
+            _bands(ax, curves, f"bias_{name}", f"bias of {name}")
+        else:
+            _intervals(ax, curves.table, curves.along, f"bias_{name}", f"bias at the data points, {LEVEL} interval")
+        ax.axhline(0, color="k", lw=0.8)
+        ax.set_xlabel(axis_label(curves.along, units))
+        ax.set_ylabel(f"bias of {name} in {result.data.output}" + (f" [{unit}]" if unit else ""))
+        ax.legend(fontsize=7)
+        _title(ax, f"Bias of source {name} = its reading − the true process", curves)
+    return finish(fig, path)
+
+
 def _censored_ranges(ax, result: CalibrationResult, column: str) -> None:
     """Censored observations as the range they are known to lie in, with an
     arrow where a side is open."""
@@ -264,8 +287,9 @@ def finish(fig, path):
 
 
 def write_plots(result: CalibrationResult, folder: str | Path, units: dict[str, str] | None = None) -> list[Path]:
-    """theta.png, fit.png, and discrepancy.png, theta_functions.png and
-    noise_sd.png (heteroscedastic noise) where the model has them; ``units``: the config's [units] (name -> unit)."""
+    """theta.png, fit.png, and discrepancy.png, theta_functions.png,
+    noise_sd.png (heteroscedastic noise) and source_bias.png (biased sources)
+    where the model has them; ``units``: the config's [units] (name -> unit)."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     paths = [folder / "theta.png", folder / "fit.png"]
@@ -281,6 +305,9 @@ def write_plots(result: CalibrationResult, folder: str | Path, units: dict[str, 
     if result.options.noise == HETEROSCEDASTIC:
         paths.append(folder / "noise_sd.png")
         plot_noise_sd(result, paths[-1], units)
+    if result.options.biased_sources:
+        paths.append(folder / "source_bias.png")
+        plot_source_biases(result, paths[-1], units, curves)
     return paths
 
 

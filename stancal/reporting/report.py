@@ -139,9 +139,11 @@ def noise_lines(noise: dict, table) -> list[str]:
     sds = [p for p in table.index if str(p).startswith("noise_sd") or p == "nu"]
     lines += [f"- {p}: {table.loc[p, 'mean']:.4g} [{table.loc[p, 'q05']:.4g}, {table.loc[p, 'q95']:.4g}]"
               for p in sds]
-    if noise["model"] == "per_source":
+    if noise["model"] == "per_source" or noise.get("biased_sources"):
         lines.append("- rows per source (column '{}'): {}".format(
             noise["source_column"], ", ".join(f"{k} {v}" for k, v in noise["rows_per_source"].items())))
+    if noise.get("biased_sources"):
+        lines += source_bias_lines(noise, table)
     if noise["model"] == HETEROSCEDASTIC:
         lines += heteroscedastic_lines(noise)
     if noise["model"] == "student_t":
@@ -149,6 +151,18 @@ def noise_lines(noise: dict, table) -> list[str]:
         lines.append(f"- outliers ({noise['outlier_rule']}): " + (", ".join(
             f"row {r['row']} (weight {r['weight']:.2f})" for r in rows) if rows else "none"))
     return lines
+
+
+def source_bias_lines(noise: dict, table) -> list[str]:
+    """The biased sources, the references, and each bias GP's hyperparameters
+    (output and input units; the curves and their bands: source_bias.png)."""
+    rows = [p for p in table.index if str(p).startswith(("bias_sd", "bias_length_scale"))]
+    return [(f"- biased sources, each with a bias GP over the simulator inputs beside the discrepancy: "
+             f"{', '.join(noise['biased_sources'])}; references (the discrepancy alone): "
+             f"{', '.join(noise['reference_sources'])}"),
+            *(f"- {p}: {table.loc[p, 'mean']:.4g} [{table.loc[p, 'q05']:.4g}, {table.loc[p, 'q95']:.4g}]"
+              for p in rows),
+            f"- each bias curve with its {noise['bias_band']} band: source_bias.png"]
 
 
 def heteroscedastic_lines(noise: dict) -> list[str]:

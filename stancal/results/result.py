@@ -46,6 +46,8 @@ ROW_WEIGHT = "row_weight"  # Student-t noise: each row's weight in the fit (func
 NOISE_LOCATIONS = "noise_locations"
 NOISE_BAND = "90 %"  # the noise sd curve's band: 5 % to 95 % quantiles
 PREDICTED = ("f_new", "delta_new", "zeta_new")
+# biased measurement sources: each one's bias at the prediction points (functions/source_bias.stan)
+BIAS_NEW = "bias_new"
 NEW_OBSERVATION = "y_new"  # latent programs: a new observation from the likelihood
 # per physical point: the GP part of delta (a draw, and its mean given the
 # parameters), and E(y_i | y_-i) for held-out error
@@ -56,7 +58,8 @@ AT_OBSERVATIONS = ("delta_gp", "delta_gp_mean", "y_loo_mean")
 _REEXPRESSED = {"theta_unit", "theta_low_unit", "noise_sd", "delta_sd", "delta_input_length_scale", "delta_relevance",
                 "rho_free", "beta", "noise_weight", "noise_z", "noise_log_scale", "noise_length_scale",
                 "inv_sqrt_phi", "delta_raw", "emulator_z", "theta_function_sd",
-                "theta_function_length_scale", "theta_function_logit", "theta_function_raw"}
+                "theta_function_length_scale", "theta_function_logit", "theta_function_raw",
+                "bias_sd", "bias_length_scale"}
 
 
 def build_datatree(sample: SampleOutput, data: CalibrationData,
@@ -78,6 +81,8 @@ def build_datatree(sample: SampleOutput, data: CalibrationData,
         "predictions": {k: d[k] for k in (*PREDICTED, NEW_OBSERVATION) if k in d},
         "at_observations": {k: d[k] for k in AT_OBSERVATIONS if k in d},
     }
+    if options.biased_sources:  # each biased source's bias curve at the prediction points
+        sampled["predictions"][BIAS_NEW] = d[BIAS_NEW]
     if ROW_WEIGHT in d and d[ROW_WEIGHT].shape[-1]:  # Student-t noise
         sampled["at_observations"][ROW_WEIGHT] = d[ROW_WEIGHT]
     if options.functional:
@@ -129,6 +134,10 @@ def _posterior(d: Draws, data: CalibrationData, parameter_names: list[str], opti
     if "noise_length_scale" in d and d["noise_length_scale"].shape[-1]:  # heteroscedastic: original units
         inputs = noise_input_names(options, data)
         posterior["noise_length_scale"] = d["noise_length_scale"] * np.array([data.scaling.width[c] for c in inputs])
+    if options.biased_sources:  # each biased source's bias GP, original units
+        posterior["bias_sd"] = d["bias_sd"] * data.scaling.y_scale
+        posterior["bias_length_scale"] = d["bias_length_scale"] * np.array([data.scaling.width[c]
+                                                                            for c in data.inputs])
     if not options.estimate_rho:
         posterior.pop("rho", None)
     for name in EMULATOR_HYPERPARAMETERS:
@@ -153,6 +162,8 @@ _DIMS = {
     "theta_function": ["grid_point", "functional_theta"],
     "weights": ["basis_function"], ROW_WEIGHT: ["obs"],
     "noise_length_scale": ["noise_input"], "log_scale": ["noise_location"],
+    "bias_sd": ["biased_source"], "bias_length_scale": ["biased_source", "bias_input"],
+    BIAS_NEW: ["biased_source", "new_point"],
 }
 
 
@@ -167,6 +178,7 @@ def _coords(data: CalibrationData, new_points: pd.DataFrame, options: ModelOptio
         "functional_theta": list(options.functional), "functional_input": list(options.functional_inputs),
         "grid_point": np.arange(len(grid)), "source": list(data.noise.sources),
         "noise_input": noise_input_names(options, data),
+        "biased_source": list(options.biased_sources), "bias_input": data.inputs,
     }
 
 
@@ -261,11 +273,33 @@ class CalibrationResult:
                "rows_per_source": dict(zip(noise.sources, noise.rows_per_source.tolist(), strict=True)),
                "outlier_rule": f"posterior mean Student-t weight < {OUTLIER_WEIGHT}",
                "outliers": json.loads(self.outliers().to_json(orient="records"))}
+        if self.options.biased_sources:  # stancal.problem.source_bias
+            out.update(biased_sources=list(self.options.biased_sources), bias_band=NOISE_BAND,
+                       reference_sources=[s for s in noise.sources if s not in self.options.biased_sources])
         if NOISE_LOCATIONS in self.idata.children:
             curve = self.noise_curve()
             out.update(noise_inputs=noise_input_names(self.options, self.data), band=NOISE_BAND,
                        replicates=replicate_counts(self.data.physical[self.data.discrepancy_inputs].to_numpy()),
                        sd_curve={c: curve[c].tolist() for c in curve.columns})
+        return out
+
+    def source_biases(self, bias_new: np.ndarray, points: int) -> dict[str, np.ndarray]:
+        """Each biased source's bias at ``points`` new points, (samples, points),
+        by source name, from the programs' ``bias_new`` draws (functions/source_bias.stan)."""
+        values = np.asarray(bias_new).reshape(-1, len(self.options.biased_sources), points)
+        return {name: values[:, b] for b, name in enumerate(self.options.biased_sources)}
+
+    def reading_bias(self, points: pd.DataFrame, biases: dict[str, np.ndarray]) -> np.ndarray | float:
+        """The bias of each point's own source (0 for a reference source), where
+        the points name their source: a new reading by that instrument; without
+        a source column (or biased sources), a reading free of any instrument's bias."""
+        source, _ = self.data.noise.at(points)
+        if not biases or source is None:
+            return 0.0
+        names = np.asarray(self.data.noise.sources)[source]
+        out = np.zeros_like(next(iter(biases.values())))
+        for name, values in biases.items():
+            out[:, names == name] = values[:, names == name]
         return out
 
     def noise_sd_at(self, points: pd.DataFrame, rng: np.random.Generator | None = None,

@@ -69,6 +69,12 @@ class Program:
         return sd.partial_centring in self.data
 
     @property
+    def source_biases(self) -> bool:
+        """Its Gaussian likelihood takes biased measurement sources: a bias GP per
+        biased source beside the discrepancy (functions/source_bias.stan)."""
+        return sd.source_biases in self.data
+
+    @property
     def path(self) -> Path:
         """The program's file: shipped, or a user's copy given by its absolute path."""
         path = Path(self.stan_file)
@@ -78,23 +84,24 @@ class Program:
 _SCALAR = frozenset({GAP, COMPARE, SBC})
 _GAUSSIAN = (sd.common_data, sd.gaussian_outputs)
 _NOISY = {"noises": NOISES, "known_noise_sd": True}  # the exact Gaussian programs: functions/noise.stan
+_NOISE_DATA = (sd.noise_model, sd.source_biases)  # their noise, and biased sources (functions/source_bias.stan)
 _LATENT = (sd.common_data, sd.latent_outputs)
 
 PROGRAMS: dict[str, Program] = {program.name: program for program in (
     Program("koh", "koh.stan", "KOH with a cheap simulator written in Stan", simulator=True,
             discrepancies=("gp", "none", *RESTRICTED_DISCREPANCIES), latent_version="koh_latent",
-            scalable_version="koh_hsgp", data=(*_GAUSSIAN, sd.noise_model, sd.simulator_points,
+            scalable_version="koh_hsgp", data=(*_GAUSSIAN, *_NOISE_DATA, sd.simulator_points,
                                                sd.restricted_discrepancy), commands=_SCALAR | {L2}, **_NOISY),
     Program("koh_emulator", "koh_emulator.stan", "full KOH: emulator and calibration in one joint GP",
             runs=True, latent_version="koh_latent_emulator", scalable_version="modular_hsgp",
-            data=(*_GAUSSIAN, sd.noise_model, sd.emulator_inputs), samples_emulator=True, commands=_SCALAR | {L2},
+            data=(*_GAUSSIAN, *_NOISE_DATA, sd.emulator_inputs), samples_emulator=True, commands=_SCALAR | {L2},
             **_NOISY),
     Program("emulator", "emulator.stan", "GP emulator of simulator runs (stage 1 of modular)", runs=True,
             helper=True),
     Program("modular", "modular.stan", "modular KOH: stage 2 with the stage-1 emulator fixed", runs=True,
             stage_one=STAGE_ONE_GP, stage_one_fidelities=STAGE_ONE_FIDELITY, latent_version="koh_latent_emulator",
             scalable_version="modular_hsgp",
-            data=(*_GAUSSIAN, sd.noise_model, sd.emulator_points, sd.fidelity_emulator),
+            data=(*_GAUSSIAN, *_NOISE_DATA, sd.emulator_points, sd.fidelity_emulator),
             commands=_SCALAR | {L2, DESIGN}, stochastic_runs=True, **_NOISY),
     Program("koh_latent", "koh_latent.stan",
             "KOH with latent GPs: counts, binomial, censored outputs, functional theta", simulator=True,

@@ -27,6 +27,7 @@ from stancal.problem.noise import (
     stan_noise_data,
 )
 from stancal.problem.options import DISCREPANCIES, ModelOptions
+from stancal.problem.source_bias import stan_bias_data
 
 EMULATOR_HYPERPARAMETERS = ("emulator_mean", "emulator_sd", "emulator_length_scale", "emulator_nugget")
 
@@ -129,6 +130,11 @@ def noise_model(inputs: StanInputs) -> dict[str, Any]:
     locations = noise_locations(inputs.data, inputs.options)
     return {**stan_noise_data(inputs.options.noise, inputs.data.noise, inputs.data.scaling.y_scale),
             **(locations.stan_data() if locations else NO_LOCATIONS)}
+
+
+def source_biases(inputs: StanInputs) -> dict[str, Any]:
+    """Biased measurement sources (functions/source_bias.stan): how many, and each row's."""
+    return stan_bias_data(inputs.options.biased_sources, inputs.data.noise)
 
 
 def noise_locations(data: CalibrationData, options: ModelOptions) -> NoiseLocations | None:

@@ -71,11 +71,14 @@ def fresh_prediction_normals(data: dict[str, Any], rng: np.random.Generator) -> 
     program has no functional theta); see prediction_normals_rng in
     functions/gp_conditional.stan. The Hilbert-space programs draw their
     basis weights from ``B_normals`` and ``basis_normals`` (B, plus
-    modular_hsgp's emulator-error weights) likewise."""
+    modular_hsgp's emulator-error weights) likewise; the programs with biased
+    sources their bias curves from ``bias_normals_new`` (P x n_biased)."""
     out: dict[str, Any] = {}
     if "P_normals" in data:
         rows, columns = int(data["P"]), 2 + int(data.get("F", 0))
         out.update(P_normals=rows, normals_new=rng.standard_normal((rows, columns)).tolist())
+        if "bias_normals_new" in data:  # biased sources' curves (functions/source_bias.stan)
+            out.update(bias_normals_new=rng.standard_normal((rows, int(data["n_biased"]))).tolist())
     if "B_normals" in data:  # the Hilbert-space programs' basis weights (functions/hsgp.stan)
         weights = int(data["B"]) + int(data.get("emulator_error_rank", 0))
         out.update(B_normals=weights, basis_normals=rng.standard_normal(weights).tolist())
