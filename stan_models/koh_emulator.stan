@@ -158,7 +158,8 @@ generated quantities {
     matrix[N, N] K_bias = source_bias_cov(x, bias_of, kernel_id, bias_sd, bias_length_scale);
     tuple(vector[N], vector[N], vector[N], vector[N], vector[N], vector[P], vector[P], vector[P]) q
       = koh_joint_quantities_rng(y_sim, y, xt_sim, x, theta_unit, x_delta, h, beta, x_new, x_delta_new,
-                                 h_new, normals_new, prior_only, kernel_id, w_sim, w_top, {emulator_mean},
+                                 h_new, normals_new, prior_only, kernel_id, w_sim, rep_matrix(w_top, N),
+                                 rep_matrix(w_top, P), {emulator_mean},
                                  {emulator_sd}, {emulator_length_scale}, rep_vector(emulator_nugget, M),
                                  rho, delta_sd, delta_length_scale, weighted_noise_variance(noise_var, noise_weight),
                                  K_bias, y_center, y_scale);
