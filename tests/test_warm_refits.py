@@ -260,8 +260,8 @@ def test_a_gain_that_is_not_credible_leaves_the_baseline_to_its_refits():
 
 # ---- moment matching spent only where it can change the answer -------------------------------
 def test_a_settled_fit_is_not_moment_matched_until_the_others_scores_unsettle_it(monkeypatch):
-    """Moment matching, as a refit, is skipped for a fit that is settled on
-    its PSIS bounds (scoring.settled); once the other fits' points are
+    """Moment matching, as a refit, is skipped for a candidate that is settled
+    on its PSIS bounds (scoring.settled), not for the baseline; once the other fits' points are
     matched their scores move, the fits are judged again, and a fit that is
     no longer settled is matched then."""
     from stancal.diagnosing import gap
@@ -275,6 +275,11 @@ def test_a_settled_fit_is_not_moment_matched_until_the_others_scores_unsettle_it
               score(-3.0 + noise, [7, 8], -9.0, -1.0)]
     assert gap.to_match(scores, set(), every=False) == [0, 1]
     assert gap.to_match(scores, set(), every=True) == [0, 1, 2]  # every candidate asked for: none skipped
+    # a baseline the leader beats credibly at every bound settles all three, but its scores enter every
+    # difference, so it is matched all the same
+    credible = score(-2.0 + noise, [3], -9.0, -1.0)
+    assert settled([credible, *scores[1:]]) == [0, 1, 2]
+    assert gap.to_match([credible, *scores[1:]], set(), every=False) == [0]
     for leader_elpd, matched_fits in ((-1.0, [0, 1]), (-80.0, [0, 1, 2])):
         calls = []
 

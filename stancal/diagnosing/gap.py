@@ -310,7 +310,7 @@ def diagnose_gap(
     refit, PSIS-LOO with moment matching (Paananen et al. 2021;
     stancal.diagnosing.moment_match) at each fit's points with Pareto k
     above 0.7 (scalar outputs); only the points it leaves above 0.7 are
-    refitted; a fit settled on its PSIS bounds is neither matched nor
+    refitted; a candidate settled on its PSIS bounds is neither matched nor
     refitted. ``matching_workers``: the processes its passes over the draws
     are split between (None: the machine's cores; 1: this process alone).
     """
@@ -428,12 +428,16 @@ def _without_failures(labels: list, fits: list, failed: list[FitFailure]) -> tup
 
 
 def to_match(scores: list[Score], done: set[int], every: bool) -> list[int]:
-    """The fits (indices into ``scores``) whose high Pareto k points moment
-    matching scores next: those with such points, not matched yet, and not
-    settled by the scores so far (scoring.settled: nothing those points can
-    score changes the answer, so neither matching nor refits are spent on
-    them; unless ``every`` candidate was asked for)."""
-    skipped = set() if every else set(settled(scores))
+    """The fits (indices into ``scores``; 0 is the baseline) whose high
+    Pareto k points moment matching scores next: those with such points,
+    not matched yet, and not a candidate settled by the scores so far
+    (scoring.settled: nothing those points can score changes the ranking,
+    so neither matching nor refits are spent on them; unless ``every``
+    candidate was asked for). The baseline is matched even when settled:
+    its scores enter every difference, and on the counts case its PSIS
+    scores at 6 points moved all three by 0.67, more than one's se
+    (docs/benchmarks.md), for half of the matching's time."""
+    skipped = set() if every else set(settled(scores)) - {0}
     return [i for i, s in enumerate(scores) if s.unreliable.size and i not in skipped | done]
 
 
@@ -441,7 +445,7 @@ def moment_match_fits(labels: list, fits: list, scores: list[Score], workers: in
                       every: bool = False) -> list[Score]:
     """Each fit's observations with Pareto k above 0.7 moment-matched
     (Paananen et al. 2021; stancal.diagnosing.moment_match) before any
-    refit, except in a fit settled on its PSIS bounds (to_match): an
+    refit, except in a candidate settled on its PSIS bounds (to_match): an
     observation whose k it brings to 0.7 or below keeps its moment-matched
     score and is not refitted. Matched scores move the bounds, so the fits
     are judged again after each round, and a fit no longer settled is
