@@ -73,7 +73,7 @@ def mc_variance(result) -> np.ndarray:
     return (w**2 * (p - estimate) ** 2).sum(0) / estimate**2
 
 
-def figures(candidate, baseline, base_score, base_mc, seconds: float, baseline_s: float) -> dict:
+def figures(candidate, base_score, base_mc, seconds: float, baseline_s: float) -> dict:
     score = psis_score(candidate)
     diff = score.elpd_i - base_score.elpd_i
     d = candidate.diagnostics
@@ -117,7 +117,7 @@ def main() -> None:
                 fit = stancal.calibrate(fitted, mean_intercept=True, seed=seed,
                                         new_points=fitted.source.reset_index(drop=True), **model, **options)
                 row = {"candidate": name, "mode": mode, "repeat": repeat,
-                       **figures(fit, baseline, base_score, base_mc, time.perf_counter() - started, baseline_s)}
+                       **figures(fit, base_score, base_mc, time.perf_counter() - started, baseline_s)}
                 out["fits"].append(row)
                 print(json.dumps(row), flush=True)
                 if args.json:
