@@ -135,6 +135,8 @@ def main() -> None:
                                 **gap_figures(gap, baseline_s, time.perf_counter() - started)}
         print(json.dumps(figures, indent=1), flush=True)
         print_targets(figures)
+    if args.json:  # the diagnosis's figures kept should the K-fold reference (an hour and more) be stopped
+        args.json.write_text(json.dumps(runs if len(runs) > 1 else figures, indent=1))
     if args.kfold:
         kfold_reference(problem, figures, args.kfold, args.seed, **sampling)
         print(json.dumps(figures["kfold"], indent=1), flush=True)

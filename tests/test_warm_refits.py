@@ -256,3 +256,39 @@ def test_a_gain_that_is_not_credible_leaves_the_baseline_to_its_refits():
     far = score(-3.0 + noise, [7, 8], -9.0, -1.0)
     alike = score(-1.0 + rng.normal(0, 0.1, 40), [3], -1.3, -0.95)  # as good as the leader at every bound
     assert settled([alike, leader, far]) == [2]
+
+
+# ---- moment matching spent only where it can change the answer -------------------------------
+def test_a_settled_fit_is_not_moment_matched_until_the_others_scores_unsettle_it(monkeypatch):
+    """Moment matching, as a refit, is skipped for a candidate that is settled
+    on its PSIS bounds (scoring.settled), not for the baseline; once the other fits' points are
+    matched their scores move, the fits are judged again, and a fit that is
+    no longer settled is matched then."""
+    from stancal.diagnosing import gap
+    from stancal.diagnosing.moment_match import MatchedPoint
+
+    rng = np.random.default_rng(1)
+    noise = rng.normal(0, 0.1, 40)
+    labels = [None, *(stancal.Candidate(name, formula=f"~ {name}") for name in ("leader", "far"))]
+    # far is settled beside the leader; a baseline as good as the leader leaves those two to be scored
+    scores = [score(-1.0 + noise, [3], -9.0, -1.0), score(-1.0 + noise, [5], -4.0, -0.5),
+              score(-3.0 + noise, [7, 8], -9.0, -1.0)]
+    assert gap.to_match(scores, set(), every=False) == [0, 1]
+    assert gap.to_match(scores, set(), every=True) == [0, 1, 2]  # every candidate asked for: none skipped
+    # a baseline the leader beats credibly at every bound settles all three, but its scores enter every
+    # difference, so it is matched all the same
+    credible = score(-2.0 + noise, [3], -9.0, -1.0)
+    assert settled([credible, *scores[1:]]) == [0, 1, 2]
+    assert gap.to_match([credible, *scores[1:]], set(), every=False) == [0]
+    for leader_elpd, matched_fits in ((-1.0, [0, 1]), (-80.0, [0, 1, 2])):
+        calls = []
+
+        def match_fit(fit, rows, pool, leader_elpd=leader_elpd, calls=calls):
+            calls.append(fit)
+            return [MatchedPoint(row, 0.9, 0.5, leader_elpd if fit == 1 else -3.0, 0.0, 1) for row in rows]
+
+        monkeypatch.setattr(gap, "match_fit", match_fit)
+        out = gap.moment_match_fits(labels, [0, 1, 2], scores, workers=1)
+        assert calls == matched_fits  # a leader matched down to -80 at a point no longer keeps far out of reach
+        assert out[2].unreliable.tolist() == ([] if 2 in matched_fits else [7, 8])
+        assert out[1].elpd_i[5] == leader_elpd and out[0].unreliable.size == 0

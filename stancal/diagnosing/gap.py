@@ -310,6 +310,7 @@ def diagnose_gap(
     refit, PSIS-LOO with moment matching (Paananen et al. 2021;
     stancal.diagnosing.moment_match) at each fit's points with Pareto k
     above 0.7 (scalar outputs); only the points it leaves above 0.7 are
+    refitted; a candidate settled on its PSIS bounds is neither matched nor
     refitted. ``matching_workers``: the processes its passes over the draws
     are split between (None: the machine's cores; 1: this process alone).
     """
@@ -368,7 +369,7 @@ def diagnose_gap(
         clock.lap("fits")
         scores = [psis_score(r) for r in fits]
         if moment_matching and kfold is None and not vector:  # K-fold refits every point; vectors: not yet
-            scores = _moment_matched(labels, fits, scores, matching_workers)
+            scores = moment_match_fits(labels, fits, scores, matching_workers, every_candidate)
             clock.lap("moment matching")
         scores, skipped, kfold = comparison_scheme(labels, scores, kfold, every_candidate)
         tests = [[] if i in skipped else kfold_tests(len(data_for(c).physical), kfold, seed) if kfold is not None
@@ -426,11 +427,29 @@ def _without_failures(labels: list, fits: list, failed: list[FitFailure]) -> tup
                      strict=True))
 
 
-def _moment_matched(labels: list, fits: list, scores: list[Score], workers: int | None) -> list[Score]:
+def to_match(scores: list[Score], done: set[int], every: bool) -> list[int]:
+    """The fits (indices into ``scores``; 0 is the baseline) whose high
+    Pareto k points moment matching scores next: those with such points,
+    not matched yet, and not a candidate settled by the scores so far
+    (scoring.settled: nothing those points can score changes the ranking,
+    so neither matching nor refits are spent on them; unless ``every``
+    candidate was asked for). The baseline is matched even when settled:
+    its scores enter every difference, and on the counts case its PSIS
+    scores at 6 points moved all three by 0.67, more than one's se
+    (docs/benchmarks.md), for half of the matching's time."""
+    skipped = set() if every else set(settled(scores)) - {0}
+    return [i for i, s in enumerate(scores) if s.unreliable.size and i not in skipped | done]
+
+
+def moment_match_fits(labels: list, fits: list, scores: list[Score], workers: int | None,
+                      every: bool = False) -> list[Score]:
     """Each fit's observations with Pareto k above 0.7 moment-matched
     (Paananen et al. 2021; stancal.diagnosing.moment_match) before any
-    refit: an observation whose k it brings to 0.7 or below keeps its
-    moment-matched score and is not refitted. It runs here, in the command's
+    refit, except in a candidate settled on its PSIS bounds (to_match): an
+    observation whose k it brings to 0.7 or below keeps its moment-matched
+    score and is not refitted. Matched scores move the bounds, so the fits
+    are judged again after each round, and a fit no longer settled is
+    matched then. It runs here, in the command's
     main thread, not on the cluster: the log density's autodiff, called from
     a Dask worker's thread, crashed workers (pystan_backend.start_error).
     Where it cannot run (PyStan outside the main thread; the cmdstanpy
@@ -440,12 +459,16 @@ def _moment_matched(labels: list, fits: list, scores: list[Score], workers: int 
     stancal.diagnosing.density_pool): the fits are done by then, so the
     cores are free."""
     scores = list(scores)
-    if not any(score.unreliable.size for score in scores):
+    done: set[int] = set()
+    todo = to_match(scores, done, every)
+    if not todo:
         return scores  # no worker processes started for nothing
     with DensityPool(workers) as pool:
-        for i, (label, fit, score) in enumerate(zip(labels, fits, scores, strict=True)):
-            if score.unreliable.size:
-                scores[i] = _matched_score(label, fit, score, pool)
+        while todo:
+            for i in todo:
+                scores[i] = _matched_score(labels[i], fits[i], scores[i], pool)
+            done.update(todo)
+            todo = to_match(scores, done, every)
     return scores
 
 
