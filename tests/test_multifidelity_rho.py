@@ -160,6 +160,13 @@ def test_the_rho_form_is_checked():
         stancal.CalibrationData(*args, runs=[low, high], low_fidelity_rho="quadratic")
     with pytest.raises(DataError, match="'linear' needs low-fidelity runs"):
         stancal.CalibrationData(*args, runs=high, low_fidelity_rho="linear")
+    # a linear rho is learned from each upper level's runs alone (review: 3 expensive runs over 2 inputs let
+    # the fit zero the level's own GP; an input they hold constant trades its slope with the intercept)
+    with pytest.raises(DataError, match=r"level 2 has 3 runs \(at least 4 spread over the inputs"):
+        stancal.CalibrationData(*args, runs=[low, high.iloc[:3]], low_fidelity_rho="linear")
+    with pytest.raises(DataError, match=r"level 2's runs hold input\(s\) \['t'\] constant"):
+        stancal.CalibrationData(*args, runs=[low, high.assign(t=high["t"].iloc[0])], low_fidelity_rho="linear")
+    stancal.CalibrationData(*args, runs=[low, high.iloc[:3]])  # a constant rho needs no more
     low_own = low.rename(columns={"k": "a"})
     with pytest.raises(DataError, match="not yet available with the cheap simulator's own theta_l"):
         stancal.CalibrationData(*args, runs=[low_own, high], theta_low={"a": (0.5, 2.0)}, low_fidelity_rho="linear")

@@ -186,6 +186,13 @@ def test_biased_sources_the_data_cannot_take_are_refused(source, biased, message
                   biased_sources=biased)
 
 
+def test_one_biased_source_given_as_a_string_is_that_source():
+    """biased_sources="camera" from Python is the camera, not its letters
+    (review: the refusal named ['a'] as given twice)."""
+    plan = make_plan(case_data(source="instrument"), SIMULATOR, noise="per_source", biased_sources="camera")
+    assert plan.options.biased_sources == ("camera",)
+
+
 def test_biased_sources_on_a_program_without_them_are_refused():
     """The scalable programs have no biases: the registry says which do."""
     with pytest.raises(ValueError, match=r"biased_sources run on the programs koh, koh_emulator, modular; this "

@@ -95,8 +95,8 @@ def model_options(discrepancy: str | None = None, kernel: str = "se", estimate_r
                         estimate_rho, mean_formula, mean_intercept, scaled_lambda, tuple(functional),
                         tuple(functional_inputs), functional_parametrization, approximation,
                         tuple(basis_functions), tuple(boundary_factor), mean_centred,
-                        discrepancy_parametrization, noise=noise, noise_inputs=tuple(noise_inputs),
-                        stochastic=stochastic, biased_sources=tuple(biased_sources))
+                        discrepancy_parametrization, noise=noise, noise_inputs=noise_inputs,
+                        stochastic=stochastic, biased_sources=biased_sources)
 
 
 def make_plan(data: CalibrationData | VectorCalibrationData, simulator: str | Path | None = None,

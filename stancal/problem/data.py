@@ -11,7 +11,7 @@ import numpy as np
 import pandas as pd
 
 from stancal.problem.categories import covariate_columns, covariate_levels, one_hot
-from stancal.problem.fidelity_rho import check_low_fidelity_rho
+from stancal.problem.fidelity_rho import check_low_fidelity_rho, check_rho_identified
 from stancal.problem.low_fidelity_theta import check_low_fidelity_theta
 from stancal.problem.noise import MeasurementNoise, read_measurement_noise, row_noise_sd, with_known_sd
 from stancal.problem.observations import LINKS, read_observations
@@ -246,6 +246,7 @@ class CalibrationData:
         self.low_fidelity_rho = check_low_fidelity_rho(low_fidelity_rho, len(self.low_fidelity_runs),
                                                        bool(self.low_parameters))
         if self.runs is not None:  # every simulator's runs teach the emulator
+            check_rho_identified(self.low_fidelity_rho, self.runs_by_fidelity(), self.inputs)
             warn_outside_runs(self.physical, pd.concat(self.runs_by_fidelity()), self.inputs, stacklevel=3)
         self.scaling = self._scaling()
 

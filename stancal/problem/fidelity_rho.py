@@ -9,11 +9,16 @@ O'Hagan 2000, section 2.1; docs/multifidelity.md):
   the physical points, which share theta, the levels' weights stay data.
 
 The rules, checked before anything compiles, each refusal one line: a known
-form; a non-constant form needs low-fidelity runs; and not yet with a cheap
-level's own theta_l (Goh et al. 2013), whose stage 1 fits a constant rho.
+form; a non-constant form needs low-fidelity runs; not yet with a cheap
+level's own theta_l (Goh et al. 2013), whose stage 1 fits a constant rho;
+and a linear rho needs each upper level's runs to tell its coefficients
+apart (check_rho_identified).
 """
 
 from __future__ import annotations
+
+import numpy as np
+import pandas as pd
 
 from stancal.problem.validation import DataError
 
@@ -35,3 +40,25 @@ def check_low_fidelity_rho(form: str, low_fidelity_levels: int, theta_low: bool)
 def rho_slopes(form: str, inputs: int) -> int:
     """How many slopes a level's rho has: one per simulator input when linear, none when constant."""
     return inputs if form == "linear" else 0
+
+
+def check_rho_identified(form: str, runs_by_level: list[pd.DataFrame], inputs: list[str]) -> None:
+    """A linear rho's intercept and slopes are learned, at each level above
+    the cheapest, from that level's runs alone: an input the level's runs
+    hold constant trades its slope against the intercept, and fewer runs
+    than twice the coefficients let the fit drive the level's own GP to zero
+    and claim no error (found in review: 3 expensive runs over 2 inputs).
+    DataError naming the level and the input."""
+    if form != "linear":
+        return
+    for level, runs in enumerate(runs_by_level[1:], start=2):
+        x = runs[inputs].to_numpy(dtype=float)
+        flat = [name for name, column in zip(inputs, x.T, strict=True) if np.ptp(column) == 0]
+        if flat:
+            raise DataError(f"low-fidelity rho = 'linear': level {level}'s runs hold input(s) {flat} constant, so "
+                            "rho's slope there cannot be told from its intercept; use rho = \"constant\" or vary them")
+        needed = 2 * (len(inputs) + 1)
+        if len(runs) < needed or np.linalg.matrix_rank(np.column_stack([np.ones(len(x)), x])) < len(inputs) + 1:
+            raise DataError(f"low-fidelity rho = 'linear' has {len(inputs) + 1} coefficients per level; level "
+                            f"{level} has {len(runs)} runs (at least {needed} spread over the inputs are needed); "
+                            "use rho = \"constant\"")

@@ -56,10 +56,11 @@ class ModelOptions:
     stochastic: bool = field(default=False, metadata={"set_by": "[simulator] stochastic"})
 
     def __post_init__(self) -> None:
-        # lists from a config or a saved result
+        # lists from a config or a saved result; one name given as a string is that name, not its letters
         for name in ("functional", "functional_inputs", "basis_functions", "boundary_factor", "noise_inputs",
                      "biased_sources"):
-            object.__setattr__(self, name, tuple(getattr(self, name)))
+            value = getattr(self, name)
+            object.__setattr__(self, name, (value,) if isinstance(value, str) else tuple(value))
         if self.approximation not in APPROXIMATIONS:
             raise ValueError(f"approximation must be one of {', '.join(APPROXIMATIONS)}; "
                              f"got {self.approximation!r}")
