@@ -168,7 +168,9 @@ def test_fidelity_point_weights_are_the_numpy_scales_at_each_point(gq):
     h = Hyperparameters(0.0, 1.0, LS, 0.0)
     levels = [Level(h, 1.0, X2, np.zeros(4)), Level(h, 1.7, X2, np.zeros(4), np.array([0.5, -0.4])),
               Level(h, 0.6, X2, np.zeros(4), np.array([-0.3, 0.9]))]
-    rho2, rho3 = levels[1].rho_at(X2), levels[2].rho_at(X2)
+    # rho written out here, not through the code under test (Level.rho_at): 1.7 + x' (0.5, -0.4), 0.6 + x' (-0.3, 0.9)
+    rho2, rho3 = 1.7 + X2[:, :2] @ [0.5, -0.4], 0.6 + X2[:, :2] @ [-0.3, 0.9]
+    np.testing.assert_allclose([levels[1].rho_at(X2), levels[2].rho_at(X2)], [rho2, rho3], rtol=1e-12)
     expected = np.array([[1, 0, 0], [rho2[1], 1, 0], [rho2[2] * rho3[2], rho3[2], 1], [rho2[3] * rho3[3], rho3[3], 1]])
     np.testing.assert_allclose(gq["fidelity_point_w"], expected, rtol=1e-12)
     variance = (expected * [SD, 0.5, 0.2]) ** 2 @ np.ones(3)
