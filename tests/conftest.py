@@ -164,6 +164,22 @@ RHAT_LIMIT = 1.01
 BFMI_LIMIT = 0.3  # Betancourt (2016): E-BFMI below 0.3 flags poor exploration of the energy
 
 
+def assert_log_density_is(program, stan_data: dict, points: list[dict], reference) -> None:
+    """The compiled ``program``'s log density without the Jacobian at each
+    parameter point against ``reference(stan_data, point)``, the model
+    written out in numpy: their differences agree to 1e-8 (the constants
+    Stan's ~ drops cancel in a difference)."""
+    import stan
+
+    from stancal.stan.backends.pystan_compile import compile_programs
+
+    compile_programs([program])
+    model = stan.build(program.code, data=stan_data, random_seed=1)
+    stan_lp = [model.log_prob(model.unconstrain_pars(p), adjust_transform=False) for p in points]
+    np.testing.assert_allclose(np.diff(stan_lp), np.diff([reference(stan_data, p) for p in points]),
+                               rtol=1e-8, atol=1e-8)
+
+
 def e_bfmi(energy: np.ndarray) -> np.ndarray:
     """E-BFMI per chain, sum(diff(E)^2) / sum((E - mean E)^2), from a
     (chain, draw) array of the Hamiltonian's energy (computed here, not read

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 import pytest
-from conftest import COOLING, ROOT, assert_healthy, case_study_module, fit, no_stancal_warnings
+from conftest import COOLING, ROOT, assert_healthy, assert_log_density_is, case_study_module, fit, no_stancal_warnings
 from scipy import stats
 
 import stancal
@@ -85,22 +85,13 @@ def test_the_heteroscedastic_log_density_is_the_numpy_one(discrepancy):
     """koh.stan's log density (no Jacobian) at three parameter points against
     the written-out model: their differences agree to 1e-8 (the constants
     Stan's ~ drops cancel in a difference)."""
-    import stan
-
-    from stancal.stan.backends.pystan_compile import compile_programs
-
     frame = pd.read_csv(CASE / "physical.csv").iloc[::3]  # 27 rows: every setting, some replicated
     data = case_data(frame.reset_index(drop=True))
     plan = make_plan(data, SIMULATOR, discrepancy=discrepancy, noise="heteroscedastic")
     stan_data = to_stan_json(build_stan_data(data, plan.program.data, plan.options, frame.iloc[:2]))
     assert stan_data["N_loc"] == 20 and stan_data["noise_id"] == 4
-    program = plan.main_program()
-    compile_programs([program])
-    model = stan.build(program.code, data=stan_data, random_seed=1)
     points = parameter_points(stan_data, discrepancy == "gp", np.random.default_rng(2))
-    stan_lp = [model.log_prob(model.unconstrain_pars(p), adjust_transform=False) for p in points]
-    numpy_lp = [numpy_log_density(stan_data, p) for p in points]
-    np.testing.assert_allclose(np.diff(stan_lp), np.diff(numpy_lp), rtol=1e-8, atol=1e-8)
+    assert_log_density_is(plan.main_program(), stan_data, points, numpy_log_density)
 
 
 # ---- the log sd GP between its settings, replicates ------------------------------------------

@@ -13,7 +13,7 @@ import json
 import numpy as np
 import pandas as pd
 import pytest
-from conftest import COOLING, ROOT, assert_healthy, case_study_module, fit, no_stancal_warnings
+from conftest import COOLING, ROOT, assert_healthy, assert_log_density_is, case_study_module, fit, no_stancal_warnings
 from scipy import stats
 
 import stancal
@@ -95,23 +95,14 @@ def test_the_biased_sources_log_density_is_the_numpy_one(discrepancy):
     the written-out model, with a third source, biased too, so that the
     biases' blocks are told apart: differences agree to 1e-8 (the constants
     Stan's ~ drops cancel in a difference)."""
-    import stan
-
-    from stancal.stan.backends.pystan_compile import compile_programs
-
     frame = pd.read_csv(CASE / "physical.csv").iloc[::2].reset_index(drop=True)  # 30 rows, both instruments
     frame.loc[frame.index % 5 == 0, "instrument"] = "probe"
     data = case_data(frame)
     plan = make_plan(data, SIMULATOR, discrepancy=discrepancy, noise="per_source", biased_sources=["camera", "probe"])
     stan_data = to_stan_json(build_stan_data(data, plan.program.data, plan.options, frame.iloc[:2]))
     assert stan_data["n_biased"] == 2 and set(stan_data["bias_of"]) == {0, 1, 2} and stan_data["S"] == 3
-    program = plan.main_program()
-    compile_programs([program])
-    model = stan.build(program.code, data=stan_data, random_seed=1)
     points = parameter_points(stan_data, discrepancy == "gp", np.random.default_rng(2))
-    stan_lp = [model.log_prob(model.unconstrain_pars(p), adjust_transform=False) for p in points]
-    numpy_lp = [numpy_log_density(stan_data, p) for p in points]
-    np.testing.assert_allclose(np.diff(stan_lp), np.diff(numpy_lp), rtol=1e-8, atol=1e-8)
+    assert_log_density_is(plan.main_program(), stan_data, points, numpy_log_density)
 
 
 def numpy_joint_log_density(d: dict, p: dict) -> float:
@@ -148,27 +139,18 @@ def test_the_joint_log_density_with_a_biased_source_is_the_numpy_one():
     """koh_emulator.stan (the biases beside the emulator and delta in one
     joint GP; modular.stan adds them the same way, through koh_joint_cov's
     point_cov) at three parameter points against the written-out model, 1e-8."""
-    import stan
-
-    from stancal.stan.backends.pystan_compile import compile_programs
-
     frame = pd.read_csv(CASE / "physical.csv").iloc[::3].reset_index(drop=True)  # 20 rows, both instruments
     data = stancal.CalibrationData(frame, ["t", "T0"], "temperature", THETA, source="instrument",
                                    runs=pd.read_csv(COOLING / "runs.csv"))
     plan = make_plan(data, method="koh_emulator", noise="per_source", biased_sources=["camera"])
     stan_data = to_stan_json(build_stan_data(data, plan.program.data, plan.options, frame.iloc[:2]))
-    program = plan.main_program()
-    compile_programs([program])
-    model = stan.build(program.code, data=stan_data, random_seed=1)
     rng = np.random.default_rng(3)
     points = []
     for p in parameter_points(stan_data, True, rng):
         p.update(emulator_mean=rng.normal(0, 0.3), emulator_sd=rng.uniform(0.5, 1.5),
                  emulator_length_scale=rng.uniform(0.3, 1.0, 3).tolist(), emulator_nugget=rng.uniform(0.001, 0.02))
         points.append(p)
-    stan_lp = [model.log_prob(model.unconstrain_pars(p), adjust_transform=False) for p in points]
-    numpy_lp = [numpy_joint_log_density(stan_data, p) for p in points]
-    np.testing.assert_allclose(np.diff(stan_lp), np.diff(numpy_lp), rtol=1e-8, atol=1e-8)
+    assert_log_density_is(plan.main_program(), stan_data, points, numpy_joint_log_density)
 
 
 # ---- bad input: one line, before anything compiles ------------------------------------------------
