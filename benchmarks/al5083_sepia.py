@@ -134,7 +134,8 @@ def record_sepia(paths: list[Path], key: str = "sepia", cpu_s: list[float] | Non
         hyper = {}
         for name in HYPER:
             c = chains_of([k[name] for k in kept])  # (chain, draw, component)
-            hyper[name] = [summary(c[..., j]) for j in range(c.shape[-1])]
+            hyper[name] = [summary(c[..., j]) if np.ptp(c[..., j]) > 0 else {"fixed": float(c[..., j].flat[0])}
+                           for j in range(c.shape[-1])]
         ratio = chains_of([np.sqrt(k["lamUz"] / k["lamWs"]) for k in kept])
         hyper["nugget_sd_over_gp_sd"] = [summary(ratio[..., j]) | {"q95": float(np.quantile(ratio[..., j], 0.95))}
                                          for j in range(ratio.shape[-1])]  # sqrt(lamUz / lamWs) per component
@@ -163,6 +164,32 @@ def compare_with(stancal: dict, sepia: dict) -> None:
     stancal["max_abs_gap_in_sepia_sds"] = max(e["abs_gap_in_sepia_sds"] for e in stancal["theta"].values())
 
 
+INFORMATIVE = ("a", "vel1", "vel2", "vel3", "delta3")  # posterior sd well below the prior's in both tools
+
+
+def three_way_table(record: dict) -> str:
+    """Markdown: per theta, stancal against SEPIA with lamOs fixed at 1 and
+    with lamOs sampled, |mean difference| / SEPIA's sd and the sd ratio
+    (stancal / SEPIA), with SEPIA's R-hat and bulk ESS; a SEPIA R-hat above
+    1.01 marks the comparison inconclusive (†)."""
+    st, runs = record["stancal"]["theta"], [("sepia_lamos_fixed", "lamOs fixed"), ("sepia", "lamOs sampled")]
+    head = ["θ", "stancal sd / prior sd"]
+    for _, label in runs:
+        head += [f"SEPIA ({label}) R-hat, ESS", "\\|mean diff.\\| / SEPIA sd", "sd ratio"]
+    head += ["SEPIA sd, fixed / sampled"]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for name, entry in st.items():
+        row = [f"**{name}**" if name in INFORMATIVE else name, f"{entry['sd_over_prior_sd']:.2f}"]
+        for key, _ in runs:
+            ref = record[key]["theta"][name]
+            mark = " †" if ref["rhat"] > 1.01 else ""
+            gap = abs(entry["mean"] - ref["mean"]) / ref["sd"]
+            row += [f"{ref['rhat']:.3f}, {ref['ess_bulk']:.0f}{mark}", f"{gap:.2f}", f"{entry['sd'] / ref['sd']:.2f}"]
+        row.append(f"{record['sepia_lamos_fixed']['theta'][name]['sd'] / record['sepia']['theta'][name]['sd']:.2f}")
+        lines.append("| " + " | ".join(row) + " |")
+    return "\n".join(lines)
+
+
 def sepia_reference(record: dict) -> pd.DataFrame:
     """SEPIA's posterior mean and sd per theta, in the config's units."""
     theta = record["sepia"]["theta"]
@@ -180,7 +207,10 @@ def main() -> None:
                         help="record these SEPIA runs (al5083_sepia_run.py's JSONs, one chain each) and stop")
     parser.add_argument("--key", default="sepia", help="the record's entry for --sepia (sepia, sepia_lamos_fixed)")
     parser.add_argument("--cpu-s", type=float, nargs="+", help="with --sepia: each chain's CPU seconds")
+    parser.add_argument("--table", action="store_true", help="print the three-way table of the record and stop")
     args = parser.parse_args()
+    if args.table:
+        return print(three_way_table(json.loads(RECORD.read_text())))
     if args.sepia:
         return record_sepia(args.sepia, args.key, args.cpu_s)
     logging.basicConfig(format="%(name)s: %(message)s")
