@@ -15,13 +15,22 @@ sampled with SEPIA's default prior; tune_step_sizes(100, 25); then
 do_mcmc). Two changes, both stated in docs/al5083.md: only the subset's runs,
 and theta scaled to [0, 1] over the config's box (t_range) rather than over
 the subset's own range, so that both tools share one prior box. The first
-half of the iterations is dropped as burn-in."""
+half of the iterations is dropped as burn-in unless --burn says otherwise.
+
+--fix-lamos fixes SEPIA's observation-precision scale lamOs at 1 (SEPIA's
+SepiaModel.set_param('lamOs', fix=1)), so the observation covariance is Sigy
+itself: the known-noise model stancal fits with noise = "known". --deadline
+(UTC, HH:MM) stops sampling at the first checkpoint (every --chunk
+iterations) past it; every checkpoint rewrites the record and an .npz with the
+draws of theta and of every hyperparameter, so a run cut short still leaves
+its draws."""
 
 from __future__ import annotations
 
 import argparse
 import json
 import time
+from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
@@ -72,6 +81,17 @@ def summarise(theta: np.ndarray, names: list[str]) -> dict:
     return out
 
 
+def save(model, args, record: dict, burn: int, names: list[str]) -> None:
+    """Rewrite the record and the draws (all iterations, burn-in included) from the model's samples so far."""
+    draws = model.get_samples(numsamples=None, nburn=0)
+    np.savez(args.out.with_suffix(".draws.npz"), **{k: np.asarray(v) for k, v in draws.items()})
+    done = draws["theta"].shape[0]
+    theta = draws["theta"][burn:]
+    record.update({"iterations": int(done), "burn": int(burn), "kept": int(theta.shape[0]),
+                   "theta": summarise(theta, names) if theta.shape[0] > 1 else {}})
+    args.out.write_text(json.dumps(record, indent=2))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--data", type=Path, required=True)
@@ -79,25 +99,42 @@ def main() -> None:
     parser.add_argument("--iterations", type=int, default=4000)
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--out", type=Path, required=True)
+    parser.add_argument("--burn", type=int, default=None, help="iterations dropped (default: half)")
+    parser.add_argument("--fix-lamos", action="store_true", help="fix lamOs at 1 (known noise)")
+    parser.add_argument("--deadline", default=None, help="UTC HH:MM: stop at the first checkpoint past it")
+    parser.add_argument("--chunk", type=int, default=100, help="iterations between checkpoints")
     args = parser.parse_args()
     runs = np.unique(np.loadtxt(args.subset, delimiter=",", skiprows=1, usecols=0).astype(int))
     design, y_sim, y_obs, names = load(args.data, runs)
     np.random.seed(args.seed)  # SEPIA draws from numpy's global generator
     model = model_for(design, y_sim, y_obs, names)
+    if args.fix_lamos:
+        model.set_param("lamOs", fix=1.0)
+    burn = args.iterations // 2 if args.burn is None else args.burn
+    stop = None
+    if args.deadline:
+        hh, mm = (int(v) for v in args.deadline.split(":"))
+        stop = datetime.now(UTC).replace(hour=hh, minute=mm, second=0, microsecond=0).timestamp()
     started = time.perf_counter()
     model.tune_step_sizes(100, 25)
     tuned = time.perf_counter()
-    model.do_mcmc(args.iterations)
-    done = time.perf_counter()
-    theta = model.get_samples(numsamples=None, nburn=args.iterations // 2)["theta"]
-    record = {"runs": int(len(runs)), "iterations": args.iterations, "burn": args.iterations // 2,
-              "seed": args.seed, "tune_s": tuned - started, "mcmc_s": done - tuned,
-              "s_per_iteration": (done - tuned) / args.iterations, "kept": int(theta.shape[0]),
-              "theta": summarise(theta, names)}
-    args.out.write_text(json.dumps(record, indent=2))
-    np.save(args.out.with_suffix(".theta.npy"), theta)
+    record = {"runs": int(len(runs)), "planned_iterations": args.iterations, "seed": args.seed,
+              "lamOs": "fixed at 1" if args.fix_lamos else "sampled", "tune_s": tuned - started}
+    done = 0
+    while done < args.iterations:
+        step = min(args.chunk, args.iterations - done)
+        model.do_mcmc(step, prog=False, no_init=done > 0)
+        done += step
+        record.update({"mcmc_s": time.perf_counter() - tuned,
+                       "s_per_iteration": (time.perf_counter() - tuned) / done,
+                       "stopped_at_deadline": False})
+        if stop is not None and time.time() > stop and done < args.iterations:
+            record["stopped_at_deadline"] = True
+            save(model, args, record, burn, names)
+            break
+        save(model, args, record, burn, names)
+        print(f"{done} iterations, {record['s_per_iteration']:.3f} s each", flush=True)
     print(json.dumps(record, indent=2))
-
 
 if __name__ == "__main__":
     main()
