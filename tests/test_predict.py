@@ -55,9 +55,9 @@ def edited_koh(folder):
         ("  beta ~ normal(0, beta_prior_sd);\n",
          "  beta ~ normal(0, beta_prior_sd);\n  noise_sd_hot ~ normal(0, 1);\n"),
         (("    vector[N] noise_var = row_noise_variance(noise_sd, source, known_sd, noise_log_scale, noise_loc);\n"
-         "    if (use_discrepancy) {\n"),
+         "    if (gp_integrated) {\n"),
          ("    vector[N] noise_var = row_noise_variance(noise_sd, source, known_sd, noise_log_scale, noise_loc);\n"
-          "    for (i in 1:N) if (X[i, 2] > 75) noise_var[i] = square(noise_sd_hot);\n    if (use_discrepancy) {\n")),
+          "    for (i in 1:N) if (X[i, 2] > 75) noise_var[i] = square(noise_sd_hot);\n    if (gp_integrated) {\n")),
     ]
     for old, new in edits:
         assert code.count(old) == 1, old

@@ -32,7 +32,7 @@ matrix source_bias_cov(array[] vector x, array[] int bias_of, int kernel_id, arr
   int n = size(x);
   matrix[n, n] K = rep_matrix(0, n, n);
   for (b in 1:size(bias_sd)) {
-    array[n] int rows_b;
+    array[n] int rows_b = rep_array(1, n);  // its first count entries: source b's rows
     int count = 0;
     for (i in 1:n) {
       if (bias_of[i] == b) {
