@@ -164,6 +164,12 @@ RHAT_LIMIT = 1.01
 BFMI_LIMIT = 0.3  # Betancourt (2016): E-BFMI below 0.3 flags poor exploration of the energy
 
 
+def se(x1: np.ndarray, x2: np.ndarray, sd: float, length_scale) -> np.ndarray:
+    """The squared exponential kernel, written out (the numpy references of the Stan densities)."""
+    r2 = (((x1[:, None, :] - x2[None, :, :]) / np.asarray(length_scale)) ** 2).sum(-1)
+    return sd**2 * np.exp(-0.5 * r2)
+
+
 def assert_log_density_is(program, stan_data: dict, points: list[dict], reference) -> None:
     """The compiled ``program``'s log density without the Jacobian at each
     parameter point against ``reference(stan_data, point)``, the model

@@ -11,7 +11,16 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 import pytest
-from conftest import COOLING, ROOT, assert_healthy, assert_log_density_is, case_study_module, fit, no_stancal_warnings
+from conftest import (
+    COOLING,
+    ROOT,
+    assert_healthy,
+    assert_log_density_is,
+    case_study_module,
+    fit,
+    no_stancal_warnings,
+    se,
+)
 from scipy import stats
 
 import stancal
@@ -35,12 +44,6 @@ def case_data(frame: pd.DataFrame | None = None) -> stancal.CalibrationData:
 
 
 # ---- the log density against numpy ------------------------------------------------------
-
-def se(x1, x2, sd, length_scale):
-    """The squared exponential kernel, written out."""
-    r2 = (((x1[:, None, :] - x2[None, :, :]) / np.asarray(length_scale)) ** 2).sum(-1)
-    return sd**2 * np.exp(-0.5 * r2)
-
 
 def numpy_log_density(d: dict, p: dict) -> float:
     """log p(theta, noise parameters, y) of koh.stan up to a constant, from its

@@ -4,7 +4,8 @@ discrepancy (Gu et al. 2023; review section 8.1.3). koh.stan's log density
 against the model written out in numpy and scipy; the one-line refusals; a fit
 of the two_instruments case study (a thermocouple, the reference, and a camera
 warm by up to 1.5 deg C mid-run) that recovers k and the camera's bias, with
-the report, save and load. One compile (koh.stan with the cooling simulator)."""
+the report, save and load (the fit with -m slow). Two compiles: koh.stan with the
+cooling simulator, and koh_emulator.stan (the joint density with a biased source)."""
 
 from __future__ import annotations
 
@@ -13,7 +14,16 @@ import json
 import numpy as np
 import pandas as pd
 import pytest
-from conftest import COOLING, ROOT, assert_healthy, assert_log_density_is, case_study_module, fit, no_stancal_warnings
+from conftest import (
+    COOLING,
+    ROOT,
+    assert_healthy,
+    assert_log_density_is,
+    case_study_module,
+    fit,
+    no_stancal_warnings,
+    se,
+)
 from scipy import stats
 
 import stancal
@@ -36,12 +46,6 @@ def case_data(frame: pd.DataFrame | None = None, source: str | None = "instrumen
 
 
 # ---- the log density against numpy ------------------------------------------------------
-
-def se(x1, x2, sd, length_scale):
-    """The squared exponential kernel, written out."""
-    r2 = (((x1[:, None, :] - x2[None, :, :]) / np.asarray(length_scale)) ** 2).sum(-1)
-    return sd**2 * np.exp(-0.5 * r2)
-
 
 def numpy_log_density(d: dict, p: dict) -> float:
     """log p(theta, the GPs' and noise's parameters, y) of koh.stan up to a

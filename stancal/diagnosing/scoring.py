@@ -226,12 +226,12 @@ def held_out(data: CalibrationData, test: np.ndarray, result) -> tuple[np.ndarra
     from a fit to the other rows whose predictions are at the test rows."""
     predictions = result.idata["predictions"]
     zeta = np.asarray(predictions["zeta_new" if "zeta_new" in predictions else "zeta"]).reshape(-1, len(test))
+    points = data.source.iloc[test].reset_index(drop=True)
     if BIAS_NEW in predictions:  # a held-out reading by a biased source: the process plus that source's bias
-        points = data.source.iloc[test].reset_index(drop=True)
         zeta = zeta + result.reading_bias(points, result.source_biases(predictions[BIAS_NEW], len(test)))
     # heteroscedastic noise (the fit sampled its log sd GP at the settings): the sd at the held-out rows from that
     # GP, one draw of it per posterior draw
-    estimated_sd = (result.noise_sd_at(data.source.iloc[test].reset_index(drop=True), np.random.default_rng(0))
+    estimated_sd = (result.noise_sd_at(points, np.random.default_rng(0))
                     if NOISE_LOCATIONS in result.idata.children else None)
     log_density = data.heldout_log_density(test, zeta, result.idata["posterior"], estimated_sd)
     return logsumexp(log_density, axis=0) - np.log(len(zeta)), zeta.mean(0)

@@ -17,7 +17,15 @@ from threadpoolctl import threadpool_limits
 from stancal.fitting.run_variance import intrinsic_variance
 from stancal.fitting.stage_one_theta_low import fit_theta_low_emulator
 from stancal.numerics.kernels import ard_cross_cov
-from stancal.numerics.multifidelity import Level, cheap_runs_value, fit_levels, mean_function, rho_profile, rho_range
+from stancal.numerics.multifidelity import (
+    RHO_PROFILE_GRID,
+    Level,
+    cheap_runs_value,
+    fit_levels,
+    mean_function,
+    rho_profile,
+    rho_range,
+)
 from stancal.numerics.multifidelity_variance import variance_correction
 from stancal.numerics.scalable_emulator import (
     ERROR_RANK_SHARE,
@@ -221,7 +229,7 @@ def rho_of_inputs(data: CalibrationData, levels: list[Level]) -> dict[str, Any]:
     if not any(len(lv.rho_slope) for lv in levels[1:]):
         return {}
     low, width = data.scaling.low, data.scaling.width
-    grid = {name: (low[name] + width[name] * np.linspace(0, 1, 5)).tolist() for name in data.inputs}
+    grid = {name: (low[name] + width[name] * RHO_PROFILE_GRID).tolist() for name in data.inputs}
     return {"level_rho_slope": [dict(zip(data.inputs, lv.rho_slope.tolist(), strict=True)) for lv in levels[1:]],
             "level_rho_range": [list(rho_range(lv)) for lv in levels[1:]],
             "level_rho_profile": [{"inputs": grid, "rho": dict(zip(data.inputs, rho_profile(lv).tolist(), strict=True))}

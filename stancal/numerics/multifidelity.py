@@ -91,10 +91,14 @@ def rho_range(level: Level) -> tuple[float, float]:
     return level.rho + float(np.minimum(s, 0).sum()), level.rho + float(np.maximum(s, 0).sum())
 
 
-def rho_profile(level: Level, points: int = 5) -> np.ndarray:
-    """rho_k along each of its inputs from the unit box's low end to its
-    high end, the other inputs at the centre: (inputs, points)."""
-    grid = np.linspace(0, 1, points)
+# where rho_profile reads rho along each input, on the unit box (the report gives the inputs there in their units)
+RHO_PROFILE_GRID = np.linspace(0, 1, 5)
+
+
+def rho_profile(level: Level) -> np.ndarray:
+    """rho_k along each of its inputs at RHO_PROFILE_GRID, the other inputs
+    at the centre: (inputs, points)."""
+    grid = RHO_PROFILE_GRID
     return np.array([level.rho + level.rho_slope @ np.full(len(level.rho_slope), 0.5)
                      + level.rho_slope[d] * (grid - 0.5) for d in range(len(level.rho_slope))])
 

@@ -322,9 +322,10 @@ class PyStanBackend:
         return run
 
     def _optimiser(self, program: FlatProgram, data: dict[str, Any], seed: int):
-        """The compiled model's services, its unconstrained dimension, and
-        L-BFGS on its negative log density (with the Jacobian, as lp__) from
-        one unconstrained point; a point outside the support counts as +inf."""
+        """The compiled model's services, its unconstrained dimension, L-BFGS
+        on its negative log density (with the Jacobian, as lp__) from one
+        unconstrained point (a point outside the support counts as +inf), and
+        the log density's gradient (NaN outside the support)."""
         import httpstan.models
         from scipy.optimize import minimize
 
@@ -332,22 +333,28 @@ class PyStanBackend:
         services = httpstan.models.import_services_extension_module(model.model_name)
         dimension = len(services.transform_inits(model.data, _interior_point(model)))
 
+        def gradient(point: np.ndarray) -> np.ndarray:
+            try:
+                return np.asarray(services.log_prob_grad(model.data, point.tolist(), True))
+            except (RuntimeError, ValueError):  # outside the support (Stan's domain errors arrive as ValueError)
+                return np.full(dimension, np.nan)
+
         def negative_log_density(point: np.ndarray) -> tuple[float, np.ndarray]:
             try:
                 lp = services.log_prob(model.data, point.tolist(), True)
-                gradient = services.log_prob_grad(model.data, point.tolist(), True)
-            except (RuntimeError, ValueError):  # outside the support (Stan's domain errors arrive as ValueError)
+            except (RuntimeError, ValueError):
                 return np.inf, np.zeros(dimension)
-            return -lp, -np.asarray(gradient)
+            slope = gradient(point)
+            return (-lp, -slope) if np.all(np.isfinite(slope)) else (np.inf, np.zeros(dimension))
 
         def run(start: np.ndarray):
             return minimize(negative_log_density, start, jac=True, method="L-BFGS-B")
 
-        return model, services, dimension, run
+        return model, services, dimension, run, gradient
 
     def posterior_mode(self, program: FlatProgram, data: dict[str, Any], *, starts: int,
                        seed: int) -> tuple[Draws, float]:
-        model, services, dimension, run = self._optimiser(program, data, seed)
+        model, services, dimension, run, _ = self._optimiser(program, data, seed)
         rng = np.random.default_rng(seed)
         runs = [run(rng.uniform(-2, 2, dimension)) for _ in range(starts)]  # Stan's default inits: uniform(-2, 2)
         best = min(runs, key=lambda run: run.fun)
@@ -359,13 +366,7 @@ class PyStanBackend:
 
     def optima(self, program: FlatProgram, data: dict[str, Any], *, starts: list[dict[str, Any]],
                seed: int) -> list[tuple[Draws, float, float]]:
-        model, services, dimension, run = self._optimiser(program, data, seed)
-
-        def gradient(point: np.ndarray) -> np.ndarray:
-            try:
-                return np.asarray(services.log_prob_grad(model.data, point.tolist(), True))
-            except (RuntimeError, ValueError):  # a difference step left the support
-                return np.full(dimension, np.nan)
+        model, services, dimension, run, gradient = self._optimiser(program, data, seed)
 
         count = len(self.parameter_names(program))  # write_array gives the parameters first, in order
         rng = np.random.default_rng(seed)
