@@ -170,3 +170,15 @@ def test_no_program_has_a_variable_used_before_it_is_assigned():
     for spec in MODELS.values():
         raw = stanc_warnings(flatten(spec.path, aliases={"simulator.stan": sim}))
         assert "may not have been assigned" not in raw, spec.name
+
+
+def test_the_case_studies_programs_compile_without_a_warning_of_their_own():
+    """What `stancal compile` prints of stanc's warnings on the shipped case
+    studies' own simulators: nothing (a new user's first set-up shows it)."""
+    from stancal.cli import config_programs
+    from stancal.problem.config import load_config
+
+    root = shipped_models_dir().parent / "case_studies"
+    for config in sorted(root.glob("*/config.toml")):
+        for flat in config_programs(load_config(config), all_methods=True):
+            assert flat.users_warnings(stanc_warnings(flat)) == [], config

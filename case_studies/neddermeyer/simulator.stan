@@ -45,7 +45,7 @@ vector neddermeyer_path(real m, vector theta, real latest) {
  */
 vector simulator(matrix X, vector theta) {
   int n = rows(X);
-  vector[n] radius;
+  vector[n] radius = rep_vector(0, n);  // every row is set below; stanc cannot tell
   array[n] int done = rep_array(0, n);
   for (first in 1:n) {
     if (done[first]) continue;
