@@ -12,9 +12,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-# the central differences' relative step: the gradient is exact to rounding (Stan's autodiff), so the step trades
-# rounding (~1e-16 / h) against the third derivative's error (~h^2); 1e-4 keeps both near 1e-8 of the curvature
-STEP = 1e-4
+from stancal.numerics.finite_differences import STEP, gradient_hessian
 
 
 def laplace_log_mass(log_density: float, gradient: Callable[[np.ndarray], np.ndarray], at: np.ndarray,
@@ -30,15 +28,10 @@ def laplace_log_mass(log_density: float, gradient: Callable[[np.ndarray], np.nda
     gradient that fails): the peak's height is then all that is known."""
     at = np.asarray(at, dtype=float)
     d = at.size
-    hessian = np.empty((d, d))
-    for j in range(d):
-        h = step * max(1.0, abs(at[j]))
-        shift = np.zeros(d)
-        shift[j] = h
-        hessian[:, j] = (np.asarray(gradient(at + shift)) - np.asarray(gradient(at - shift))) / (2 * h)
+    hessian = gradient_hessian(gradient, at, step, relative=True)
     if not np.all(np.isfinite(hessian)):
         return float("nan")
-    curvatures, axes = np.linalg.eigh(-(hessian + hessian.T) / 2)
+    curvatures, axes = np.linalg.eigh(-hessian)
     slope = np.asarray(gradient(at), dtype=float)
     if curvatures.min() <= 0 or not np.all(np.isfinite(slope)):
         return float("nan")

@@ -40,6 +40,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy import linalg
 
+from stancal.numerics.finite_differences import gradient_hessian
 from stancal.numerics.multifidelity import Level, level_below, level_objective, predict, rho_design
 from stancal.numerics.scalable_emulator import negative_log_posterior, pack, unpack
 
@@ -47,7 +48,6 @@ CHAIN = 12000  # Metropolis steps for the top level's hyperparameters (the facto
 MIXED = 150  # draws kept, evenly thinned, whose co-kriging predictives are averaged
 BATCHES = 10  # batch means of the kept draws, for the factor's Monte Carlo sd (Flegal & Jones 2010)
 BOX_POINTS = 256  # points of the unit box at which the errors are averaged
-HESSIAN_STEP = 1e-4  # central differences of the objective's gradient
 
 
 @dataclass
@@ -58,13 +58,6 @@ class VarianceCorrection:
     factor_sd: float  # its Monte Carlo sd, by batch means over the chain's kept draws
     applied: float  # the factor applied to g_K's own variance (at least 1; above factor: see the fixed point)
     levels: list[Level]
-
-
-def hessian(fun, v: np.ndarray, step: float = HESSIAN_STEP) -> np.ndarray:
-    """The Hessian of a function returning (value, gradient), by central differences of the gradient."""
-    columns = [(fun(v + step * e)[1] - fun(v - step * e)[1]) / (2 * step) for e in np.eye(len(v))]
-    H = np.array(columns)
-    return (H + H.T) / 2
 
 
 def top_level_draws(levels: list[Level], rng: np.random.Generator, draws: int = MIXED) -> np.ndarray:
@@ -85,7 +78,7 @@ def top_level_draws(levels: list[Level], rng: np.random.Generator, draws: int = 
         return negative_log_posterior(v[r:], top.xt, top.y - design @ v[:r] * below)[0]
 
     current = np.concatenate([top.rho_coefficients, pack(top.hyperparameters)])
-    values, vectors = linalg.eigh(hessian(objective, current))
+    values, vectors = linalg.eigh(gradient_hessian(lambda v: objective(v)[1], current))
     # a flat direction (a nugget far below the runs' scale) gets a bounded step (curvature at least 0.25),
     # not a singular or endless one
     scale = vectors @ np.diag(1 / np.maximum(values, 0.25)) @ vectors.T * 2.38**2 / len(current)
