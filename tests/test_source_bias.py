@@ -1,11 +1,13 @@
 """Biased measurement sources (docs/noise.md; functions/source_bias.stan;
 stancal.problem.source_bias): a bias GP per biased source beside the shared
 discrepancy (Gu et al. 2023; review section 8.1.3). koh.stan's log density
-against the model written out in numpy and scipy; the one-line refusals; a fit
-of the two_instruments case study (a thermocouple, the reference, and a camera
-warm by up to 1.5 deg C mid-run) that recovers k and the camera's bias, with
-the report, save and load (the fit with -m slow). Two compiles: koh.stan with the
-cooling simulator, and koh_emulator.stan (the joint density with a biased source)."""
+against the model written out in numpy and scipy; a new biased reading and
+y_rep, drawn jointly with delta (and f), against the numpy conditional; the
+one-line refusals; a fit of the two_instruments case study (a thermocouple, the
+reference, and a camera warm by up to 1.5 deg C mid-run) that recovers k and the
+camera's bias, with the report, save and load (the fit with -m slow). Three
+compiles: koh.stan with the cooling simulator, koh_emulator.stan (the joint
+density with a biased source) and modular.stan (the joint draws)."""
 
 from __future__ import annotations
 
