@@ -197,27 +197,36 @@ generated quantities {
         K_cross = K_all.2;
         K_new = K_all.3;
       }
-      matrix[N, N] K_bias = source_bias_cov(x_bias, bias_of, kernel_id, bias_sd, bias_length_scale);
+      // the biases' covariances among the rows and at the prediction points (source_bias.stan)
+      tuple(matrix[n_biased > 0 ? N : 0, n_biased > 0 ? N : 0], matrix[n_biased * P, N],
+            matrix[n_biased * P, n_biased * P]) bias
+        = source_bias_blocks(x_bias, x_bias_new, bias_of, kernel_id, bias_sd, bias_length_scale);
+      int n_bias_rows = rows(bias.1);  // N, or 0 without a biased source
+      matrix[N, N] K_bias = n_biased > 0 ? bias.1 : rep_matrix(0, N, N);
       matrix[N, N] L = cholesky_decompose(add_jitter(
         add_diag(K_delta + K_bias, weighted_noise_variance(noise_var, noise_weight)), gp_variance(delta_sd, bias_sd)));
       tuple(vector[N], vector[N]) loo = mvn_loo(resid, L);
       log_lik = loo.1;
       resid_loo_mean = loo.2;
+      // delta and the biases, at the rows and at the prediction points, each drawn jointly: given the data
+      // they are correlated, so a biased reading's zeta + b_s (y_rep, predict()'s new readings) has its
+      // sum's conditional spread; delta's draws are delta alone (what stancal gap reads)
+      int n_delta = use_discrepancy ? N : 0;
+      int p_delta = use_discrepancy ? P : 0;
+      vector[P] z_new = use_discrepancy ? prediction_normals_rng(normals_new, 2, P) : rep_vector(0, P);
+      vector[n_delta + n_bias_rows] at_rows = source_bias_joint_draw(
+        resid, L, K_delta[1:n_delta], K_delta[1:n_delta, 1:n_delta], K_bias[1:n_bias_rows], bias.1,
+        std_normals_rng(n_delta + n_bias_rows), prior_only);
+      vector[p_delta + n_biased * P] at_new = source_bias_joint_draw(
+        resid, L, K_cross[1:p_delta], K_new[1:p_delta, 1:p_delta], bias.2, bias.3,
+        append_row(z_new[1:p_delta], source_bias_normals_rng(bias_normals_new, n_biased, P)), prior_only);
       if (use_discrepancy) {
-        vector[P] z_new = prediction_normals_rng(normals_new, 2, P);
-        if (prior_only) {
-          delta_obs = gp_prior_draw(K_delta, std_normals_rng(N));
-          if (P > 0) delta_new_std = gp_prior_draw(K_new, z_new);
-        } else {
-          delta_obs = gp_conditional_draw(resid, L, K_delta, K_delta, std_normals_rng(N));
-          delta_obs_mean = gp_conditional_mean(resid, L, K_delta);
-          if (P > 0) delta_new_std = gp_conditional_draw(resid, L, K_cross, K_new, z_new);
-        }
+        delta_obs = at_rows[1:N];
+        delta_new_std = at_new[1:P];
+        if (!prior_only) delta_obs_mean = gp_conditional_mean(resid, L, K_delta);
       }
-      // delta's draws above condition on the biases too (L has them) and are delta alone
-      bias_obs = source_bias_at_rows_rng(resid, L, K_bias, n_biased, prior_only);
-      bias_new = y_scale * source_bias_new_rng(resid, L, 0, x_bias, x_bias_new, bias_of, kernel_id, bias_sd,
-                                               bias_length_scale, bias_normals_new, prior_only);
+      if (n_biased > 0) bias_obs = at_rows[(n_delta + 1):(n_delta + N)];
+      bias_new = y_scale * to_matrix(at_new[(p_delta + 1):(p_delta + n_biased * P)], P, n_biased)';
     } else {
       log_lik = noise_log_lik(resid, noise_var, nu);
     }

@@ -68,8 +68,6 @@ transformed data {
   matrix[M, 1] w_sim = rep_matrix(1, M, 1);  // one fidelity: every run on the one GP (fidelity.stan)
   row_vector[1] w_top = [1];
   check_given_normals(P_normals, P);
-  array[P] vector[D] x_bias_new;        // the biases' inputs: the simulator inputs (source_bias.stan)
-  for (i in 1:P) x_bias_new[i] = x_delta_new[i][1:D];
 }
 parameters {
   vector<lower=0, upper=1>[Q] theta_unit;                // theta rescaled to [0, 1]
@@ -130,10 +128,9 @@ model {
                                            rep_vector(emulator_nugget, M), rho, delta_sd, delta_length_scale,
                                            weighted_noise_variance(row_noise_variance(noise_sd, source, known_sd,
                                                                                       noise_log_scale, noise_loc),
-                                                                   noise_weight));
-    if (n_biased > 0) {  // the biases' covariance among the physical rows (source_bias.stan)
-      K[(M + 1):(M + N), (M + 1):(M + N)] += source_bias_cov(x, bias_of, kernel_id, bias_sd, bias_length_scale);
-    }
+                                                                   noise_weight),
+                                           // the biases' covariance among the physical rows (source_bias.stan)
+                                           source_bias_cov(x, bias_of, kernel_id, bias_sd, bias_length_scale));
     vector[M + N] mu = append_row(rep_vector(emulator_mean, M), rho * emulator_mean + h * beta);
     y_joint ~ multi_normal_cholesky(mu, cholesky_decompose(K));
   }
@@ -155,14 +152,20 @@ generated quantities {
   if (use_discrepancy) delta_sd_original[1] = delta_sd[1] * y_scale;
   {
     vector[N] noise_var = row_noise_variance(noise_sd, source, known_sd, noise_log_scale, noise_loc);
-    matrix[N, N] K_bias = source_bias_cov(x, bias_of, kernel_id, bias_sd, bias_length_scale);
-    tuple(vector[N], vector[N], vector[N], vector[N], vector[N], vector[P], vector[P], vector[P]) q
+    // the biases' covariances among the rows and at the prediction points, drawn jointly with f and delta
+    // (source_bias.stan; koh_joint.stan)
+    tuple(matrix[n_biased > 0 ? N : 0, n_biased > 0 ? N : 0], matrix[n_biased * P, N],
+          matrix[n_biased * P, n_biased * P]) bias
+      = source_bias_blocks(x, x_new, bias_of, kernel_id, bias_sd, bias_length_scale);
+    tuple(vector[N], vector[N], vector[N], vector[N], vector[N], vector[P], vector[P], vector[P],
+          vector[n_biased * P]) q
       = koh_joint_quantities_rng(y_sim, y, xt_sim, x, theta_unit, x_delta, h, beta, x_new, x_delta_new,
                                  h_new, normals_new, prior_only, kernel_id, w_sim, rep_matrix(w_top, N),
                                  rep_matrix(w_top, P), {emulator_mean},
                                  {emulator_sd}, {emulator_length_scale}, rep_vector(emulator_nugget, M),
                                  rho, delta_sd, delta_length_scale, weighted_noise_variance(noise_var, noise_weight),
-                                 K_bias, y_center, y_scale);
+                                 rep_matrix(0, N, N), bias, source_bias_normals_rng(bias_normals_new, n_biased, P),
+                                 y_center, y_scale);
     log_lik = q.1;
     y_loo_mean = q.2;
     y_rep = q.3;
@@ -171,14 +174,6 @@ generated quantities {
     f_new = q.6;
     delta_new = q.7;
     zeta_new = q.8;
-    if (n_biased > 0) {  // the joint covariance again, for the bias curves' conditional (source_bias.stan)
-      matrix[M + N, M + N] L_joint = cholesky_decompose(koh_joint_cov(
-        xt_sim, w_sim, append_theta(x, theta_unit), w_top, x_delta, kernel_id, {emulator_sd},
-        {emulator_length_scale}, rep_vector(emulator_nugget, M), rho, delta_sd, delta_length_scale,
-        weighted_noise_variance(noise_var, noise_weight), K_bias));
-      vector[M + N] resid = y_joint - append_row(rep_vector(emulator_mean, M), rho * emulator_mean + h * beta);
-      bias_new = y_scale * source_bias_new_rng(resid, L_joint, M, x, x_bias_new, bias_of, kernel_id, bias_sd,
-                                               bias_length_scale, bias_normals_new, prior_only);
-    }
+    bias_new = to_matrix(q.9, P, n_biased)';  // source by source (source_bias_blocks)
   }
 }

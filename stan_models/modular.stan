@@ -116,8 +116,6 @@ transformed data {
       gp_exp_quad_cov(x, x_sim, emulator_sd[j], emulator_length_scale[j, 1:D]), col(w_sim, j)));
   }
   check_given_normals(P_normals, P);
-  array[P] vector[D] x_bias_new;        // the biases' inputs: the simulator inputs (source_bias.stan)
-  for (i in 1:P) x_bias_new[i] = x_delta_new[i][1:D];
 }
 parameters {
   vector<lower=0, upper=1>[Q] theta_unit;                // theta rescaled to [0, 1]
@@ -221,18 +219,22 @@ generated quantities {
   if (use_discrepancy) delta_sd_original[1] = delta_sd[1] * y_scale;
   {
     vector[N] noise_var = row_noise_variance(noise_sd, source, known_sd, noise_log_scale, noise_loc);
-    // the biases' covariance among the physical rows, beside the emulator's misfit (source_bias.stan)
-    matrix[N, N] point_cov = square(rho) * nugget_obs + source_bias_cov(x, bias_of, kernel_id, bias_sd,
-                                                                         bias_length_scale);
+    // the biases' covariances among the rows and at the prediction points, drawn jointly with f and delta
+    // (source_bias.stan; koh_joint.stan)
+    tuple(matrix[n_biased > 0 ? N : 0, n_biased > 0 ? N : 0], matrix[n_biased * P, N],
+          matrix[n_biased * P, n_biased * P]) bias
+      = source_bias_blocks(x, x_new, bias_of, kernel_id, bias_sd, bias_length_scale);
     array[M] vector[D + Q + Q_low] xt_run = Q_low == 0 ? xt_sim : runs_at_theta_low(x_sim, theta_sim, run_level,
                                                                                       theta_low_unit);
-    tuple(vector[N], vector[N], vector[N], vector[N], vector[N], vector[P], vector[P], vector[P]) q
+    tuple(vector[N], vector[N], vector[N], vector[N], vector[N], vector[P], vector[P], vector[P],
+          vector[n_biased * P]) q
       = koh_joint_quantities_rng(y_sim, y, xt_run, x, append_row(theta_unit, theta_low_unit), x_delta, h, beta,
                                  x_new, x_delta_new, h_new, normals_new, prior_only, kernel_id, w_sim, w_obs, w_new,
                                  emulator_mean,
                                  emulator_sd, emulator_length_scale, run_nugget_sd, rho, delta_sd,
                                  delta_length_scale, weighted_noise_variance(noise_var, noise_weight),
-                                 point_cov, y_center, y_scale);
+                                 square(rho) * nugget_obs, bias, source_bias_normals_rng(bias_normals_new, n_biased, P),
+                                 y_center, y_scale);
     log_lik = q.1;
     y_loo_mean = q.2;
     y_rep = q.3;
@@ -241,15 +243,6 @@ generated quantities {
     f_new = q.6;
     delta_new = q.7;
     zeta_new = q.8;
-    if (n_biased > 0) {  // the joint covariance again, for the bias curves' conditional (source_bias.stan)
-      matrix[M + N, M + N] L_joint = cholesky_decompose(koh_joint_cov(
-        xt_run, w_sim, append_theta(x, append_row(theta_unit, theta_low_unit)), w_obs, x_delta, kernel_id,
-        emulator_sd, emulator_length_scale, run_nugget_sd, rho, delta_sd, delta_length_scale,
-        weighted_noise_variance(noise_var, noise_weight), point_cov));
-      vector[M + N] resid = append_row(y_sim, y) - append_row(w_sim * to_vector(emulator_mean),
-                                                              rho * top_mean + h * beta);
-      bias_new = y_scale * source_bias_new_rng(resid, L_joint, M, x, x_bias_new, bias_of, kernel_id, bias_sd,
-                                               bias_length_scale, bias_normals_new, prior_only);
-    }
+    bias_new = to_matrix(q.9, P, n_biased)';  // source by source (source_bias_blocks)
   }
 }

@@ -90,19 +90,15 @@ matrix same_point(array[] vector x) {
 }
 
 /**
- * One joint draw of the emulated simulator f and the discrepancy delta at
- * new points, given runs and physical data, for the joint KOH model, from
- * given standard normals.
+ * The covariances of the emulated simulator f and the discrepancy delta at
+ * new points, stacked [f_new; delta_new], for the joint KOH model: with the
+ * rows [y_sim; y_obs], and among themselves (their prior covariance).
  *
- * @param resid [y_sim; y_obs] minus their prior means
- * @param L_joint Cholesky factor of koh_joint_cov(...)
  * @param xt_sim as in koh_joint_cov
  * @param xt_obs as in koh_joint_cov
  * @param x_delta discrepancy inputs of the physical points
  * @param xt_new emulator inputs of the new points at the current theta
  * @param x_delta_new discrepancy inputs of the new points
- * @param other parameters as in koh_joint_cov
- * @param z standard normals, size 2P: f's, then delta's
  * @param kernel_id 1 = squared exponential, 2 = Matern 5/2
  * @param w_sim the runs' weights on the levels' GPs (fidelity.stan)
  * @param w_obs the physical points' weights at the top level, one row per point
@@ -112,14 +108,13 @@ matrix same_point(array[] vector x) {
  * @param rho the Kennedy-O'Hagan scale on the simulator
  * @param delta_sd the discrepancy GP's marginal sd (an empty array: no discrepancy)
  * @param delta_length_scale the discrepancy GP's length scales, one per discrepancy input
- * @return [f_new; delta_new] minus their prior means, size 2P
+ * @return (covariance with the rows, 2P x (M + N); prior covariance, 2P x 2P)
  */
-vector koh_joint_predict(vector resid, matrix L_joint, array[] vector xt_sim,
-                         array[] vector xt_obs, array[] vector x_delta,
-                         array[] vector xt_new, array[] vector x_delta_new,
-                         int kernel_id, matrix w_sim, matrix w_obs, matrix w_new, array[] real level_sd,
-                         array[,] real level_length_scale, real rho,
-                         array[] real delta_sd, array[] real delta_length_scale, vector z) {
+tuple(matrix, matrix) koh_joint_new_cov(array[] vector xt_sim, array[] vector xt_obs, array[] vector x_delta,
+                                        array[] vector xt_new, array[] vector x_delta_new, int kernel_id,
+                                        matrix w_sim, matrix w_obs, matrix w_new, array[] real level_sd,
+                                        array[,] real level_length_scale, real rho, array[] real delta_sd,
+                                        array[] real delta_length_scale) {
   int m = size(xt_sim);
   int n = size(xt_obs);
   int p = size(xt_new);
@@ -136,7 +131,30 @@ vector koh_joint_predict(vector resid, matrix L_joint, array[] vector xt_sim,
     K_new[(p + 1):(2 * p), (p + 1):(2 * p)]
       = ard_cov(x_delta_new, kernel_id, delta_sd[1], delta_length_scale);
   }
-  return gp_conditional_draw(resid, L_joint, K_cross, K_new, z);
+  return (K_cross, K_new);
+}
+
+/**
+ * One joint draw of the emulated simulator f and the discrepancy delta at
+ * new points, given runs and physical data, for the joint KOH model, from
+ * given standard normals.
+ *
+ * @param resid [y_sim; y_obs] minus their prior means
+ * @param L_joint Cholesky factor of koh_joint_cov(...)
+ * @param z standard normals, size 2P: f's, then delta's
+ * @param other parameters as in koh_joint_new_cov
+ * @return [f_new; delta_new] minus their prior means, size 2P
+ */
+vector koh_joint_predict(vector resid, matrix L_joint, array[] vector xt_sim,
+                         array[] vector xt_obs, array[] vector x_delta,
+                         array[] vector xt_new, array[] vector x_delta_new,
+                         int kernel_id, matrix w_sim, matrix w_obs, matrix w_new, array[] real level_sd,
+                         array[,] real level_length_scale, real rho,
+                         array[] real delta_sd, array[] real delta_length_scale, vector z) {
+  tuple(matrix[2 * size(xt_new), size(resid)], matrix[2 * size(xt_new), 2 * size(xt_new)]) K
+    = koh_joint_new_cov(xt_sim, xt_obs, x_delta, xt_new, x_delta_new, kernel_id, w_sim, w_obs, w_new, level_sd,
+                        level_length_scale, rho, delta_sd, delta_length_scale);
+  return gp_conditional_draw(resid, L_joint, K.1, K.2, z);
 }
 
 /**
@@ -155,17 +173,18 @@ vector koh_joint_predict(vector resid, matrix L_joint, array[] vector xt_sim,
 
 /**
  * One posterior draw of the emulated simulator f and the discrepancy delta
- * at the given points, for the emulator-based KOH programs. Under
- * prior_only the draw conditions on the runs alone: the leading M x M block
- * of L_joint is the Cholesky factor of the runs' covariance.
+ * at the given points, for the emulator-based KOH programs, jointly with any
+ * other GP terms the physical rows see (the measurement biases,
+ * source_bias.stan): given the data they are correlated with f and delta, so
+ * only a joint draw gives a sum of them its spread. Under prior_only the draw
+ * conditions on the runs alone: the leading M x M block of L_joint is the
+ * Cholesky factor of the runs' covariance (the other terms are then drawn
+ * from their prior).
  *
  * @param resid [y_sim; y_obs] minus their prior means
  * @param L_joint Cholesky factor of koh_joint_cov(...)
  * @param prior_only 1 = ignore the physical data
- * @param xt_sim, xt_obs, x_delta, xt_new, x_delta_new, other parameters
- *        as in koh_joint_predict
- * @param z_f standard normals for f and for delta, one per new point
- * @param z_delta standard normals for f and for delta, one per new point
+ * @param xt_sim emulator inputs of the runs
  * @param xt_obs emulator inputs (x, theta on the unit cube) of the physical points
  * @param x_delta discrepancy inputs of the physical points
  * @param xt_new emulator inputs of the prediction points
@@ -175,31 +194,62 @@ vector koh_joint_predict(vector resid, matrix L_joint, array[] vector xt_sim,
  * @param rho the Kennedy-O'Hagan scale on the simulator
  * @param delta_sd the discrepancy GP's marginal sd (an empty array: no discrepancy)
  * @param delta_length_scale the discrepancy GP's length scales, one per discrepancy input
- * @return matrix with one row per new point: column 1 = f minus its prior
- *         mean, column 2 = delta
+ * @param other_cross the other terms' values' covariance with the physical rows y_obs (0 rows: none)
+ * @param other_new their prior covariance (independent of f and delta a priori)
+ * @param z standard normals: one per new point for f, one per new point for delta, then one per
+ *        other value
+ * @return [f minus its prior mean; delta; the other terms' values], 2P + rows(other_new)
  */
-matrix koh_joint_draw(vector resid, matrix L_joint, int prior_only,
+vector koh_joint_draw(vector resid, matrix L_joint, int prior_only,
                       array[] vector xt_sim, array[] vector xt_obs,
                       array[] vector x_delta, array[] vector xt_new,
                       array[] vector x_delta_new, int kernel_id, matrix w_sim, matrix w_obs, matrix w_new,
                       array[] real level_sd, array[,] real level_length_scale, real rho,
                       array[] real delta_sd, array[] real delta_length_scale,
-                      vector z_f, vector z_delta) {
+                      matrix other_cross, matrix other_new, vector z) {
   int m = size(xt_sim);
   int n_cond = prior_only ? 0 : size(xt_obs);
   int p = size(xt_new);
-  if (p == 0) return rep_matrix(0, 0, 2);
-  vector[2 * p] f_delta = koh_joint_predict(
-    resid[1:(m + n_cond)], L_joint[1:(m + n_cond), 1:(m + n_cond)], xt_sim,
-    xt_obs[1:n_cond], x_delta[1:n_cond], xt_new, x_delta_new, kernel_id, w_sim, w_obs[1:n_cond], w_new, level_sd,
-    level_length_scale, rho, delta_sd, delta_length_scale, append_row(z_f, z_delta));
-  return append_col(f_delta[1:p], f_delta[(p + 1):(2 * p)]);
+  int k = 2 * p + rows(other_new);
+  if (k == 0) return rep_vector(0, 0);
+  // covariances with [y_sim; y_obs] and among the values: f and delta's, then the other terms',
+  // which see the physical rows only, and are independent of f and delta a priori
+  matrix[k, m + n_cond] K_cross = rep_matrix(0, k, m + n_cond);
+  matrix[k, k] K_new = rep_matrix(0, k, k);
+  if (p > 0) {
+    tuple(matrix[2 * p, m + n_cond], matrix[2 * p, 2 * p]) f_delta = koh_joint_new_cov(
+      xt_sim, xt_obs[1:n_cond], x_delta[1:n_cond], xt_new, x_delta_new, kernel_id, w_sim, w_obs[1:n_cond], w_new,
+      level_sd, level_length_scale, rho, delta_sd, delta_length_scale);
+    K_cross[1:(2 * p)] = f_delta.1;
+    K_new[1:(2 * p), 1:(2 * p)] = f_delta.2;
+  }
+  K_cross[(2 * p + 1):k, (m + 1):(m + n_cond)] = other_cross[:, 1:n_cond];
+  K_new[(2 * p + 1):k, (2 * p + 1):k] = other_new;
+  return gp_conditional_draw(resid[1:(m + n_cond)], L_joint[1:(m + n_cond), 1:(m + n_cond)], K_cross, K_new, z);
+}
+
+/**
+ * The replicated data y_rep at the physical points, standardised: the
+ * process zeta and any biases drawn with it (koh_joint_draw), the emulator's
+ * misfit point_cov drawn afresh (where there is one), and the noise.
+ *
+ * @param mean zeta plus the biases at the points
+ * @param point_cov the emulator's misfit among the points (zeros: none)
+ * @param noise_var each point's noise variance
+ * @return y_rep, standardised
+ */
+vector koh_joint_y_rep_rng(vector mean, matrix point_cov, vector noise_var) {
+  if (max(abs(point_cov)) > 0) return multi_normal_cholesky_rng(mean, cholesky_decompose(add_diag(point_cov, noise_var)));
+  return to_vector(normal_rng(mean, sqrt(noise_var)));
 }
 
 /**
  * The generated quantities that the emulator-based Gaussian programs
  * (koh_emulator.stan, modular.stan) share: with the emulator's
- * hyperparameters given, the joint model's conditionals are exact.
+ * hyperparameters given, the joint model's conditionals are exact. f, delta
+ * and the measurement biases (source_bias.stan) are drawn jointly, at the
+ * physical points (y_rep: a posterior predictive check) and at the
+ * prediction points (predict()'s new readings by a biased source, zeta + b_s).
  *
  * @param y_sim standardised outputs of the runs and of the physical points
  * @param y standardised outputs of the runs and of the physical points
@@ -229,75 +279,64 @@ matrix koh_joint_draw(vector resid, matrix L_joint, int prior_only,
  * @param delta_length_scale the discrepancy GP's length scales, one per discrepancy input
  * @param noise_var each point's noise variance, given the Student-t mixture weights where there are
  *        some (noise.stan's weighted_noise_variance), standardised units
- * @param point_cov the emulator's misfit among the physical points (koh_joint_cov); y_rep draws it
+ * @param point_cov the emulator's misfit among the physical points (koh_joint_cov); y_rep draws it afresh
+ * @param bias the measurement biases (source_bias.stan's source_bias_blocks): their covariance among
+ *        the physical points (0 x 0: no biased source), their values' at the prediction points
+ *        covariance with the physical points, and those values' prior covariance
+ * @param z_bias standard normals for the biases at the prediction points (source_bias_normals_rng)
  * @param y_center original-scale y = y_center + y_scale * y: the centre
  * @param y_scale original-scale y = y_center + y_scale * y: the scale
  * @return (log_lik, y_loo_mean, y_rep, delta_gp, delta_gp_mean at the physical
- *         points; f_new, delta_new, zeta_new at the prediction points), original units
+ *         points; f_new, delta_new, zeta_new at the prediction points; the biases there, stacked
+ *         as source_bias_blocks stacks them), original units
  */
-tuple(vector, vector, vector, vector, vector, vector, vector, vector) koh_joint_quantities_rng(
+tuple(vector, vector, vector, vector, vector, vector, vector, vector, vector) koh_joint_quantities_rng(
     vector y_sim, vector y, array[] vector xt_sim, array[] vector x, vector theta_unit,
     array[] vector x_delta, matrix h, vector beta, array[] vector x_new,
     array[] vector x_delta_new, matrix h_new, matrix normals_new, int prior_only,
     int kernel_id, matrix w_sim, matrix w_obs, matrix w_new, array[] real level_mean, array[] real level_sd,
     array[,] real level_length_scale, vector run_nugget_sd, real rho, array[] real delta_sd,
-    array[] real delta_length_scale, vector noise_var, matrix point_cov, real y_center, real y_scale) {
+    array[] real delta_length_scale, vector noise_var, matrix point_cov, tuple(matrix, matrix, matrix) bias,
+    vector z_bias, real y_center, real y_scale) {
   int m = size(xt_sim);
   int n = size(x);
   int p = size(x_new);
+  int n_b = rows(bias.1);  // the biases at the physical points: n of them, or none
+  matrix[n, n] bias_cov = n_b > 0 ? bias.1 : rep_matrix(0, n, n);
   array[n] vector[num_elements(xt_sim[1])] xt_obs = append_theta(x, theta_unit);
   matrix[m + n, m + n] L = cholesky_decompose(
     koh_joint_cov(xt_sim, w_sim, xt_obs, w_obs, x_delta, kernel_id, level_sd, level_length_scale,
-                  run_nugget_sd, rho, delta_sd, delta_length_scale, noise_var, point_cov));
+                  run_nugget_sd, rho, delta_sd, delta_length_scale, noise_var, point_cov + bias_cov));
   vector[n] top_mean = w_obs * to_vector(level_mean);  // the top level's prior mean at each point
-  vector[p] top_mean_new = w_new * to_vector(level_mean);
   vector[m + n] resid = append_row(y_sim, y) - append_row(w_sim * to_vector(level_mean),
                                                           rho * top_mean + h * beta);
   tuple(vector[m + n], vector[m + n]) loo = mvn_loo(resid, L);
-  // (f, delta) at the physical points, then at the prediction points, whose
+  // (f, delta, the biases) at the physical points, then at the prediction points, whose
   // standard normals stancal may give
-  matrix[n, 2] f_delta_obs = koh_joint_draw(
+  vector[2 * n + n_b] at_obs = koh_joint_draw(
     resid, L, prior_only, xt_sim, xt_obs, x_delta, xt_obs, x_delta, kernel_id, w_sim, w_obs, w_obs, level_sd,
-    level_length_scale, rho, delta_sd, delta_length_scale, std_normals_rng(n), std_normals_rng(n));
-  matrix[p, 2] f_delta_new = koh_joint_draw(
+    level_length_scale, rho, delta_sd, delta_length_scale, bias_cov[1:n_b], bias.1, std_normals_rng(2 * n + n_b));
+  vector[2 * p + rows(bias.3)] at_new = koh_joint_draw(
     resid, L, prior_only, xt_sim, xt_obs, x_delta, append_theta(x_new, theta_unit), x_delta_new,
-    kernel_id, w_sim, w_obs, w_new, level_sd, level_length_scale, rho, delta_sd, delta_length_scale,
-    prediction_normals_rng(normals_new, 1, p), prediction_normals_rng(normals_new, 2, p));
-  vector[n] zeta_obs = rho * (top_mean + f_delta_obs[:, 1]) + h * beta + f_delta_obs[:, 2];
-  vector[p] f_new = top_mean_new + f_delta_new[:, 1];
-  vector[p] delta_new = h_new * beta + f_delta_new[:, 2];
+    kernel_id, w_sim, w_obs, w_new, level_sd, level_length_scale, rho, delta_sd, delta_length_scale, bias.2,
+    bias.3, append_row(prediction_normals_rng(normals_new, 1, p), append_row(prediction_normals_rng(normals_new, 2, p),
+                                                                               z_bias)));
+  vector[n] zeta_obs = rho * (top_mean + at_obs[1:n]) + h * beta + at_obs[(n + 1):(2 * n)];
+  vector[p] f_new = w_new * to_vector(level_mean) + at_new[1:p];
+  vector[p] delta_new = h_new * beta + at_new[(p + 1):(2 * p)];
   vector[n] delta_gp_mean = rep_vector(0, n);
   if (size(delta_sd) > 0 && !prior_only) {
-    matrix[n, m + n] K_cross = append_col(
-      rep_matrix(0, n, m), ard_cov(x_delta, kernel_id, delta_sd[1], delta_length_scale));
-    delta_gp_mean = gp_conditional_mean(resid, L, K_cross);
+    delta_gp_mean = gp_conditional_mean(resid, L, append_col(
+      rep_matrix(0, n, m), ard_cov(x_delta, kernel_id, delta_sd[1], delta_length_scale)));
   }
   return (loo.1[(m + 1):(m + n)] - log(y_scale),
           y_center + y_scale * (y - resid[(m + 1):(m + n)] + loo.2[(m + 1):(m + n)]),
-          y_center + y_scale * (max(abs(point_cov)) > 0
-                                ? multi_normal_cholesky_rng(zeta_obs, cholesky_decompose(add_diag(point_cov, noise_var)))
-                                : to_vector(normal_rng(zeta_obs, sqrt(noise_var)))),
-          y_scale * f_delta_obs[:, 2],
+          y_center + y_scale * koh_joint_y_rep_rng(
+            zeta_obs + (n_b > 0 ? at_obs[(2 * n + 1):(2 * n + n_b)] : rep_vector(0, n)), point_cov, noise_var),
+          y_scale * at_obs[(n + 1):(2 * n)],
           y_scale * delta_gp_mean,
           y_center + y_scale * f_new,
           y_scale * delta_new,
-          y_center + y_scale * (rho * f_new + delta_new));
-}
-
-/**
- * koh_joint_quantities_rng with every physical and new point at the same weights w_top (constant
- * scales) and without an emulator misfit at the physical points.
- */
-tuple(vector, vector, vector, vector, vector, vector, vector, vector) koh_joint_quantities_rng(
-    vector y_sim, vector y, array[] vector xt_sim, array[] vector x, vector theta_unit,
-    array[] vector x_delta, matrix h, vector beta, array[] vector x_new,
-    array[] vector x_delta_new, matrix h_new, matrix normals_new, int prior_only,
-    int kernel_id, matrix w_sim, row_vector w_top, array[] real level_mean, array[] real level_sd,
-    array[,] real level_length_scale, vector run_nugget_sd, real rho, array[] real delta_sd,
-    array[] real delta_length_scale, vector noise_var, real y_center, real y_scale) {
-  return koh_joint_quantities_rng(y_sim, y, xt_sim, x, theta_unit, x_delta, h, beta, x_new, x_delta_new, h_new,
-                                  normals_new, prior_only, kernel_id, w_sim, rep_matrix(w_top, size(x)),
-                                  rep_matrix(w_top, size(x_new)), level_mean, level_sd,
-                                  level_length_scale, run_nugget_sd, rho, delta_sd, delta_length_scale, noise_var,
-                                  rep_matrix(0, size(x), size(x)), y_center, y_scale);
+          y_center + y_scale * (rho * f_new + delta_new),
+          y_scale * at_new[(2 * p + 1):(2 * p + rows(bias.3))]);
 }

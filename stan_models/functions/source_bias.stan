@@ -49,69 +49,93 @@ matrix source_bias_cov(array[] vector x, array[] int bias_of, int kernel_id, arr
 }
 
 /**
- * One draw of each biased source's bias curve at new points: given the
- * residuals of every row the model conditions on (its first m rows the
- * simulator runs, which the biases do not touch), or from the prior under
- * prior_only (Rasmussen & Williams 2006, eqs. 2.23-2.24). Each curve is drawn
- * from its own marginal conditional, not jointly with delta or the other
- * sources' biases.
+ * The biases' covariances for one joint draw with the other GP terms the rows
+ * see (delta; on the emulator programs, f too): given the data, a biased
+ * source's bias and the process zeta are correlated (its readings tell their
+ * sum, and the references zeta alone), so a biased reading's zeta + b_s is
+ * drawn right only from one conditional of every term (source_bias_joint_draw,
+ * koh_joint.stan's koh_joint_quantities_rng), not each from its own. The
+ * biases at the new points are stacked source by source: biased source 1's
+ * values at every new point, then source 2's, and so on. At the rows, a
+ * reference source's row has bias variance 0: its draw is 0 up to the
+ * conditional draw's jitter (gp_conditional_draw).
  *
- * @param resid the rows minus their prior means: m runs, then the physical rows
- * @param L Cholesky factor of resid's covariance, biases included
- * @param m the number of leading rows that are runs (0: physical rows only)
  * @param x the physical rows' simulator inputs, scaled to [0, 1]
  * @param x_new the new points' simulator inputs, scaled to [0, 1]
- * @param bias_of each physical row's biased source, 0 = a reference source
+ * @param bias_of each physical row's biased source, 1..size(bias_sd), 0 = a reference source
  * @param kernel_id 1 = squared exponential, 2 = Matern 5/2
- * @param bias_sd each biased source's bias GP marginal sd
+ * @param bias_sd each biased source's bias GP marginal sd (empty: no biased source)
  * @param bias_length_scale its length scales, one row per biased source
- * @param normals given standard normals, size(x_new) x size(bias_sd), or 0 rows: Stan's RNG
- * @param prior_only 1 = draws from the prior
- * @return one row per biased source, one column per new point (standardised units)
+ * @return (the rows' biases' covariance, source_bias_cov, size(x) square, or 0 x 0 without a biased
+ *         source: then there are no biases at the rows to draw;
+ *         the new points' biases' covariance with the rows, size(bias_sd) * size(x_new) x size(x);
+ *         their prior covariance, block diagonal: the biases are independent a priori)
  */
-matrix source_bias_new_rng(vector resid, matrix L, int m, array[] vector x, array[] vector x_new,
-                           array[] int bias_of, int kernel_id, array[] real bias_sd,
-                           array[,] real bias_length_scale, matrix normals, int prior_only) {
+tuple(matrix, matrix, matrix) source_bias_blocks(array[] vector x, array[] vector x_new, array[] int bias_of,
+                                                 int kernel_id, array[] real bias_sd,
+                                                 array[,] real bias_length_scale) {
   int n = size(x);
   int p = size(x_new);
   int n_bias = size(bias_sd);
-  matrix[n_bias, p] out = rep_matrix(0, n_bias, p);
-  for (b in 1:n_bias) {
-    vector[p] z = rows(normals) == 0 ? std_normals_rng(p) : normals[:, b];
-    matrix[p, p] K_new = ard_cov(x_new, kernel_id, bias_sd[b], bias_length_scale[b]);
-    if (prior_only) {
-      out[b] = gp_prior_draw(K_new, z)';
-    } else {
-      matrix[p, m + n] K_cross = rep_matrix(0, p, m + n);
-      matrix[p, n] K_b = ard_cross_cov(x_new, x, kernel_id, bias_sd[b], bias_length_scale[b]);
-      for (i in 1:n) {
-        if (bias_of[i] == b) K_cross[:, m + i] = K_b[:, i];
-      }
-      out[b] = gp_conditional_draw(resid, L, K_cross, K_new, z)';
+  int n_rows = n_bias > 0 ? n : 0;
+  matrix[n_rows, n_rows] at_rows = n_bias > 0 ? source_bias_cov(x, bias_of, kernel_id, bias_sd, bias_length_scale)
+                                              : rep_matrix(0, 0, 0);
+  matrix[n_bias * p, n] cross = rep_matrix(0, n_bias * p, n);
+  matrix[n_bias * p, n_bias * p] at_new = rep_matrix(0, n_bias * p, n_bias * p);
+  for (b in 1:(p > 0 ? n_bias : 0)) {
+    int first = (b - 1) * p + 1;
+    matrix[p, n] K_b = ard_cross_cov(x_new, x, kernel_id, bias_sd[b], bias_length_scale[b]);
+    for (i in 1:n) {
+      if (bias_of[i] == b) cross[first:(b * p), i] = K_b[:, i];  // source b's rows only
     }
+    at_new[first:(b * p), first:(b * p)] = ard_cov(x_new, kernel_id, bias_sd[b], bias_length_scale[b]);
   }
-  return out;
+  return (at_rows, cross, at_new);
 }
 
 /**
- * One draw of the biases at the physical rows themselves (0 at a reference
- * source's rows), for the replicated data y_rep: given the residuals, or from
- * the prior under prior_only. No random numbers are used without biased sources.
+ * Standard normals for the bias curves at the new points, stacked as
+ * source_bias_blocks stacks the values (source by source): the given ones,
+ * or Stan's RNG when none are given (rows = 0), as prediction_normals_rng.
  *
- * @param resid the physical rows minus their prior means
- * @param L Cholesky factor of resid's covariance, biases included
- * @param K_bias source_bias_cov at the rows
+ * @param given P x n_bias standard normals (bias_normals_new), or 0 x n_bias
  * @param n_bias the number of biased sources
- * @param prior_only 1 = draws from the prior
- * @return each row's bias, standardised units
+ * @param p the number of new points
+ * @return n_bias * p standard normals
  */
-vector source_bias_at_rows_rng(vector resid, matrix L, matrix K_bias, int n_bias, int prior_only) {
-  int n = rows(resid);
-  if (n_bias == 0) return rep_vector(0, n);
-  // a reference row's variance is 0: its draw is 0 up to the jitter, which add_jitter
-  // scales to the biases' mean variance
-  if (prior_only) return gp_prior_draw(K_bias, std_normals_rng(n));
-  return gp_conditional_draw(resid, L, K_bias, K_bias, std_normals_rng(n));
+vector source_bias_normals_rng(matrix given, int n_bias, int p) {
+  if (rows(given) == 0) return std_normals_rng(n_bias * p);
+  return to_vector(given);  // column by column: source 1's p values, then source 2's
+}
+
+/**
+ * One joint draw of another GP term that the rows see (koh.stan's delta) and
+ * the biases, independent a priori, given the residuals both enter (the
+ * stacked values [a; b]; Rasmussen & Williams 2006, eqs. 2.23-2.24), or from
+ * their prior under prior_only. Given the data the two are correlated, so
+ * only a joint draw gives a biased reading's zeta + b_s its spread; each part
+ * alone keeps its own conditional.
+ *
+ * @param resid observed values minus their prior mean
+ * @param L_obs Cholesky factor of the covariance of resid, the biases included
+ * @param K_cross_a the other term's values' covariance with resid (0 rows: none)
+ * @param K_new_a their prior covariance
+ * @param K_cross_b the biases' values' covariance with resid (0 rows: none)
+ * @param K_new_b their prior covariance
+ * @param z standard normals, rows(K_new_a) + rows(K_new_b)
+ * @param prior_only 1 = draws from the prior
+ * @return one draw of [a; b] minus their prior means
+ */
+vector source_bias_joint_draw(vector resid, matrix L_obs, matrix K_cross_a, matrix K_new_a, matrix K_cross_b,
+                              matrix K_new_b, vector z, int prior_only) {
+  int k_a = rows(K_new_a);
+  int k = k_a + rows(K_new_b);
+  if (k == 0) return rep_vector(0, 0);
+  matrix[k, k] K_new = rep_matrix(0, k, k);  // block diagonal: the terms are independent a priori
+  K_new[1:k_a, 1:k_a] = K_new_a;
+  K_new[(k_a + 1):k, (k_a + 1):k] = K_new_b;
+  if (prior_only) return gp_prior_draw(K_new, z);
+  return gp_conditional_draw(resid, L_obs, append_row(K_cross_a, K_cross_b), K_new, z);
 }
 
 /**
