@@ -233,14 +233,16 @@ vector koh_joint_draw(vector resid, matrix L_joint, int prior_only,
  * process zeta and any biases drawn with it (koh_joint_draw), the emulator's
  * misfit point_cov drawn afresh (where there is one), and the noise.
  *
- * @param mean zeta plus the biases at the points
+ * @param centre zeta plus the biases at the points
  * @param point_cov the emulator's misfit among the points (zeros: none)
  * @param noise_var each point's noise variance
  * @return y_rep, standardised
  */
-vector koh_joint_y_rep_rng(vector mean, matrix point_cov, vector noise_var) {
-  if (max(abs(point_cov)) > 0) return multi_normal_cholesky_rng(mean, cholesky_decompose(add_diag(point_cov, noise_var)));
-  return to_vector(normal_rng(mean, sqrt(noise_var)));
+vector koh_joint_y_rep_rng(vector centre, matrix point_cov, vector noise_var) {
+  if (max(abs(point_cov)) > 0) {
+    return multi_normal_cholesky_rng(centre, cholesky_decompose(add_diag(point_cov, noise_var)));
+  }
+  return to_vector(normal_rng(centre, sqrt(noise_var)));
 }
 
 /**
@@ -316,11 +318,14 @@ tuple(vector, vector, vector, vector, vector, vector, vector, vector, vector) ko
   vector[2 * n + n_b] at_obs = koh_joint_draw(
     resid, L, prior_only, xt_sim, xt_obs, x_delta, xt_obs, x_delta, kernel_id, w_sim, w_obs, w_obs, level_sd,
     level_length_scale, rho, delta_sd, delta_length_scale, bias_cov[1:n_b], bias.1, std_normals_rng(2 * n + n_b));
+  // f's normals, then delta's, each in a statement of its own: C++ leaves the order in which
+  // one expression's arguments are evaluated open, so two draws in one call could swap
+  vector[p] z_f_new = prediction_normals_rng(normals_new, 1, p);
+  vector[p] z_delta_new = prediction_normals_rng(normals_new, 2, p);
   vector[2 * p + rows(bias.3)] at_new = koh_joint_draw(
     resid, L, prior_only, xt_sim, xt_obs, x_delta, append_theta(x_new, theta_unit), x_delta_new,
     kernel_id, w_sim, w_obs, w_new, level_sd, level_length_scale, rho, delta_sd, delta_length_scale, bias.2,
-    bias.3, append_row(prediction_normals_rng(normals_new, 1, p), append_row(prediction_normals_rng(normals_new, 2, p),
-                                                                               z_bias)));
+    bias.3, append_row(z_f_new, append_row(z_delta_new, z_bias)));
   vector[n] zeta_obs = rho * (top_mean + at_obs[1:n]) + h * beta + at_obs[(n + 1):(2 * n)];
   vector[p] f_new = w_new * to_vector(level_mean) + at_new[1:p];
   vector[p] delta_new = h_new * beta + at_new[(p + 1):(2 * p)];
