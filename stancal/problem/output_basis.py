@@ -110,6 +110,24 @@ class OutputBasis:
         standardised = (np.asarray(outputs, float) - self.mean) / self.scale
         return np.linalg.lstsq(self.components, standardised.T, rcond=None)[0].T
 
+    def project(self, grid: np.ndarray, outputs: np.ndarray) -> np.ndarray:
+        """(runs, p): least-squares weights of other runs' output vectors on
+        their own ``grid`` (K' rows, within this basis's grid), standardised
+        with this basis's mean and scale: a cheaper simulator's runs on the
+        calibrated one's basis (docs/multifidelity.md). The mean and the
+        components are interpolated at the grid as at an experiment's
+        ragged indices (``at``); on this basis's own grid they are its own,
+        and this is ``weights``."""
+        try:
+            mean, components = self.at(grid)
+        except DataError as err:  # the cheaper runs' grid reaches beyond the calibrated simulator's
+            raise DataError(f"low-fidelity runs: {err}; the basis cannot extrapolate") from None
+        if len(mean) < self.count:
+            raise DataError(f"low-fidelity runs: {len(mean)} output indices for {self.count} basis components; "
+                            f"their runs need at least as many indices as components")
+        standardised = (np.asarray(outputs, float) - mean) / self.scale
+        return np.linalg.lstsq(components, standardised.T, rcond=None)[0].T
+
     def at(self, indices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The mean (M,) and components (M, p) interpolated at M output
         indices, each within the grid's range (DataError otherwise)."""
