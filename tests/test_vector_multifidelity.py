@@ -242,7 +242,7 @@ k = [0.02, 0.1]
 
 # ---- calibration with a known truth ----
 
-@pytest.mark.slow  # two fits of 4 x (500 + 1000): 97 s and 31 s on a quiet machine (134 s in all), stage 1 included
+@pytest.mark.slow  # two fits of 4 x (500 + 1000), stage 1 included: 45 s and 12 s on a quiet machine (60 s in all)
 def test_cheap_runs_halve_the_emulators_error_and_k_covers_the_truth():
     """100 cheap and 12 expensive curves (Latin hypercubes, not nested), three
     cool-downs of 8 readings with 0.4 deg C of noise, no discrepancy: with
