@@ -242,8 +242,8 @@ k = [0.02, 0.1]
 
 # ---- calibration with a known truth ----
 
-@pytest.mark.slow  # two fits of 4 x (500 + 1000), stage 1 included: 45 s and 12 s on a quiet machine (60 s in all)
-def test_cheap_runs_halve_the_emulators_error_and_k_covers_the_truth():
+@pytest.mark.slow  # two fits of 4 x (500 + 1000) with stage 1 and a report: 60 to 90 s in all on the shared machine
+def test_cheap_runs_halve_the_emulators_error_and_k_covers_the_truth(tmp_path):
     """100 cheap and 12 expensive curves (Latin hypercubes, not nested), three
     cool-downs of 8 readings with 0.4 deg C of noise, no discrepancy: with
     the cheap runs k's 90 % interval covers 0.05 and the fit is healthy; the
@@ -255,6 +255,7 @@ def test_cheap_runs_halve_the_emulators_error_and_k_covers_the_truth():
     0.00127 and 0.00135, ratio 0.94; docs/multifidelity.md). Asserted: the
     error ratio below 0.75, the band above 85 %, the width at most 1.1 times."""
     from stancal.fitting.vector_calibrate import calibrate_vector
+    from stancal.reporting.report import write_vector_calibration
 
     data = problem()
     alone = VectorCalibrationData(data.source, "exp", ["T0"], "temperature", "t", {"k": K_BOUNDS},
@@ -284,6 +285,8 @@ def test_cheap_runs_halve_the_emulators_error_and_k_covers_the_truth():
             assert fidelity["levels"] == 2 and len(fidelity["level_rho"]) == d.basis.count == 3, fidelity
             assert all(a < 0.5 * b for a, b in zip(fidelity["loo_rmse"], fidelity["loo_rmse_without_low_fidelity"],
                                                    strict=True)), fidelity
+            write_vector_calibration(result, tmp_path)
+            assert "Emulator of 2 fidelities, one per basis component" in (tmp_path / "report.md").read_text()
         widths[name] = high - low
     assert errors["both"] < 0.75 * errors["expensive alone"], errors
     assert widths["both"] <= 1.1 * widths["expensive alone"], widths
