@@ -160,6 +160,79 @@ def test_modular_vector_with_cheap_runs_has_the_numpy_cokriging_density(nested_p
     np.testing.assert_allclose(np.diff(stan), np.diff(reference), rtol=1e-8, atol=1e-8)
 
 
+@pytest.fixture
+def quick_correction(monkeypatch):
+    """Stage 1's variance correction on a shorter chain and fewer points (a
+    tenth of its cost): the tests below check what stage 1 does with the
+    levels, not that factor's Monte Carlo accuracy (test_multifidelity_variance's)."""
+    from stancal.numerics import multifidelity_variance
+
+    monkeypatch.setattr(multifidelity_variance, "CHAIN", 1200)
+    monkeypatch.setattr(multifidelity_variance, "MIXED", 30)
+    monkeypatch.setattr(multifidelity_variance, "BOX_POINTS", 64)
+
+
+def test_the_variance_runs_keep_every_expensive_run():
+    """With more runs than the weights' covariance conditions on, every
+    expensive run is among the variance runs and cheaper ones fill the rest,
+    the costlier levels first: a random draw over every level at once left
+    some out among many cheap runs, and the bands at those runs widened
+    tenfold."""
+    from stancal.numerics.vector_emulator import variance_subset
+
+    level = np.repeat([0, 1, 2], [600, 30, 12])
+    for seed in range(5):
+        chosen = variance_subset(level, 50, seed)
+        assert len(chosen) == len(set(chosen.tolist())) == 50
+        assert np.bincount(level[chosen]).tolist() == [8, 30, 12], seed
+    assert variance_subset(level, 10, 0).tolist() == sorted(variance_subset(level, 10, 0).tolist())
+    assert set(level[variance_subset(level, 10, 0)].tolist()) == {2}  # the top level's own, at random
+    np.testing.assert_array_equal(variance_subset(level, 1000, 0), np.arange(642))
+
+
+def test_stage_one_fits_each_component_and_summarises_its_levels(nested_problem, quick_correction, monkeypatch,
+                                                                  caplog):
+    """Stage 1 of a vector output with cheap runs (the slow test's, on 24 +
+    8 runs, the weights' covariance on 12 of them): the 8 expensive runs
+    are among the 12; every component has its levels, a rho and leave-one-out
+    errors in the summary; the cheap runs help here (each component's error
+    with them below without), so nothing is warned."""
+    from stancal.fitting.stage_one import fit_vector_fidelity_emulator
+    from stancal.numerics import vector_emulator
+
+    monkeypatch.setattr(vector_emulator.VectorEmulator.fit_fidelities.__func__, "__defaults__", (12,))  # its cap
+    with caplog.at_level("INFO", logger="stancal"):
+        emulator = fit_vector_fidelity_emulator(nested_problem, seed=0)
+    assert len(emulator.variance_runs) == 12 and set(range(24, 32)) <= set(emulator.variance_runs.tolist())
+    summary = emulator.fidelity_summary()
+    count = nested_problem.basis.count
+    assert summary["levels"] == 2 and len(summary["level_rho"]) == count == len(summary["loo_rmse"])
+    assert all(a < b for a, b in zip(summary["loo_rmse"], summary["loo_rmse_without_low_fidelity"], strict=True))
+    assert summary["warning"] is None
+    assert not [r for r in caplog.records if r.levelname == "WARNING"], caplog.text
+
+
+def test_cheap_runs_that_do_not_help_are_warned(quick_correction, caplog):
+    """Cheap curves at random (T0, k) of their own, unrelated to their
+    runs' settings: no component gains (each rho within 0.07 of 0,
+    negligible), and stage 1 says so, as the scalar path does (issue 34,
+    item 4), naming the components that carry the variance."""
+    from stancal.fitting.stage_one import fit_vector_fidelity_emulator
+
+    rng = np.random.default_rng(3)
+    cheap = long_runs(lambda t, T0, k: COOLING.newton(t, rng.uniform(55, 95), rng.uniform(*K_BOUNDS)),
+                      settings(24, 1))
+    data = VectorCalibrationData(experiments(0), "exp", ["T0"], "temperature", "t", {"k": K_BOUNDS},
+                                 runs=long_runs(COOLING.with_loss, settings(8, 2)), run="run", noise_sd="sd",
+                                 low_fidelity_runs=[cheap])
+    with caplog.at_level("INFO", logger="stancal"):
+        emulator = fit_vector_fidelity_emulator(data, seed=0)
+    warned = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
+    assert len(warned) == 1 and warned[0].count("low-fidelity runs do not help") == data.basis.count, caplog.text
+    assert warned[0].startswith("component 1 (71.6% of the runs' variance)"), warned[0]
+    assert emulator.fidelity_summary()["warning"] == warned[0]
+
+
 # ---- refusals, before anything compiles ----
 
 def test_the_joint_vector_program_refuses_cheap_runs():

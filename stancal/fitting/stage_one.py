@@ -173,7 +173,8 @@ def fit_vector_fidelity_emulator(data: VectorCalibrationData, seed: int) -> Vect
     2000; Le Gratiet & Garnier 2014, level by level): the basis is the
     calibrated simulator's runs', the cheaper runs projected on it
     (VectorEmulator.fit_fidelities); each component's scale and leave-one-out
-    error with and without the cheaper runs in the log."""
+    error with and without the cheaper runs in the log, and a warning when
+    they do not help (VectorEmulator.fidelity_warning)."""
     xt = [data.scaling.to_unit(s, run_columns(data)) for s in [*data.low_fidelity_settings, data.run_settings]]
     weights = [*data.low_fidelity_weights, data.basis.weights(data.run_outputs)]
     started = time.perf_counter()
@@ -187,6 +188,8 @@ def fit_vector_fidelity_emulator(data: VectorCalibrationData, seed: int) -> Vect
                     "simulator's runs %.3g with the cheaper runs, %.3g without (standardised weights); its own GP's "
                     "variance times %.3g", c + 1, gp.value.rho_text(), gp.value.loo_with, gp.value.loo_without,
                     gp.variance_factor_applied)
+    if emulator.fidelity_warning():  # the scalar path's warning, at the components that matter
+        logger.warning("%s", emulator.fidelity_warning())
     return emulator
 
 
