@@ -280,6 +280,28 @@ def test_cheap_runs_beyond_the_basis_grid_are_named():
                               low_fidelity_runs=[wider])
 
 
+def test_the_runs_of_each_fidelity_take_the_scalar_paths_forms():
+    """low_fidelity_runs as one DataFrame, and runs=[cheap, calibrated] (the
+    issue's contract, which CalibrationData takes) give the same problem as
+    low_fidelity_runs=[cheap]; anything else stops in one line naming the argument."""
+    cheap, expensive = long_runs(COOLING.newton, settings(20, 1)), long_runs(COOLING.with_loss, settings(8, 2))
+
+    def given(**runs):
+        return VectorCalibrationData(experiments(0), "exp", ["T0"], "temperature", "t", {"k": K_BOUNDS},
+                                     run="run", noise_sd="sd", **runs)
+
+    expected = given(runs=expensive, low_fidelity_runs=[cheap]).low_fidelity_weights[0]
+    for data in (given(runs=expensive, low_fidelity_runs=cheap), given(runs=[cheap, expensive])):
+        assert data.fidelities == 2
+        np.testing.assert_array_equal(data.low_fidelity_weights[0], expected)
+    with pytest.raises(DataError, match=r"^low_fidelity_runs: a DataFrame or a list of DataFrames .*; got str$"):
+        given(runs=expensive, low_fidelity_runs="runs_low.csv")
+    with pytest.raises(DataError, match=r"^runs: a DataFrame or a list of DataFrames .*; got dict$"):
+        given(runs={"runs": expensive})
+    with pytest.raises(DataError, match=r"^give the simulators' runs either as runs=\[cheapest"):
+        given(runs=[cheap, expensive], low_fidelity_runs=[cheap])
+
+
 def test_the_config_takes_cheap_runs_for_a_vector_output_but_not_their_own_theta(tmp_path):
     data = problem(low=20, high=8)
     data.source.to_csv(tmp_path / "physical.csv", index=False)

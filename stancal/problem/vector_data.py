@@ -19,6 +19,7 @@ from stancal.problem.data import (
     parameters_from_bounds,
     require_columns,
     require_runs_within_bounds,
+    simulators_runs,
     warn_outside_runs,
 )
 from stancal.problem.output_basis import DEFAULT_VARIANCE_SHARE, OutputBasis
@@ -60,7 +61,9 @@ class VectorCalibrationData:
         impact velocity), name -> (lower, upper).
     runs : long DataFrame, one row per simulated value: the run column, the
         inputs, every theta, the output index column(s) and the output. All
-        runs share one grid of output indices.
+        runs share one grid of output indices; or a list of several
+        simulators' runs, cheapest first, the calibrated simulator's last (as
+        ``low_fidelity_runs`` and ``runs``).
     run : the column naming each row's run.
     noise_sd : optional column of each measured value's known sd.
     covariates : physical columns the discrepancy may depend on (constant
@@ -69,8 +72,8 @@ class VectorCalibrationData:
     variance_share, components : the runs' reduced basis (stancal.problem.output_basis).
     levels : categories of categorical covariates, when they must not be
         taken from ``physical`` (a subset that lacks a level).
-    low_fidelity_runs : long runs of cheaper simulators of the same process,
-        cheapest first, with the columns of ``runs`` (each level on one grid
+    low_fidelity_runs : long runs of cheaper simulators of the same process
+        (a DataFrame for one, or a list, cheapest first), with the columns of ``runs`` (each level on one grid
         of its own, within the runs' range): each component weight's
         emulator learns from them too (Kennedy & O'Hagan 2000;
         docs/multifidelity.md). The basis is ``runs``'s; these are projected
@@ -87,16 +90,17 @@ class VectorCalibrationData:
         output_index: str | Sequence[str],
         theta: Mapping[str, tuple[float, float]],
         theta_per_experiment: Mapping[str, tuple[float, float]] | None = None,
-        runs: pd.DataFrame | None = None,
+        runs: pd.DataFrame | Sequence[pd.DataFrame] | None = None,
         run: str | None = None,
         noise_sd: str | None = None,
         covariates: Sequence[str] = (),
         variance_share: float = DEFAULT_VARIANCE_SHARE,
         components: int | None = None,
         levels: Mapping[str, Sequence[str]] | None = None,
-        low_fidelity_runs: Sequence[pd.DataFrame] = (),
+        low_fidelity_runs: pd.DataFrame | Sequence[pd.DataFrame] = (),
         low_fidelity_rho: str = "constant",
     ) -> None:
+        low_fidelity_runs, runs = simulators_runs(runs, low_fidelity_runs)  # the scalar path's forms
         self.experiment, self.run, self.output, self.noise_sd = experiment, run, output, noise_sd
         self.inputs, self.covariates = list(inputs), list(covariates)
         self.output_index = [output_index] if isinstance(output_index, str) else list(output_index)
@@ -120,7 +124,7 @@ class VectorCalibrationData:
             self.basis = OutputBasis.from_runs(grid, self.run_outputs, variance_share, components)
             self._check_indices_on_grid()
         self.low_fidelity_runs, self.low_fidelity_settings, self.low_fidelity_weights = self._check_low_fidelity(
-            list(low_fidelity_runs), low_fidelity_rho)
+            low_fidelity_runs, low_fidelity_rho)
         self.scaling = self._scaling()
 
     @property
