@@ -280,6 +280,18 @@ def test_cheap_runs_beyond_the_basis_grid_are_named():
                               low_fidelity_runs=[wider])
 
 
+def test_cheap_runs_on_a_grid_that_cannot_tell_the_components_apart_are_named():
+    """Four indices within one interval of the basis's grid (0 to 2 min): the
+    interpolated components there span two directions, not three, and the
+    weights are not determined (lstsq would return its minimum-norm answer)."""
+    narrow = long_runs(COOLING.newton, settings(20, 1), np.array([0.5, 1.0, 1.5, 1.8]))
+    with pytest.raises(DataError, match=r"^low-fidelity runs: their grid \(4 output indices, 0.5 to 1.8\) "
+                                        r"determines 2 of the 3 basis components"):
+        VectorCalibrationData(experiments(0), "exp", ["T0"], "temperature", "t", {"k": K_BOUNDS},
+                              runs=long_runs(COOLING.with_loss, settings(12, 2)), run="run", noise_sd="sd",
+                              low_fidelity_runs=[narrow])
+
+
 def test_the_runs_of_each_fidelity_take_the_scalar_paths_forms():
     """low_fidelity_runs as one DataFrame, and runs=[cheap, calibrated] (the
     issue's contract, which CalibrationData takes) give the same problem as
