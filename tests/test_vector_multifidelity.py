@@ -23,7 +23,7 @@ from test_vector_outputs import log_density_reference
 
 from stancal.numerics import multifidelity as mf
 from stancal.numerics.scalable_emulator import Hyperparameters
-from stancal.numerics.vector_emulator import FidelityComponentGP, VectorEmulator
+from stancal.numerics.vector_emulator import FidelityComponentGP, VectorEmulator, same_point
 from stancal.problem.config import ConfigError, load_config
 from stancal.problem.validation import DataError
 from stancal.problem.vector_data import VectorCalibrationData
@@ -49,11 +49,11 @@ def long_runs(model, table: pd.DataFrame, grid: np.ndarray = GRID) -> pd.DataFra
                       for r, row in enumerate(table.itertuples())], ignore_index=True)
 
 
-def experiments(seed: int, noise_sd: float = NOISE_SD) -> pd.DataFrame:
-    """Three cool-downs read by a thermocouple at their own eight times."""
+def experiments(seed: int, noise_sd: float = NOISE_SD, starts: tuple[float, ...] = (62.0, 76.0, 90.0)) -> pd.DataFrame:
+    """Three cool-downs (one per start temperature) read by a thermocouple at their own eight times."""
     rng = np.random.default_rng(seed)
     rows = []
-    for e, T0 in enumerate((62.0, 76.0, 90.0)):
+    for e, T0 in enumerate(starts):
         t = np.sort(rng.uniform(3, 57, 8))
         rows.append(pd.DataFrame({"exp": f"cup{e}", "T0": T0, "t": t, "sd": noise_sd,
                                   "temperature": COOLING.with_loss(t, T0, K_TRUE) + rng.normal(0, noise_sd, t.size)}))
@@ -77,25 +77,26 @@ def nested_problem() -> VectorCalibrationData:
 
 
 def fixed_emulator(data: VectorCalibrationData, rho: float, nuggets: tuple[float, float],
-                   length_scale: float = 0.15) -> VectorEmulator:
+                   length_scale: float = 0.15, chosen: np.ndarray | None = None) -> VectorEmulator:
     """The vector emulator of ``data``'s two levels with set hyperparameters
     (stage 1's fit is the slow test's): per component, each level's GP mean
     and sd from its runs' weights, the same length scales, the given
-    nuggets, and rho; its covariance given every run. Moderate length
+    nuggets, and rho; its covariance given the runs ``chosen`` (every run
+    unless given). Moderate length
     scales keep the runs' covariance well conditioned, so that the formulas
     compared differ by the jitter alone: at 0.15 its condition number is 130
     to 280 on this design and they agree to 3e-5; at 0.3, 5.5e4 and 2.3e-3;
     with stage 1's length scales (0.2 to 2.7), 6e6 to 2e7 and 0.02."""
     xt = [data.scaling.to_unit(s, ["T0", "k"]) for s in (data.low_fidelity_settings[0], data.run_settings)]
     weights = [data.low_fidelity_weights[0], data.basis.weights(data.run_outputs)]
-    every = np.arange(sum(len(x) for x in xt))
+    every = np.arange(sum(len(x) for x in xt)) if chosen is None else chosen
     components = []
     for c in range(data.basis.count):
         hyper = [Hyperparameters(float(w[:, c].mean()), float(w[:, c].std()), np.full(2, length_scale), nugget)
                  for w, nugget in zip(weights, nuggets, strict=True)]
         levels = [mf.Level(h, r, x, w[:, c]) for h, r, x, w in zip(hyper, (1.0, rho), xt, weights, strict=True)]
         components.append(FidelityComponentGP.conditioned(levels, every))
-    return VectorEmulator(data.basis, np.vstack(xt), components, len(every), every,
+    return VectorEmulator(data.basis, np.vstack(xt), components, sum(len(x) for x in xt), every,
                           np.repeat([0, 1], [len(x) for x in xt]), np.vstack(weights))
 
 
@@ -133,12 +134,14 @@ def test_each_components_emulator_is_the_recursive_cokriging(nested_problem):
         assert ref_variance.max() > 1e-2 * gp.levels[1].hyperparameters.sd ** 2  # away from the runs too
 
 
-def test_modular_vector_with_cheap_runs_has_the_numpy_cokriging_density(nested_problem):
+def test_modular_vector_with_cheap_runs_has_the_numpy_cokriging_density():
     """modular_vector.stan with two levels (vector_fidelity.stan), nuggets
-    and rho != 1: its log density over k is the numpy density of
-    test_vector_outputs (the weights' co-kriging mean and covariance at the
-    experiments, FidelityComponentGP.predict, checked above), up to a
-    constant, to 1e-8 at seven k."""
+    and rho != 1, the covariance given every other run (of both levels; the
+    means given all), and a fourth cool-down from the first's start (one
+    nugget draw at the two identical points): its log density over k is the
+    numpy density of test_vector_outputs (the weights' co-kriging mean and
+    covariance at the experiments, FidelityComponentGP.predict, checked
+    above), up to a constant, to 1e-8 at seven k."""
     from stancal.fitting.plan import plan_vector
     from stancal.fitting.vector_calibrate import prediction_rows
     from stancal.problem.options import VectorOptions
@@ -146,7 +149,13 @@ def test_modular_vector_with_cheap_runs_has_the_numpy_cokriging_density(nested_p
     from stancal.stan.standata import to_stan_json
     from stancal.stan.vector_standata import build_vector_stan_data
 
-    data, emulator = nested_problem, fixed_emulator(nested_problem, rho=0.8, nuggets=(0.01, 0.03))
+    data = problem(low=24, high=8, nested=True)
+    data = VectorCalibrationData(experiments(0, starts=(62.0, 76.0, 90.0, 62.0)), "exp", ["T0"], "temperature", "t",
+                                 {"k": K_BOUNDS}, runs=data.runs, run="run", noise_sd="sd",
+                                 low_fidelity_runs=data.low_fidelity_runs)
+    emulator = fixed_emulator(data, rho=0.8, nuggets=(0.01, 0.03), chosen=np.arange(0, 32, 2))
+    points = np.column_stack([data.scaling.to_unit(data.experiments, ["T0"]), np.full(4, 0.5)])
+    assert same_point(points).sum() == 6 and np.ptp(emulator.run_level[emulator.variance_runs]) == 1
     plan = plan_vector(data, None, None, VectorOptions("none", "known"))
     assert plan.name == "modular_vector" and plan.stage_one == "basis_fidelity_emulator"
     stan_data = build_vector_stan_data(data, plan.program.data, plan.options, prediction_rows(data), emulator)
