@@ -116,6 +116,10 @@ transformed data {
     w_top[c] = w[n_levels];
     top_mean[c] = w_top[c] * to_vector(append_array(level_mean[c], {emulator_mean[c]}));
   }
+  // the likelihood's jitter scale (modular): the widest component's prior variance of the top level, every
+  // level's share in it (fidelity_variance; emulator_sd^2 with one level)
+  real top_variance = 0;
+  for (c in 1:C) top_variance = fmax(top_variance, fidelity_variance(w_top[c], all_sd[c]));
   array[C] matrix[M_variance, M_variance] L_variance;  // Cholesky factors of the variance runs' covariance
   for (c in 1:(joint ? 0 : C)) {
     L_variance[c] = cholesky_decompose(n_levels == 1
@@ -188,7 +192,7 @@ model {
                               independent_variance(noise_mode, known_noise_sd, noise_sd, experiment)
                               + truncation_variance);
     y ~ multi_normal_cholesky(rows_dot_product(components, w.1[experiment]) + h * beta,
-                              cholesky_decompose(add_jitter(K, max(weight_gp_sd) ^ 2)));
+                              cholesky_decompose(add_jitter(K, joint ? max(weight_gp_sd) ^ 2 : top_variance)));
   }
 }
 generated quantities {
@@ -226,7 +230,7 @@ generated quantities {
       add_diag(signal_cov(experiment, components, x_delta, experiment, components, x_delta, w.2,
                           delta_sd, delta_length_scale),
                independent_variance(noise_mode, known_noise_sd, noise_sd, experiment) + truncation_variance),
-      max(weight_gp_sd) ^ 2));
+      joint ? max(weight_gp_sd) ^ 2 : top_variance));
     y_rep = output_mean + output_scale * (mu + L * std_normals_rng(N));
     tuple(vector[N], vector[N]) loo = mvn_loo(y - mu, L);
     log_lik = loo.1 - log(output_scale);

@@ -75,6 +75,11 @@ class ComponentGP:
     variance_factor: tuple[np.ndarray, bool]  # Cholesky of the variance runs' covariance
     alpha: np.ndarray  # K^-1 (w - m), all runs
 
+    @property
+    def prior_variance(self) -> float:
+        """The weight's prior variance without the nugget: the likelihood's jitter scale (modular_vector.stan)."""
+        return float(self.hyperparameters.sd**2)
+
     def predict(self, xt_runs: np.ndarray, variance_runs: np.ndarray, points: np.ndarray,
                 same: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Mean (given all runs) and covariance (given the variance runs) of
@@ -119,6 +124,16 @@ class FidelityComponentGP:
     def hyperparameters(self) -> Hyperparameters:
         """The top level's own GP g_L (modular_vector.stan's emulator_*)."""
         return self.levels[-1].hyperparameters
+
+    @property
+    def prior_variance(self) -> float:
+        """The top level's prior variance without the nugget, every level's
+        share in it (fidelity_variance in functions/fidelity.stan, constant
+        rho): the likelihood's jitter scale (modular_vector.stan)."""
+        variance = 0.0
+        for level in self.levels:  # the cheapest's rho is unused: it scales nothing
+            variance = level.rho**2 * variance + level.hyperparameters.sd**2
+        return float(variance)
 
     def predict(self, xt_runs: np.ndarray, variance_runs: np.ndarray, points: np.ndarray,
                 same: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
