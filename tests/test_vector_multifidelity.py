@@ -173,7 +173,7 @@ def test_modular_vector_with_cheap_runs_has_the_numpy_cokriging_density():
 def quick_correction(monkeypatch):
     """Stage 1's variance correction on a shorter chain and fewer points (a
     tenth of its cost): the tests below check what stage 1 does with the
-    levels, not that factor's Monte Carlo accuracy (test_multifidelity_variance's)."""
+    levels, not that factor's Monte Carlo accuracy (test_multifidelity_numerics's)."""
     from stancal.numerics import multifidelity_variance
 
     monkeypatch.setattr(multifidelity_variance, "CHAIN", 1200)
