@@ -20,12 +20,18 @@
 // theta_e, if any, belongs to experiment e. The weights and delta are
 // integrated out: the values' covariance is dense, N x N per gradient.
 // The mean terms h (H = 0 by default) carry a candidate unmodelled effect.
+// Runs of cheaper simulators (n_levels > 1, modular only): each weight's emulator is
+// autoregressive over the levels (Kennedy & O'Hagan 2000; vector_fidelity.stan),
+// the basis the calibrated simulator's, the experiments at the top level;
+// with n_levels = 1 the program is the single-fidelity one above.
 functions {
 #include gp_kernels.stan
 #include gp_conditional.stan
 #include priors.stan
 #include scaling.stan
 #include vector_output.stan
+#include fidelity.stan
+#include vector_fidelity.stan
 #include vector_noise.stan
 #include loo.stan
 }
@@ -72,6 +78,14 @@ data {
   vector<lower=0>[C] emulator_sd;       // its marginal sd
   array[C, D + Q + Q_exp] real<lower=0> emulator_length_scale;  // its length scales, unit-cube units
   vector<lower=0>[C] emulator_nugget;   // its nugget sd
+  // runs of several fidelities (modular only): emulator_* above are then the top level's own GP
+  int<lower=1> n_levels;                // fidelity levels of the runs: 1 = the calibrated simulator only
+  array[M] int<lower=1, upper=n_levels> run_level;  // each run's level: 1 the cheapest, n_levels the calibrated one
+  array[C] vector[n_levels - 1] level_rho;     // stage 1, per component: each level's scale on the level below
+  array[C, n_levels - 1] real level_mean;      // stage 1, per component: the cheaper levels' GP means
+  array[C, n_levels - 1] real<lower=0> level_sd;  // their marginal sds
+  array[C, n_levels - 1, D + Q + Q_exp] real<lower=0> level_length_scale;  // their length scales, unit cube
+  array[C, n_levels - 1] real<lower=0> level_nugget;  // their nugget sds
   int<lower=0> P;                       // number of prediction values (experiment, index)
   array[P] int<lower=1, upper=E> experiment_new;  // each prediction row's experiment
   array[P] vector[K_index] index_new;   // its output index, scaled to [0, 1]
@@ -83,10 +97,35 @@ data {
 transformed data {
   int n_noise = noise_mode == 0 ? 0 : (noise_mode == 1 ? 1 : E);
   array[M_variance] vector[D + Q + Q_exp] xt_variance = xt_runs[variance_runs];
+  if (joint && n_levels > 1) {
+    reject("joint = 1 (method koh_emulator) takes runs of one fidelity; for runs of several, set joint = 0 ",
+           "(method modular), or leave the cheaper runs out");
+  }
+  // per component, every level's GP (the cheaper ones', then the top's own), each run's weights on them
+  // (fidelity_weights), the top level's and its prior mean
+  array[C, n_levels] real all_sd;
+  array[C, n_levels, D + Q + Q_exp] real all_length_scale;
+  array[C] matrix[M, n_levels] w_runs;
+  array[C] row_vector[n_levels] w_top;
+  vector[C] top_mean;
+  for (c in 1:C) {
+    all_sd[c] = append_array(level_sd[c], {emulator_sd[c]});
+    all_length_scale[c] = append_array(level_length_scale[c], {emulator_length_scale[c]});
+    matrix[n_levels, n_levels] w = fidelity_weights(level_rho[c]);
+    w_runs[c] = w[run_level];
+    w_top[c] = w[n_levels];
+    top_mean[c] = w_top[c] * to_vector(append_array(level_mean[c], {emulator_mean[c]}));
+  }
+  // the likelihood's jitter scale (modular): the widest component's prior variance of the top level, every
+  // level's share in it (fidelity_variance; emulator_sd^2 with one level)
+  real top_variance = 0;
+  for (c in 1:C) top_variance = fmax(top_variance, fidelity_variance(w_top[c], all_sd[c]));
   array[C] matrix[M_variance, M_variance] L_variance;  // Cholesky factors of the variance runs' covariance
   for (c in 1:(joint ? 0 : C)) {
-    L_variance[c] = cholesky_decompose(emulator_run_cov(xt_variance, 1, emulator_sd[c], emulator_length_scale[c],
-                                                        emulator_nugget[c]));
+    L_variance[c] = cholesky_decompose(n_levels == 1
+      ? emulator_run_cov(xt_variance, 1, emulator_sd[c], emulator_length_scale[c], emulator_nugget[c])
+      : fidelity_run_cov(xt_variance, w_runs[c][variance_runs], w_top[c], 1, all_sd[c], all_length_scale[c],
+                         to_vector(append_array(level_nugget[c], {emulator_nugget[c]}))[run_level[variance_runs]]));
   }
   // the discrepancy's inputs: the experiment's inputs, the index, the experiment's covariates
   array[N] vector[D + K_index + D_cov] x_delta;
@@ -140,16 +179,20 @@ model {
       for (c in 1:C) run_weights[:, c] ~ multi_normal_cholesky(rep_vector(weight_gp_mean[c], M), runs.1[c]);
       w = experiment_weights(x, theta_unit, theta_exp_unit, xt_runs, runs.2, xt_runs, runs.1, weight_gp_mean,
                              weight_gp_sd, weight_gp_length_scale, weight_gp_nugget, same_point);
-    } else {
+    } else if (n_levels == 1) {
       w = experiment_weights(x, theta_unit, theta_exp_unit, xt_runs, emulator_alpha, xt_variance, L_variance,
                              weight_gp_mean, weight_gp_sd, weight_gp_length_scale, weight_gp_nugget, same_point);
+    } else {
+      w = fidelity_experiment_weights(emulator_points(x, theta_unit, theta_exp_unit), xt_runs, w_runs,
+                                      emulator_alpha, variance_runs, L_variance, w_top, top_mean, all_sd,
+                                      all_length_scale, emulator_nugget, same_point);
     }
     matrix[N, N] K = add_diag(signal_cov(experiment, components, x_delta, experiment, components, x_delta,
                                          w.2, delta_sd, delta_length_scale),
                               independent_variance(noise_mode, known_noise_sd, noise_sd, experiment)
                               + truncation_variance);
     y ~ multi_normal_cholesky(rows_dot_product(components, w.1[experiment]) + h * beta,
-                              cholesky_decompose(add_jitter(K, max(weight_gp_sd) ^ 2)));
+                              cholesky_decompose(add_jitter(K, joint ? max(weight_gp_sd) ^ 2 : top_variance)));
   }
 }
 generated quantities {
@@ -173,9 +216,13 @@ generated quantities {
                             weight_gp_nugget);
       w = experiment_weights(x, theta_unit, theta_exp_unit, xt_runs, runs.2, xt_runs, runs.1, weight_gp_mean,
                              weight_gp_sd, weight_gp_length_scale, weight_gp_nugget, same_point);
-    } else {
+    } else if (n_levels == 1) {
       w = experiment_weights(x, theta_unit, theta_exp_unit, xt_runs, emulator_alpha, xt_variance, L_variance,
                              weight_gp_mean, weight_gp_sd, weight_gp_length_scale, weight_gp_nugget, same_point);
+    } else {
+      w = fidelity_experiment_weights(emulator_points(x, theta_unit, theta_exp_unit), xt_runs, w_runs,
+                                      emulator_alpha, variance_runs, L_variance, w_top, top_mean, all_sd,
+                                      all_length_scale, emulator_nugget, same_point);
     }
     vector[N] mu = rows_dot_product(components, w.1[experiment]) + h * beta;
     vector[P] mu_new = rows_dot_product(components_new, w.1[experiment_new]);
@@ -183,7 +230,7 @@ generated quantities {
       add_diag(signal_cov(experiment, components, x_delta, experiment, components, x_delta, w.2,
                           delta_sd, delta_length_scale),
                independent_variance(noise_mode, known_noise_sd, noise_sd, experiment) + truncation_variance),
-      max(weight_gp_sd) ^ 2));
+      joint ? max(weight_gp_sd) ^ 2 : top_variance));
     y_rep = output_mean + output_scale * (mu + L * std_normals_rng(N));
     tuple(vector[N], vector[N]) loo = mvn_loo(y - mu, L);
     log_lik = loo.1 - log(output_scale);

@@ -256,7 +256,7 @@ def log_density_reference(stan_data: dict, emulator, theta_unit: np.ndarray) -> 
         mean, cov = gp.predict(emulator.xt_runs, emulator.variance_runs, points)
         mu += components[:, c] * mean[experiment]
         K += components[:, c, None] * cov[np.ix_(experiment, experiment)] * components[None, :, c]
-    K[np.diag_indices_from(K)] += 1e-6 * max(gp.hyperparameters.sd for gp in emulator.components) ** 2
+    K[np.diag_indices_from(K)] += 1e-6 * max(gp.prior_variance for gp in emulator.components)  # add_jitter's
     L = np.linalg.cholesky(K)
     z = np.linalg.solve(L, np.asarray(stan_data["y"]) - mu)
     return float(-0.5 * z @ z - np.log(np.diag(L)).sum())

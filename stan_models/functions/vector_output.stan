@@ -67,6 +67,21 @@ tuple(array[] matrix, matrix) weight_gp_factors(array[] vector xt_runs, matrix r
 }
 
 /**
+ * Each experiment's emulator inputs (x_e, theta, theta_e).
+ *
+ * @param x each experiment's inputs, unit cube
+ * @param theta_unit the shared theta on [0, 1]
+ * @param theta_exp_unit each experiment's own theta on [0, 1]
+ * @return one point per experiment
+ */
+array[] vector emulator_points(array[] vector x, vector theta_unit, array[] vector theta_exp_unit) {
+  int n_exp = size(x);
+  array[n_exp] vector[rows(x[1]) + rows(theta_unit) + rows(theta_exp_unit[1])] points;
+  for (e in 1:n_exp) points[e] = append_row(x[e], append_row(theta_unit, theta_exp_unit[e]));
+  return points;
+}
+
+/**
  * component_weights for every component, at each experiment's emulator
  * inputs (x_e, theta, theta_e).
  *
@@ -94,8 +109,8 @@ tuple(matrix, array[] matrix) experiment_weights(array[] vector x, vector theta_
                                                 matrix same_point) {
   int n_exp = size(x);
   int n_comp = cols(alpha);
-  array[n_exp] vector[rows(x[1]) + rows(theta_unit) + rows(theta_exp_unit[1])] points;
-  for (e in 1:n_exp) points[e] = append_row(x[e], append_row(theta_unit, theta_exp_unit[e]));
+  array[n_exp] vector[rows(x[1]) + rows(theta_unit) + rows(theta_exp_unit[1])] points
+    = emulator_points(x, theta_unit, theta_exp_unit);
   matrix[n_exp, n_comp] means;
   array[n_comp] matrix[n_exp, n_exp] covariances;
   for (c in 1:n_comp) {

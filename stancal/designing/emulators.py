@@ -200,7 +200,7 @@ def calibration_emulator(data, box, stage_one) -> ScalarEmulator | BasisEmulator
         h = on_box(Hyperparameters.from_stan(hyperparameters))
         xt, y = run_table(data, box)
         return ScalarEmulator(GaussianProcess(h, xt, scaling.standardise(y)), scaling.y_center, scaling.y_scale)
-    if stage_one is None:
+    if stage_one is None or stage_one.fidelities > 1:
         return None
     xt, outputs = run_table(data, box)
     scores = stage_one.basis.weights(outputs)

@@ -170,7 +170,8 @@ def plan_vector(data: VectorCalibrationData, simulator: str | Path | None = None
     options = options or VectorOptions(noise="known" if data.noise_sd else "one")
     chosen = _requested(data, simulator, method, "vector")
     _check_options(chosen, options)
-    return Plan(chosen, options, _path(simulator), _path(program))
+    _check_fidelities(data, chosen, options, method)
+    return Plan(chosen, options, _path(simulator), _path(program), fidelities=data.fidelities if chosen.runs else 1)
 
 
 def _path(value: str | Path | None) -> Path | None:
@@ -265,7 +266,8 @@ def _scalable_version(data: CalibrationData, base: Program, options: ModelOption
     return scalable
 
 
-def _check_fidelities(data: CalibrationData, chosen: Program, options: ModelOptions, method: str | None) -> None:
+def _check_fidelities(data: CalibrationData | VectorCalibrationData, chosen: Program,
+                      options: ModelOptions | VectorOptions, method: str | None) -> None:
     """Low-fidelity runs reach a program that takes them (said in one
     line), or name why not, before anything compiles."""
     if data.fidelities == 1 or not chosen.runs:  # a Stan simulator needs no runs of any fidelity

@@ -40,7 +40,13 @@ from stancal.problem.data import CalibrationData
 from stancal.problem.fidelity_rho import rho_slopes
 from stancal.problem.options import ModelOptions
 from stancal.problem.vector_data import VectorCalibrationData
-from stancal.stan.registry import STAGE_ONE_BASIS, STAGE_ONE_FIDELITY, STAGE_ONE_GP, STAGE_ONE_SCALABLE
+from stancal.stan.registry import (
+    STAGE_ONE_BASIS,
+    STAGE_ONE_BASIS_FIDELITY,
+    STAGE_ONE_FIDELITY,
+    STAGE_ONE_GP,
+    STAGE_ONE_SCALABLE,
+)
 from stancal.stan.source import FlatProgram
 from stancal.stan.standata import (
     EMULATOR_HYPERPARAMETERS,
@@ -72,6 +78,8 @@ def run_stage_one(kind: str | None, data, options, programs: list[FlatProgram], 
         return fit_vector_emulator(data, seed)
     if kind == STAGE_ONE_FIDELITY:
         return fit_fidelity_emulator(data, seed)
+    if kind == STAGE_ONE_BASIS_FIDELITY:
+        return fit_vector_fidelity_emulator(data, seed)
     raise ValueError(f"unknown stage 1 {kind!r}")
 
 
@@ -140,10 +148,14 @@ def fit_scalable_emulator(data: CalibrationData, seed: int, stochastic: bool = F
     return emulator
 
 
+def run_columns(data: VectorCalibrationData) -> list[str]:
+    """The emulator's inputs: the simulator inputs, then every theta."""
+    return [*data.inputs, *(p.name for p in data.all_parameters)]
+
+
 def fit_vector_emulator(data: VectorCalibrationData, seed: int) -> VectorEmulator:
     """One GP per basis component of the runs' outputs (stancal.numerics.vector_emulator)."""
-    columns = [*data.inputs, *(p.name for p in data.all_parameters)]
-    xt = data.scaling.to_unit(data.run_settings, columns)
+    xt = data.scaling.to_unit(data.run_settings, run_columns(data))
     started = time.perf_counter()
     # One BLAS thread: the fit is thousands of small (<= 400 x 400) factorisations, which threads barely
     # speed up, and OpenBLAS's threads spin-wait when the cores are busy. On 2 shared cores (load 10-14)
@@ -153,6 +165,31 @@ def fit_vector_emulator(data: VectorCalibrationData, seed: int) -> VectorEmulato
     logger.info("stage 1: %s; one GP per component, hyperparameters at their posterior mode (scipy L-BFGS "
                 "on %d of %d runs) in %.1f s", data.basis.describe(), emulator.hyperparameter_runs,
                 len(xt), time.perf_counter() - started)
+    return emulator
+
+
+def fit_vector_fidelity_emulator(data: VectorCalibrationData, seed: int) -> VectorEmulator:
+    """One multi-fidelity emulator per basis component (Kennedy & O'Hagan
+    2000; Le Gratiet & Garnier 2014, level by level): the basis is the
+    calibrated simulator's runs', the cheaper runs projected on it
+    (VectorEmulator.fit_fidelities); each component's scale and leave-one-out
+    error with and without the cheaper runs in the log, and a warning when
+    they do not help (VectorEmulator.fidelity_warning)."""
+    xt = [data.scaling.to_unit(s, run_columns(data)) for s in [*data.low_fidelity_settings, data.run_settings]]
+    weights = [*data.low_fidelity_weights, data.basis.weights(data.run_outputs)]
+    started = time.perf_counter()
+    with threadpool_limits(limits=1, user_api="blas"):  # many small factorisations: fit_vector_emulator's reason
+        emulator = VectorEmulator.fit_fidelities(data.basis, xt, weights, seed)
+    logger.info("stage 1: %s; %d levels of fidelity (%s runs, cheapest first), one multi-fidelity GP per "
+                "component, hyperparameters level by level in %.1f s", data.basis.describe(), len(xt),
+                " + ".join(str(len(x)) for x in xt), time.perf_counter() - started)
+    for c, gp in enumerate(emulator.components):
+        logger.info("stage 1, component %d: scale on the level below %s; leave-one-out error at the calibrated "
+                    "simulator's runs %.3g with the cheaper runs, %.3g without (standardised weights); its own GP's "
+                    "variance times %.3g", c + 1, gp.value.rho_text(), gp.value.loo_with, gp.value.loo_without,
+                    gp.variance_factor_applied)
+    if emulator.fidelity_warning():  # the scalar path's warning, at the components that matter
+        logger.warning("%s", emulator.fidelity_warning())
     return emulator
 
 

@@ -152,7 +152,7 @@ def calibrate_vector(
     stan_backend = get_backend(backend)
     compile_s = stan_backend.compile([flat])  # 0.0: compiled earlier
     new_rows = prediction_rows(data) if new_rows is None else new_rows
-    emulator = run_stage_one(row.stage_one, data, options, [flat], backend=stan_backend, seed=seed)
+    emulator = run_stage_one(plan.stage_one, data, options, [flat], backend=stan_backend, seed=seed)
     stan_data = build_vector_stan_data(data, row.data, options, new_rows, emulator)
     inits, start_modes = chain_inits(row, stan_backend, flat, stan_data, emulator, chains, seed)
     logger.info("sampling %s: %d experiments, %d values%s; %d chains x (%d + %d)", row.name,

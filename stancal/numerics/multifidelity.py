@@ -42,6 +42,7 @@ import numpy as np
 from scipy import linalg, optimize
 
 from stancal.numerics.scalable_emulator import (
+    JITTER,
     Hyperparameters,
     fit_hyperparameters,
     negative_log_posterior,
@@ -126,15 +127,28 @@ def level_mean(levels: list[Level], a: int, points: np.ndarray) -> np.ndarray:
     return sum(_scale(levels, j, a, points) * levels[j].hyperparameters.mean for j in range(a + 1))
 
 
-def joint_covariance(levels: list[Level]) -> np.ndarray:
+def joint_covariance(levels: list[Level], top_jitter: bool = False) -> np.ndarray:
     """The covariance of every level's runs, cheapest level's first, with
-    each run's own nugget and the jitter of run_covariance on its diagonal."""
+    each run's own nugget and the jitter of run_covariance on its diagonal;
+    ``top_jitter``: the jitter of the top level's prior variance on every
+    run instead, as fidelity_run_cov of functions/fidelity.stan (constant rho)."""
     blocks = [[level_covariance(levels, levels[a].xt, a, levels[b].xt, b) for b in range(len(levels))]
               for a in range(len(levels))]
     K = np.block(blocks)
-    diagonal = np.concatenate([np.full(len(lv.y), run_nugget_variance(lv.hyperparameters)) for lv in levels])
+    if top_jitter:
+        corner = np.zeros((1, levels[-1].xt.shape[1]))
+        top = len(levels) - 1
+        jitter = JITTER * level_covariance(levels, corner, top, corner, top)[0, 0]
+        diagonal = np.concatenate([np.full(len(lv.y), lv.hyperparameters.nugget**2 + jitter) for lv in levels])
+    else:
+        diagonal = np.concatenate([np.full(len(lv.y), run_nugget_variance(lv.hyperparameters)) for lv in levels])
     K[np.diag_indices_from(K)] += diagonal
     return K
+
+
+def stacked_residuals(levels: list[Level]) -> np.ndarray:
+    """Every level's runs' outputs minus their level's prior mean, cheapest level's first."""
+    return _stacked(levels)[0]
 
 
 def _stacked(levels: list[Level]) -> tuple[np.ndarray, np.ndarray]:
@@ -150,7 +164,7 @@ def predictive(levels: list[Level], points: np.ndarray, level: int | None = None
     simulator is deterministic there)."""
     top = len(levels) - 1 if level is None else level
     factor, alpha = _conditioned(levels)
-    cross = _cross(levels, points, top)
+    cross = cross_covariance(levels, points, top)
     return (level_mean(levels, top, points) + cross @ alpha,
             level_covariance(levels, points, top, points, top) - cross @ linalg.cho_solve(factor, cross.T))
 
@@ -166,7 +180,7 @@ def mean_function(levels: list[Level]) -> Callable[[np.ndarray], np.ndarray]:
     runs' factorisation done once (for many calls: the L2 projection)."""
     _, alpha = _conditioned(levels)
     top = len(levels) - 1
-    return lambda points: level_mean(levels, top, points) + _cross(levels, points, top) @ alpha
+    return lambda points: level_mean(levels, top, points) + cross_covariance(levels, points, top) @ alpha
 
 
 def _conditioned(levels: list[Level]) -> tuple[tuple[np.ndarray, bool], np.ndarray]:
@@ -175,7 +189,7 @@ def _conditioned(levels: list[Level]) -> tuple[tuple[np.ndarray, bool], np.ndarr
     return factor, linalg.cho_solve(factor, _stacked(levels)[0])
 
 
-def _cross(levels: list[Level], points: np.ndarray, level: int) -> np.ndarray:
+def cross_covariance(levels: list[Level], points: np.ndarray, level: int) -> np.ndarray:
     """cov(f_level(points), every run), cheapest level's runs first."""
     return np.hstack([level_covariance(levels, points, level, lv.xt, a) for a, lv in enumerate(levels)])
 

@@ -163,6 +163,10 @@ def _vector_problem(physical: dict, simulator: dict, theta: dict, runs: pd.DataF
     if model.get("noise", "one") not in NOISE_MODES:
         raise ConfigError(f"[model] noise {model['noise']!r} does not apply to a vector output ([physical] "
                           f"output_index); its noise is one of {', '.join(NOISE_MODES)}")
+    low = simulator.get("low_fidelity", {})
+    if "theta" in low:
+        raise ConfigError("[simulator.low_fidelity.theta] (the cheap simulator's own theta_l) is not built for a "
+                          "vector output: its runs take the shared theta")
     data = VectorCalibrationData(
         _read_csv(base / _require(physical, "csv", "physical"), "physical.csv"),
         experiment=_require(physical, "experiment", "physical"),
@@ -171,6 +175,7 @@ def _vector_problem(physical: dict, simulator: dict, theta: dict, runs: pd.DataF
         output_index=physical["output_index"],
         theta=theta, theta_per_experiment=simulator.get("theta_per_experiment", {}),
         runs=runs, run=_require(simulator, "run", "simulator") if runs is not None else None,
-        noise_sd=physical.get("noise_sd"), covariates=physical.get("covariates", []), **basis)
+        noise_sd=physical.get("noise_sd"), covariates=physical.get("covariates", []), **basis,
+        low_fidelity_runs=_low_fidelity_runs(simulator, base), low_fidelity_rho=low.get("rho", "constant"))
     return Problem(data=data, simulator=stan, model=model, candidates=_candidates(raw.get("candidates", {}), base),
                    units=dict(raw.get("units", {})), design=dict(raw.get("design", {})))

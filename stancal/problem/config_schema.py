@@ -122,10 +122,11 @@ TABLES: tuple[Table, ...] = (
     Table("simulator.low_fidelity", "Runs of cheaper simulators of the same process (coarser mesh, reduced "
           "physics): the emulator of `runs` learns from them too (docs/multifidelity.md)", keys=(
         Key("runs", "path (or a list of paths)", "required", "CSV(s) of the cheaper simulators' runs, with the "
-            "columns of [simulator] runs; several files are levels, cheapest first", SCALAR),
+            "columns of [simulator] runs; several files are levels, cheapest first (a vector output: each "
+            "projected on the basis of [simulator] runs)"),
         Key("rho", "string", '"constant"', "each level's scale on the one below: constant, or linear in the "
             "simulator's inputs, rho(x) = beta_0 + x' beta_x (Le Gratiet & Garnier 2014; not with "
-            "[simulator.low_fidelity.theta])", SCALAR, choices=RHO_FORMS),
+            "[simulator.low_fidelity.theta]; a vector output: constant only)", choices=RHO_FORMS),
     )),
     Table("simulator.low_fidelity.theta", "The cheapest simulator's own calibration parameters theta_l, "
           "`name = [lower, upper]` (Goh et al. 2013): its runs carry these columns in place of theta's, and theta_l "

@@ -90,6 +90,27 @@ def require_runs_within_bounds(runs: pd.DataFrame, parameters: Sequence[Paramete
                             f"[{p.lower}, {p.upper}] in {_rows(bad, runs.index)}")
 
 
+def simulators_runs(runs: pd.DataFrame | Sequence[pd.DataFrame] | None,
+                    low_fidelity_runs: pd.DataFrame | Sequence[pd.DataFrame]
+                    ) -> tuple[list[pd.DataFrame], pd.DataFrame | None]:
+    """The cheaper simulators' runs (cheapest first) and the calibrated
+    simulator's, from ``runs`` (a DataFrame, or every simulator's as a list,
+    cheapest first, the calibrated one's last) and ``low_fidelity_runs`` (a
+    DataFrame for one cheaper level, or a list); DataError for anything else."""
+    for name, given in (("runs", runs), ("low_fidelity_runs", low_fidelity_runs)):
+        if not (given is None or isinstance(given, pd.DataFrame) or (
+                isinstance(given, list | tuple) and all(isinstance(g, pd.DataFrame) for g in given))):
+            raise DataError(f"{name}: a DataFrame or a list of DataFrames (cheapest first); "
+                            f"got {type(given).__name__}")
+    cheaper = [low_fidelity_runs] if isinstance(low_fidelity_runs, pd.DataFrame) else list(low_fidelity_runs)
+    if not isinstance(runs, list | tuple):
+        return cheaper, runs
+    if cheaper or not runs:
+        raise DataError("give the simulators' runs either as runs=[cheapest, ..., calibrated] or as "
+                        "runs=calibrated with low_fidelity_runs=[...], not both")
+    return list(runs[:-1]), runs[-1]
+
+
 def warn_outside_runs(physical: pd.DataFrame, runs: pd.DataFrame, inputs: Sequence[str], stacklevel: int = 4) -> None:
     """InputRangeWarning for physical inputs beyond the runs' range, where the
     emulator extrapolates; ``stacklevel`` points at the code that built the data."""
@@ -168,8 +189,8 @@ class CalibrationData:
     lower, upper : gaussian only: columns of censoring bounds. A row whose
         output is empty is censored to [lower, upper] (an empty lower is
         -inf, an empty upper +inf); rows with an output are exact.
-    low_fidelity_runs : runs of cheaper simulators of the same process,
-        cheapest first, with the columns of ``runs`` (review section 8.3;
+    low_fidelity_runs : runs of cheaper simulators of the same process (a
+        DataFrame for one, or a list, cheapest first), with the columns of ``runs`` (review section 8.3;
         stancal.numerics.multifidelity): the emulator of ``runs`` learns
         from them too.
     theta_low : the cheapest simulator's own calibration parameters theta_l,
@@ -201,7 +222,7 @@ class CalibrationData:
         trials: str | None = None,
         lower: str | None = None,
         upper: str | None = None,
-        low_fidelity_runs: Sequence[pd.DataFrame] = (),
+        low_fidelity_runs: pd.DataFrame | Sequence[pd.DataFrame] = (),
         noise_sd: str | None = None,
         source: str | None = None,
         sources: Sequence[str] | None = None,
@@ -236,11 +257,7 @@ class CalibrationData:
             )
         if np.ptp(self.observations.value[self.observations.observed]) == 0 and self.observations.is_gaussian:
             raise DataError(f"{what}: output column '{output}' is constant")
-        if isinstance(runs, list | tuple):  # every simulator's runs, cheapest first, the calibrated one's last
-            if low_fidelity_runs or not runs:
-                raise DataError("give the simulators' runs either as runs=[cheapest, ..., calibrated] or as "
-                                "runs=calibrated with low_fidelity_runs=[...], not both")
-            *low_fidelity_runs, runs = runs
+        low_fidelity_runs, runs = simulators_runs(runs, low_fidelity_runs)
         self.runs = None if runs is None else self._check_runs(runs)
         self.low_fidelity_runs = self._check_low_fidelity(low_fidelity_runs)
         self.low_fidelity_rho = check_low_fidelity_rho(low_fidelity_rho, len(self.low_fidelity_runs),

@@ -110,6 +110,32 @@ class OutputBasis:
         standardised = (np.asarray(outputs, float) - self.mean) / self.scale
         return np.linalg.lstsq(self.components, standardised.T, rcond=None)[0].T
 
+    def project(self, grid: np.ndarray, outputs: np.ndarray) -> np.ndarray:
+        """(runs, p): least-squares weights of other runs' output vectors on
+        their own ``grid`` (K' rows, within this basis's grid), standardised
+        with this basis's mean and scale: a cheaper simulator's runs on the
+        calibrated one's basis (docs/multifidelity.md). The mean and the
+        components are interpolated at the grid as at an experiment's
+        ragged indices (``at``); on this basis's own grid they are its own,
+        and this is ``weights``. DataError when the components interpolated
+        at ``grid`` do not have full rank (the weights would not be determined)."""
+        try:
+            mean, components = self.at(grid)
+        except DataError as err:  # the cheaper runs' grid reaches beyond the calibrated simulator's
+            raise DataError(f"low-fidelity runs: {err}; the basis cannot extrapolate") from None
+        if len(mean) < self.count:
+            raise DataError(f"low-fidelity runs: {len(mean)} output indices for {self.count} basis components; "
+                            f"their runs need at least as many indices as components")
+        standardised = (np.asarray(outputs, float) - mean) / self.scale
+        weights, _, rank, _ = np.linalg.lstsq(components, standardised.T, rcond=None)
+        if rank < self.count:  # lstsq's minimum-norm answer would pass for the weights
+            rows = self._index_rows(grid)
+            span = (f"{rows[:, 0].min():g} to {rows[:, 0].max():g}" if rows.shape[1] == 1
+                    else "within the basis's grid")
+            raise DataError(f"low-fidelity runs: their grid ({len(rows)} output indices, {span}) determines {rank} "
+                            f"of the {self.count} basis components' weights; spread their indices over the runs' grid")
+        return weights.T
+
     def at(self, indices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The mean (M,) and components (M, p) interpolated at M output
         indices, each within the grid's range (DataError otherwise)."""

@@ -19,6 +19,7 @@ from stancal.problem.data import (
     parameters_from_bounds,
     require_columns,
     require_runs_within_bounds,
+    simulators_runs,
     warn_outside_runs,
 )
 from stancal.problem.output_basis import DEFAULT_VARIANCE_SHARE, OutputBasis
@@ -60,7 +61,9 @@ class VectorCalibrationData:
         impact velocity), name -> (lower, upper).
     runs : long DataFrame, one row per simulated value: the run column, the
         inputs, every theta, the output index column(s) and the output. All
-        runs share one grid of output indices.
+        runs share one grid of output indices; or a list of several
+        simulators' runs, cheapest first, the calibrated simulator's last (as
+        ``low_fidelity_runs`` and ``runs``).
     run : the column naming each row's run.
     noise_sd : optional column of each measured value's known sd.
     covariates : physical columns the discrepancy may depend on (constant
@@ -69,6 +72,13 @@ class VectorCalibrationData:
     variance_share, components : the runs' reduced basis (stancal.problem.output_basis).
     levels : categories of categorical covariates, when they must not be
         taken from ``physical`` (a subset that lacks a level).
+    low_fidelity_runs : long runs of cheaper simulators of the same process
+        (a DataFrame for one, or a list, cheapest first), with the columns of ``runs`` (each level on one grid
+        of its own, within the runs' range): each component weight's
+        emulator learns from them too (Kennedy & O'Hagan 2000;
+        docs/multifidelity.md). The basis is ``runs``'s; these are projected
+        on it.
+    low_fidelity_rho : the scale between levels: "constant" only for a vector output.
     """
 
     def __init__(
@@ -80,14 +90,17 @@ class VectorCalibrationData:
         output_index: str | Sequence[str],
         theta: Mapping[str, tuple[float, float]],
         theta_per_experiment: Mapping[str, tuple[float, float]] | None = None,
-        runs: pd.DataFrame | None = None,
+        runs: pd.DataFrame | Sequence[pd.DataFrame] | None = None,
         run: str | None = None,
         noise_sd: str | None = None,
         covariates: Sequence[str] = (),
         variance_share: float = DEFAULT_VARIANCE_SHARE,
         components: int | None = None,
         levels: Mapping[str, Sequence[str]] | None = None,
+        low_fidelity_runs: pd.DataFrame | Sequence[pd.DataFrame] = (),
+        low_fidelity_rho: str = "constant",
     ) -> None:
+        low_fidelity_runs, runs = simulators_runs(runs, low_fidelity_runs)  # the scalar path's forms
         self.experiment, self.run, self.output, self.noise_sd = experiment, run, output, noise_sd
         self.inputs, self.covariates = list(inputs), list(covariates)
         self.output_index = [output_index] if isinstance(output_index, str) else list(output_index)
@@ -110,11 +123,35 @@ class VectorCalibrationData:
             self.runs, self.run_settings, self.run_outputs, grid = self._check_runs(runs)
             self.basis = OutputBasis.from_runs(grid, self.run_outputs, variance_share, components)
             self._check_indices_on_grid()
+        self.low_fidelity_runs, self.low_fidelity_settings, self.low_fidelity_weights = self._check_low_fidelity(
+            low_fidelity_runs, low_fidelity_rho)
         self.scaling = self._scaling()
 
     @property
     def theta_names(self) -> list[str]:
         return [p.name for p in self.parameters]
+
+    @property
+    def fidelities(self) -> int:
+        """How many simulators of the process have runs: 1, or more with low-fidelity runs."""
+        return 1 + len(self.low_fidelity_runs)
+
+    def _check_low_fidelity(self, given: list[pd.DataFrame], rho: str
+                            ) -> tuple[list[pd.DataFrame], list[pd.DataFrame], list[np.ndarray]]:
+        """Each cheaper level's runs checked as the runs are, their settings
+        (one row per run) and their weights on the calibrated simulator's
+        basis (OutputBasis.project), cheapest first."""
+        if not given:
+            return [], [], []
+        if self.basis is None:
+            raise DataError("low-fidelity runs need the runs of the simulator being calibrated (runs = ...): "
+                            "the basis and the emulator's top level come from them")
+        if rho != "constant":
+            raise DataError(f"low_fidelity_rho {rho!r} ([simulator.low_fidelity] rho): a vector output's "
+                            f"multi-fidelity emulator takes a constant rho only")
+        checked = [self._check_runs(runs, "low-fidelity runs", warn=False) for runs in given]
+        return ([table for table, _, _, _ in checked], [settings for _, settings, _, _ in checked],
+                [self.basis.project(grid, outputs) for _, _, outputs, grid in checked])
 
     @property
     def has_runs(self) -> bool:
@@ -188,7 +225,8 @@ class VectorCalibrationData:
         return VectorCalibrationData(
             source, self.experiment, self.inputs, self.output, self.output_index, bounds_of(self.parameters),
             bounds_of(self.per_experiment), runs, self.run, self.noise_sd, self.covariates,
-            **self._basis_options, levels=self.levels)
+            **self._basis_options, levels=self.levels,
+            low_fidelity_runs=self.low_fidelity_runs if runs is not None else ())
 
     def variant(self, inputs: Sequence[str],
                 extra_theta: Mapping[str, tuple[float, float]]) -> VectorCalibrationData:
@@ -212,7 +250,8 @@ class VectorCalibrationData:
         ranges.update({c: self.physical[c].to_numpy() for c in self.output_index})
         if self.basis is not None:
             for c in self.inputs:
-                ranges[c] = np.concatenate([ranges[c], self.run_settings[c].to_numpy()])
+                ranges[c] = np.concatenate([ranges[c], *(s[c].to_numpy() for s in
+                                                         [self.run_settings, *self.low_fidelity_settings])])
             for d, c in enumerate(self.output_index):
                 ranges[c] = np.concatenate([ranges[c], self.basis.grid[:, d]])
         for column, values in ranges.items():
@@ -262,16 +301,19 @@ class VectorCalibrationData:
         _constant_within(checked, self.experiment, [*self.inputs, *self.covariates], what, "experiment")
         return self.physical.groupby(self.experiment, sort=False)[[*self.inputs, *self.covariate_columns]].first()
 
-    def _check_runs(self, runs: pd.DataFrame) -> tuple[pd.DataFrame, pd.DataFrame, np.ndarray, np.ndarray]:
+    def _check_runs(self, runs: pd.DataFrame, label: str = "simulator runs",
+                    warn: bool = True) -> tuple[pd.DataFrame, pd.DataFrame, np.ndarray, np.ndarray]:
         """The runs' table, one row of settings per run (inputs, every theta), their
-        outputs (runs, K) on the shared grid (K, index columns)."""
-        what = described("simulator runs", runs)
+        outputs (runs, K) on the shared grid (K, index columns); ``warn``: when
+        the experiments lie outside the runs' inputs (the calibrated simulator's runs)."""
+        what = described(label, runs)
         require_columns(runs, [self.run], what)
         every_theta = [p.name for p in self.all_parameters]
         table = numeric_columns(runs, [*self.inputs, *every_theta, *self.output_index, self.output], what)
         table.insert(0, self.run, runs[self.run].astype(str))
         require_runs_within_bounds(table, self.all_parameters)
-        warn_outside_runs(self.physical, table, self.inputs)
+        if warn:
+            warn_outside_runs(self.physical, table, self.inputs)
         settings = _constant_within(table, self.run, [*self.inputs, *every_theta], what, "run")
         ordered = table.sort_values([self.run, *self.output_index], kind="stable")
         grids = {name: group[self.output_index].to_numpy() for name, group in ordered.groupby(self.run, sort=False)}

@@ -222,6 +222,22 @@ def _report(summary: dict, table, plots: list[Path]) -> str:
     return "\n".join(lines)
 
 
+def _basis_fidelity_lines(fidelity: dict | None) -> list[str]:
+    """A vector output's levels of fidelity, per basis component (docs/multifidelity.md), or nothing."""
+    if not fidelity:
+        return []
+    columns = zip(fidelity["level_rho"], fidelity["loo_rmse"], fidelity["loo_rmse_without_low_fidelity"],
+                  fidelity["top_level_variance_factor"], strict=True)
+    rows = [f"| {c + 1} | {', '.join(f'{r:.3g}' for r in rho)} | {with_:.3g} | {without:.3g} | {factor:.3g} |"
+            for c, (rho, with_, without, factor) in enumerate(columns)]
+    return [(f"Emulator of {fidelity['levels']} fidelities, one per basis component (Kennedy & O'Hagan 2000): "
+             "each level's scale on the one below, the leave-one-out error at the calibrated simulator's runs with "
+             "and without the cheaper runs (standardised weights), and the factor on the top level's own "
+             "variance."), "",
+            "| component | rho | leave-one-out error, with | without | its variance times |", "|---|---|---|---|---|",
+            *rows, ""]
+
+
 def write_vector_calibration(result, folder: str | Path, warning_messages: list[str] | None = None,
                              units: dict[str, str] | None = None) -> dict:
     """summary.json, summary.csv, the curves per experiment, report.md and
@@ -245,6 +261,7 @@ def write_vector_calibration(result, folder: str | Path, warning_messages: list[
             f"interpolation error sd {basis['interpolation_sd']:.3g} at the {basis['values_off_grid']} of "
             f"{basis['values']} values off the runs' grid (output units; each independent, beside the noise)."), ""]
           if basis else ["The Stan simulator is evaluated at every measured value (no output basis).", ""]),
+        *_basis_fidelity_lines((basis or {}).get("fidelity")),
         *_parameters_and_sampler(summary, table),
         "", "## Figures", "", "![curves per experiment](curves.png)", "![theta](theta.png)", ""]
     (folder / "report.md").write_text("\n".join(lines))

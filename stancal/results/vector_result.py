@@ -76,7 +76,9 @@ class VectorCalibrationResult:
                 "values_off_grid": int((basis.independent_variance_at(
                     self.data.physical[self.data.output_index].to_numpy()) > basis.truncation_variance).sum()),
                 "values": len(self.data.physical),
-                "description": basis.describe()},
+                "description": basis.describe(),
+                # runs of cheaper simulators: per component, rho and what they add (docs/multifidelity.md)
+                "fidelity": self.emulator.fidelity_summary()},
             "diagnostics": d.summary(),
             "timing": self.timing,
         }

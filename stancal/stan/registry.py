@@ -31,6 +31,7 @@ STAGE_ONE_GP = "gp_emulator"  # emulator.stan's hyperparameters by optimisation
 STAGE_ONE_SCALABLE = "scalable_emulator"  # stancal.numerics.scalable_emulator
 STAGE_ONE_BASIS = "basis_emulator"  # stancal.numerics.vector_emulator: one GP per basis component
 STAGE_ONE_FIDELITY = "fidelity_emulator"  # stancal.numerics.multifidelity: cheaper simulators' runs too
+STAGE_ONE_BASIS_FIDELITY = "basis_fidelity_emulator"  # one multi-fidelity GP per basis component
 
 
 @dataclass(frozen=True)
@@ -124,7 +125,8 @@ PROGRAMS: dict[str, Program] = {program.name: program for program in (
             commands=frozenset({GAP})),
     Program("modular_vector", "modular_vector.stan",
             "modular KOH for a vector output: one emulator GP per basis component, ragged experiments",
-            output="vector", methods=("modular",), runs=True, stage_one=STAGE_ONE_BASIS, kernels=("se",),
+            output="vector", methods=("modular",), runs=True, stage_one=STAGE_ONE_BASIS,
+            stage_one_fidelities=STAGE_ONE_BASIS_FIDELITY, kernels=("se",),
             estimate_rho=False, data=(vd.basis_emulator, vd.modular_weights), commands=frozenset({GAP, DESIGN}),
             starts_at_modes=True),
     Program("koh_emulator_vector", "modular_vector.stan",

@@ -124,6 +124,23 @@ def same_emulator_point(x: np.ndarray, per_experiment: int) -> np.ndarray:
     return same_point(np.asarray(x, float).reshape(len(x), -1)).astype(float)
 
 
+def fidelity_levels(emulator: VectorEmulator) -> dict[str, Any]:
+    """modular_vector.stan's levels of fidelity: each run's level and, per
+    component, the cheaper levels' GPs and every level's scale on the one
+    below (the top level's own GP is emulator_*); one level without
+    cheaper runs, where these are empty."""
+    L, C, M = emulator.fidelities, len(emulator.components), len(emulator.xt_runs)
+    cheaper = [[lv.hyperparameters for lv in gp.levels[:-1]] if L > 1 else [] for gp in emulator.components]
+    return {"n_levels": L, "run_level": np.ones(M, int) if emulator.run_level is None else emulator.run_level + 1,
+            "level_rho": np.array([[lv.rho for lv in gp.levels[1:]] if L > 1 else [] for gp in emulator.components],
+                                  float).reshape(C, L - 1),
+            "level_mean": np.array([[h.mean for h in hs] for hs in cheaper], float).reshape(C, L - 1),
+            "level_sd": np.array([[h.sd for h in hs] for hs in cheaper], float).reshape(C, L - 1),
+            "level_length_scale": np.array([[h.length_scale for h in hs] for hs in cheaper], float).reshape(
+                C, L - 1, emulator.xt_runs.shape[1]),
+            "level_nugget": np.array([[h.nugget for h in hs] for hs in cheaper], float).reshape(C, L - 1)}
+
+
 def modular_vector_data(data: VectorCalibrationData, options: VectorOptions, emulator: VectorEmulator,
                         new_rows: pd.DataFrame, terms: MeanTerms | None = None) -> dict[str, Any]:
     """modular_vector.stan's data (joint = 1 for koh_emulator)."""
@@ -143,11 +160,11 @@ def modular_vector_data(data: VectorCalibrationData, options: VectorOptions, emu
         # the truncation error at every value, plus the interpolation error off the runs' grid
         truncation_variance=basis.independent_variance_at(physical[data.output_index].to_numpy()),
         M=len(emulator.xt_runs), xt_runs=emulator.xt_runs,
-        run_weights=basis.weights(data.run_outputs),
+        run_weights=basis.weights(data.run_outputs) if emulator.run_weights is None else emulator.run_weights,
         emulator_alpha=np.column_stack([gp.alpha for gp in emulator.components]),
         M_variance=len(emulator.variance_runs), variance_runs=emulator.variance_runs + 1,
         emulator_mean=[h.mean for h in hyper], emulator_sd=[h.sd for h in hyper],
         emulator_length_scale=np.array([h.length_scale for h in hyper]),
-        emulator_nugget=[h.nugget for h in hyper],
+        emulator_nugget=[h.nugget for h in hyper], **fidelity_levels(emulator),
         index_new=data.scaling.to_unit(new_rows, data.output_index), output_mean_new=mean_new,
         components_new=components_new)
