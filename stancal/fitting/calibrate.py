@@ -13,7 +13,7 @@ import pandas as pd
 
 from stancal.fitting.approximation_checks import check_basis, check_emulator_variance
 from stancal.fitting.confounding import resolve_confounding
-from stancal.fitting.inits import spread_theta_inits
+from stancal.fitting.inits import fidelity_emulator_inits, spread_theta_inits
 from stancal.fitting.l2 import l2_result
 from stancal.fitting.parametrization_fallback import with_fallback
 from stancal.fitting.plan import Plan, model_options, plan_scalar
@@ -66,8 +66,12 @@ def _sample(stan_backend, flat: FlatProgram, data: CalibrationData, plan: Plan, 
                                              emulator_hyperparameters=emulator.get("hyperparameters")))
     if warm_start is not None and warm_start.related:  # from another program: what this one has in that shape
         warm_start = warm_start.fitted(stan_backend.parameter_shapes(flat, stan_json))
-    inits = warm_start.inits if warm_start is not None else spread_theta_inits(
-        sampler["chains"], len(data.parameters), np.random.default_rng(sampler["seed"]))
+    # a sampled multi-fidelity emulator starts at stage 1's estimates (none with one fidelity: no stage 1)
+    emulator_start = fidelity_emulator_inits(emulator.get("hyperparameters")) if plan.program.samples_emulator \
+        else {}
+    inits = warm_start.inits if warm_start is not None else [
+        {**start, **emulator_start} for start in spread_theta_inits(
+            sampler["chains"], len(data.parameters), np.random.default_rng(sampler["seed"]))]
     simulator, points = plan.simulator if plan.program.simulator else None, data.physical[data.inputs]
     check_simulator_at_start(stan_backend, flat, stan_json, inits, simulator, points)
     logger.info("sampling %s: %d chains x (%d warmup + %d draws) with %s",
