@@ -20,7 +20,7 @@ from stancal.fitting.plan import Plan, model_options, plan_scalar
 from stancal.fitting.postfit import check_fit, save_draws
 from stancal.fitting.seeds import command_seed
 from stancal.fitting.simulator_check import check_simulator_at_start, explained
-from stancal.fitting.stage_one import run_stage_one
+from stancal.fitting.stage_one import as_chain_starts, run_stage_one
 from stancal.numerics.quadrature import Quadrature, input_box_quadrature
 from stancal.problem.data import CalibrationData
 from stancal.problem.options import ModelOptions
@@ -254,6 +254,7 @@ def calibrate(
     emulator = plan.stage_one_result or run_stage_one(plan.stage_one, data, plan.options, programs,
                                                       backend=stan_backend, seed=seed) or {}
     stage_one_s = 0.0 if plan.stage_one_result else emulator.get("fit_s", 0.0)
+    emulator = as_chain_starts(emulator) if plan.program.samples_emulator else emulator
     # theta against the model's own terms (simulator or stage 1's emulator), before any sampling
     plan, confounding = resolve_confounding(plan, data, stan_backend, emulator)
     sampler = replace(sampling, seed=seed).keywords()
