@@ -7,7 +7,8 @@ level's GP and the scale sampled with k: the joint path), each fit's 90 %
 interval, its width against modular's, R-hat, divergences and times
 (docs/multifidelity.md).
 
-    STANCAL_CACHE=/work/clangstore nice -n 10 .venv/bin/python benchmarks/joint_fidelity_case_study.py [--methods ...]
+    STANCAL_CACHE=/work/clangstore nice -n 10 .venv/bin/python benchmarks/joint_fidelity_case_study.py \
+        [--methods ...] [--chains 4 --warmup 500 --draws 1000]
 """
 
 from __future__ import annotations
@@ -28,8 +29,8 @@ import stancal  # noqa: E402
 from stancal.problem.config import load_config  # noqa: E402
 
 
-def row(method: str, data: stancal.CalibrationData) -> dict:
-    result = stancal.calibrate(data, method=method, discrepancy="none", **SAMPLING)
+def row(method: str, data: stancal.CalibrationData, sampling: dict) -> dict:
+    result = stancal.calibrate(data, method=method, discrepancy="none", **sampling)
     k = np.asarray(result.idata["posterior"]["theta"]).reshape(-1)
     low, high = np.quantile(k, [0.05, 0.95])
     d = result.diagnostics
@@ -41,11 +42,14 @@ def row(method: str, data: stancal.CalibrationData) -> dict:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--methods", nargs="+", default=["modular", "koh_emulator"])
+    for name in ("chains", "warmup", "draws"):  # fewer than compare.py's: the joint fit's hour, shortened
+        parser.add_argument(f"--{name}", type=int, default=SAMPLING[name])
     args = parser.parse_args()
+    sampling = {**SAMPLING, "chains": args.chains, "warmup": args.warmup, "draws": args.draws}
     data = load_config(ROOT / "case_studies" / "cooling_fidelity" / "config.toml").data
     rows = []
     for method in args.methods:
-        rows.append(row(method, data))
+        rows.append(row(method, data, sampling))
         print(json.dumps(rows[-1]), flush=True)
     widths = {r["method"]: r["width_90"] for r in rows}
     if {"modular", "koh_emulator"} <= set(widths):
