@@ -15,7 +15,9 @@ two limits) and a functional theta(x) (the beam's E(temperature), 45 points);
 modular with two fidelities runs on case_studies/cooling_fidelity (28
 points, 150 cheap and 15 expensive runs, no discrepancy); with a cheap
 simulator's own theta_l (Goh et al. 2013) on tests/test_multifidelity_theta's
-design (12 points, 30 cheap runs over (t, a), 8 expensive over (t, k)).
+design (12 points, 30 cheap runs over (t, a), 8 expensive over (t, k)); koh_emulator with two
+fidelities, every level's GP sampled with theta, on tests/test_multifidelity's design (12 points, 40
+cheap and 6 expensive runs: the case study's 193 rows cost too much per gradient for 200 fits).
 The noise families (docs/noise.md) run on the cooling design with two
 instruments alternating over its rows (one noise sd each), with a known sd
 per row rising from 0.1 to 1 degC, or with Student-t noise (its mixture
@@ -49,6 +51,7 @@ sys.path.insert(0, str(ROOT / "tests"))
 import pandas as pd  # noqa: E402
 from conftest import COOLING, cooling_data  # noqa: E402
 from test_latent import BEAM, CENSORED, COUNTS, beam_data, censored_data, exact_counts  # noqa: E402
+from test_multifidelity import problem as fidelity_design  # noqa: E402
 from test_multifidelity_theta import problem as theta_low_design  # noqa: E402
 
 import stancal  # noqa: E402
@@ -104,7 +107,8 @@ DESIGNS = {"counts": lambda: exact_counts("poisson", seed=1), "binomial": binomi
            "two_sources": lambda: noise_design(source="instrument"), "known_sd": lambda: noise_design(noise_sd="sd"),
            "cooling": lambda: cooling_data(seed=7), "hetero_noise": hetero_design,
            "theta_low": theta_low_design, "stochastic_cooling": stochastic_design,
-           "cooling_fidelity": lambda: load_config(ROOT / "case_studies" / "cooling_fidelity" / "config.toml").data}
+           "cooling_fidelity": lambda: load_config(ROOT / "case_studies" / "cooling_fidelity" / "config.toml").data,
+           "fidelity_small": fidelity_design}
 LATENT = {
     "koh_latent_poisson": ("counts", {"simulator": COUNTS / "simulator.stan", "method": "koh", "discrepancy": "gp"}),
     "koh_latent_binomial": ("binomial", {"simulator": CENSORED / "simulator.stan", "method": "koh",
@@ -138,7 +142,9 @@ NOISE = {
                              ("modular", {"method": "modular", "discrepancy": "gp"}))},
 }
 FIDELITY = {"modular_multifidelity": ("cooling_fidelity", {"method": "modular", "discrepancy": "none"}),
-            "modular_multifidelity_theta_low": ("theta_low", {"method": "modular", "discrepancy": "none"})}
+            "modular_multifidelity_theta_low": ("theta_low", {"method": "modular", "discrepancy": "none"}),
+            # every level's GP sampled with theta (the joint path): the small two-level design, a fit a few seconds
+            "koh_emulator_multifidelity": ("fidelity_small", {"method": "koh_emulator", "discrepancy": "none"})}
 # every family: its design, then its calibrate() options
 FAMILIES = {
     "koh": ("cooling", {"simulator": SIMULATOR, "method": "koh", "discrepancy": "gp"}),

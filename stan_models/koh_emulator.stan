@@ -7,6 +7,11 @@
 //             plus b_s(x_i) for a reading by a biased source s (functions/source_bias.stan)
 //   f ~ GP(emulator_mean, ARD kernel over (x, theta)),
 //   delta = h(x_i, z_i)' beta + GP(0, ARD kernel) (H = 0 mean terms by default)
+// With runs of cheaper simulators too (L > 1 levels, cheapest first), f is the top
+// level of the autoregressive emulator f_1 = g_1, f_k = rho_k f_(k-1) + g_k
+// (Kennedy & O'Hagan 2000; functions/fidelity.stan): every level's GP g_k and
+// scale rho_k are sampled with theta, all runs of all levels and the readings in
+// one joint Gaussian likelihood (Goh et al. 2013). One level: the program above.
 // Inputs and theta are scaled to [0, 1]; outputs are standardised.
 functions {
 #include gp_kernels.stan
@@ -35,6 +40,8 @@ data {
   array[M] vector[D] x_sim;             // simulator inputs of the runs, scaled to [0, 1]
   array[M] vector[Q] theta_sim;         // theta of the runs, scaled to [0, 1] within its bounds
   vector[M] y_sim;                      // simulator output of the runs, standardised like y
+  int<lower=1> L;                       // fidelity levels of the runs: 1 = the calibrated simulator only
+  array[M] int<lower=1, upper=L> run_level;  // each run's level: 1 the cheapest, L the calibrated simulator
   real y_center;                        // original-scale y = y_center + y_scale * y
   real<lower=0> y_scale;                // see y_center
   vector[Q] theta_lower;                // lower bounds of theta, original units (uniform prior)
@@ -65,8 +72,6 @@ transformed data {
   array[M] vector[D + Q] xt_sim;
   for (j in 1:M) xt_sim[j] = append_row(x_sim[j], theta_sim[j]);
   vector[M + N] y_joint = append_row(y_sim, y);
-  matrix[M, 1] w_sim = rep_matrix(1, M, 1);  // one fidelity: every run on the one GP (fidelity.stan)
-  row_vector[1] w_top = [1];
   check_given_normals(P_normals, P);
 }
 parameters {
@@ -90,6 +95,12 @@ parameters {
   real<lower=0> emulator_nugget;
   array[n_biased] real<lower=0> bias_sd;                 // each biased source's bias GP marginal sd, standardised units
   array[n_biased, D] real<lower=0> bias_length_scale;    // its length scales: fraction of each input's range
+  // the cheaper levels (none with one fidelity), cheapest first; the emulator_* above are the top level's g_L
+  vector[L - 1] level_rho;                               // each level's scale on the level below, levels 2..L
+  vector[L - 1] low_emulator_mean;                       // the cheaper levels' GPs g_1..g_(L-1): constant means
+  vector<lower=0>[L - 1] low_emulator_sd;                // their marginal sds, standardised units
+  array[L - 1, D + Q] real<lower=0> low_emulator_length_scale;  // their length scales: inputs first, then theta
+  vector<lower=0>[L - 1] low_emulator_nugget;            // their nugget sds, standardised units
 }
 transformed parameters {
   // heteroscedastic: the log noise sd's GP at the distinct settings, before centring (functions/noise.stan)
@@ -116,22 +127,37 @@ model {
   emulator_sd ~ emulator_sd();                       // half-normal(0, 1)
   emulator_length_scale ~ emulator_length_scale();   // inverse gamma(2, 1)
   emulator_nugget ~ emulator_nugget();               // half-normal(0, 0.05)
+  level_rho ~ fidelity_scale();                      // normal(1, 0.5)
+  low_emulator_mean ~ emulator_mean();               // the cheaper levels' GPs: the emulator's priors
+  low_emulator_sd ~ emulator_sd();
+  to_array_1d(low_emulator_length_scale) ~ emulator_length_scale();
+  low_emulator_nugget ~ emulator_nugget();
   bias_sd ~ discrepancy_sd();                        // half-normal(0, 0.5), as delta's
   to_array_1d(bias_length_scale) ~ discrepancy_length_scale();  // inverse gamma(3, 1), as delta's
+  // every level's GP, cheapest first, and each run's weights on them (functions/fidelity.stan)
+  matrix[L, L] w_level = fidelity_weights(level_rho);
+  matrix[M, L] w_sim = w_level[run_level];
+  row_vector[L] w_top = w_level[L];
+  array[L] real level_sd = append_array(to_array_1d(low_emulator_sd), {emulator_sd});
+  array[L, D + Q] real level_length_scale = append_array(low_emulator_length_scale, {emulator_length_scale});
+  vector[M] run_nugget_sd = append_row(low_emulator_nugget, emulator_nugget)[run_level];
+  vector[M] run_mean = w_sim * append_row(low_emulator_mean, emulator_mean);
   if (prior_only) {
-    matrix[M, M] K_sim = emulator_run_cov(xt_sim, kernel_id, emulator_sd, emulator_length_scale,
-                                          emulator_nugget);
-    y_sim ~ multi_normal_cholesky(rep_vector(emulator_mean, M), cholesky_decompose(K_sim));
+    matrix[M, M] K_sim = fidelity_run_cov(xt_sim, w_sim, w_top, kernel_id, level_sd, level_length_scale,
+                                          run_nugget_sd);
+    y_sim ~ multi_normal_cholesky(run_mean, cholesky_decompose(K_sim));
   } else {
     matrix[M + N, M + N] K = koh_joint_cov(xt_sim, w_sim, append_theta(x, theta_unit), w_top, x_delta,
-                                           kernel_id, {emulator_sd}, {emulator_length_scale},
-                                           rep_vector(emulator_nugget, M), rho, delta_sd, delta_length_scale,
+                                           kernel_id, level_sd, level_length_scale,
+                                           run_nugget_sd, rho, delta_sd, delta_length_scale,
                                            weighted_noise_variance(row_noise_variance(noise_sd, source, known_sd,
                                                                                       noise_log_scale, noise_loc),
-                                                                   noise_weight),
-                                           // the biases' covariance among the physical rows (source_bias.stan)
-                                           source_bias_cov(x, bias_of, kernel_id, bias_sd, bias_length_scale));
-    vector[M + N] mu = append_row(rep_vector(emulator_mean, M), rho * emulator_mean + h * beta);
+                                                                   noise_weight));
+    if (n_biased > 0) {  // the biases' covariance among the physical rows (source_bias.stan)
+      K[(M + 1):(M + N), (M + 1):(M + N)] += source_bias_cov(x, bias_of, kernel_id, bias_sd, bias_length_scale);
+    }
+    vector[M + N] mu = append_row(run_mean, rho * (w_top * append_row(low_emulator_mean, emulator_mean))
+                                            + h * beta);
     y_joint ~ multi_normal_cholesky(mu, cholesky_decompose(K));
   }
 }
@@ -151,6 +177,14 @@ generated quantities {
   matrix[n_biased, P] bias_new = rep_matrix(0, n_biased, P);
   if (use_discrepancy) delta_sd_original[1] = delta_sd[1] * y_scale;
   {
+    // every level's GP and each run's weights, as in the model block
+    matrix[L, L] w_level = fidelity_weights(level_rho);
+    matrix[M, L] w_sim = w_level[run_level];
+    row_vector[L] w_top = w_level[L];
+    array[L] real level_sd = append_array(to_array_1d(low_emulator_sd), {emulator_sd});
+    array[L, D + Q] real level_length_scale = append_array(low_emulator_length_scale, {emulator_length_scale});
+    vector[M] run_nugget_sd = append_row(low_emulator_nugget, emulator_nugget)[run_level];
+    vector[L] level_mean = append_row(low_emulator_mean, emulator_mean);
     vector[N] noise_var = row_noise_variance(noise_sd, source, known_sd, noise_log_scale, noise_loc);
     // the biases' covariances among the rows and at the prediction points, drawn jointly with f and delta
     // (source_bias.stan; koh_joint.stan)
@@ -161,8 +195,8 @@ generated quantities {
           vector[n_biased * P]) q
       = koh_joint_quantities_rng(y_sim, y, xt_sim, x, theta_unit, x_delta, h, beta, x_new, x_delta_new,
                                  h_new, normals_new, prior_only, kernel_id, w_sim, rep_matrix(w_top, N),
-                                 rep_matrix(w_top, P), {emulator_mean},
-                                 {emulator_sd}, {emulator_length_scale}, rep_vector(emulator_nugget, M),
+                                 rep_matrix(w_top, P), to_array_1d(level_mean),
+                                 level_sd, level_length_scale, run_nugget_sd,
                                  rho, delta_sd, delta_length_scale, weighted_noise_variance(noise_var, noise_weight),
                                  rep_matrix(0, N, N), bias, source_bias_normals_rng(bias_normals_new, n_biased, P),
                                  y_center, y_scale);

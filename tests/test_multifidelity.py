@@ -158,8 +158,9 @@ def test_the_default_method_with_low_fidelity_runs_is_modular_and_says_so(caplog
         plan = plan_scalar(problem(low=10, high=4))
     assert plan.name == "modular" and plan.fidelities == 2 and plan.stage_one == "fidelity_emulator"
     assert "multi-fidelity" in caplog.text
-    with pytest.raises(ValueError, match="method 'koh_emulator' does not take low-fidelity runs; modular"):
-        plan_scalar(problem(low=10, high=4), method="koh_emulator")
+    with pytest.raises(ValueError, match="method 'modular_hsgp' does not take low-fidelity runs; the methods "
+                                         "koh_emulator, modular take them"):
+        plan_scalar(problem(low=10, high=4), method="modular", options=model_options(approximation="hsgp"))
     assert plan_scalar(problem(low=10, high=4), simulator="any.stan", method="koh").fidelities == 1  # no runs used
     with pytest.raises(ValueError, match="squared exponential kernel only"):
         plan_scalar(problem(low=10, high=4), options=model_options(

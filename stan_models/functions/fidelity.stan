@@ -126,3 +126,20 @@ matrix fidelity_run_cov(array[] vector xt_sim, matrix w_sim, row_vector w_top, i
   return add_jitter(add_diag(fidelity_cov(xt_sim, w_sim, kernel_id, level_sd, level_length_scale),
                              square(run_nugget_sd)), fidelity_variance(w_top, level_sd));
 }
+
+/**
+ * Prior for the scales between fidelities when they are sampled with theta
+ * (koh_emulator.stan; Kennedy & O'Hagan 2000, section 3): normal(1, 0.5).
+ * Every level's runs are standardised on one scale, so a cheap simulator
+ * that follows the expensive one has rho_k near 1; sd 0.5 lets the runs
+ * move it anywhere in about (0, 2) and keeps a negative scale possible, not
+ * likely. Not centred on stage 1's estimate, which the same runs made. Here
+ * beside the weights it scales, not in priors.stan, so that only the
+ * programs of several fidelities include it.
+ *
+ * @param rho each level's scale on the level below
+ * @return log density
+ */
+real fidelity_scale_lpdf(vector rho) {
+  return normal_lupdf(rho | 1, 0.5);
+}

@@ -13,14 +13,14 @@ import pandas as pd
 
 from stancal.fitting.approximation_checks import check_basis, check_emulator_variance
 from stancal.fitting.confounding import resolve_confounding
-from stancal.fitting.inits import spread_theta_inits
+from stancal.fitting.inits import fidelity_emulator_inits, spread_theta_inits
 from stancal.fitting.l2 import l2_result
 from stancal.fitting.parametrization_fallback import with_fallback
 from stancal.fitting.plan import Plan, model_options, plan_scalar
 from stancal.fitting.postfit import check_fit, save_draws
 from stancal.fitting.seeds import command_seed
 from stancal.fitting.simulator_check import check_simulator_at_start, explained
-from stancal.fitting.stage_one import run_stage_one
+from stancal.fitting.stage_one import as_chain_starts, run_stage_one
 from stancal.numerics.quadrature import Quadrature, input_box_quadrature
 from stancal.problem.data import CalibrationData
 from stancal.problem.options import ModelOptions
@@ -66,8 +66,12 @@ def _sample(stan_backend, flat: FlatProgram, data: CalibrationData, plan: Plan, 
                                              emulator_hyperparameters=emulator.get("hyperparameters")))
     if warm_start is not None and warm_start.related:  # from another program: what this one has in that shape
         warm_start = warm_start.fitted(stan_backend.parameter_shapes(flat, stan_json))
-    inits = warm_start.inits if warm_start is not None else spread_theta_inits(
-        sampler["chains"], len(data.parameters), np.random.default_rng(sampler["seed"]))
+    # a sampled multi-fidelity emulator starts at stage 1's estimates (none with one fidelity: no stage 1)
+    emulator_start = fidelity_emulator_inits(emulator.get("hyperparameters")) if plan.program.samples_emulator \
+        else {}
+    inits = warm_start.inits if warm_start is not None else [
+        {**start, **emulator_start} for start in spread_theta_inits(
+            sampler["chains"], len(data.parameters), np.random.default_rng(sampler["seed"]))]
     simulator, points = plan.simulator if plan.program.simulator else None, data.physical[data.inputs]
     check_simulator_at_start(stan_backend, flat, stan_json, inits, simulator, points)
     logger.info("sampling %s: %d chains x (%d warmup + %d draws) with %s",
@@ -250,6 +254,7 @@ def calibrate(
     emulator = plan.stage_one_result or run_stage_one(plan.stage_one, data, plan.options, programs,
                                                       backend=stan_backend, seed=seed) or {}
     stage_one_s = 0.0 if plan.stage_one_result else emulator.get("fit_s", 0.0)
+    emulator = as_chain_starts(emulator) if plan.program.samples_emulator else emulator
     # theta against the model's own terms (simulator or stage 1's emulator), before any sampling
     plan, confounding = resolve_confounding(plan, data, stan_backend, emulator)
     sampler = replace(sampling, seed=seed).keywords()

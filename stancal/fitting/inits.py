@@ -36,6 +36,31 @@ def theta_unit_init(values: dict[str, float], bounds: dict[str, tuple[float, flo
     return {"theta_unit": unit}
 
 
+# a sampled emulator's nugget starts no nearer 0 than this (standardised units): stage 1's mode can sit at
+# 1e-6, thirteen log units from the bulk of its half-normal(0, 0.05) prior, which warmup then has to cross
+NUGGET_START_FLOOR = 1e-3
+
+
+def fidelity_emulator_inits(hyperparameters: dict[str, Any] | None) -> dict[str, Any]:
+    """Where koh_emulator's sampled multi-fidelity emulator starts: at stage
+    1's estimates, level by level (Le Gratiet & Garnier 2014), the top
+    level's as emulator_*, the cheaper ones' as low_emulator_*, each level's
+    scale on the one below as level_rho. Empty without stage 1's levels
+    (one fidelity: Stan's own inits, as before)."""
+    levels = (hyperparameters or {}).get("levels")
+    if not levels:
+        return {}
+
+    def start(level: dict[str, Any]) -> dict[str, Any]:
+        return {"emulator_mean": float(level["emulator_mean"]), "emulator_sd": float(level["emulator_sd"]),
+                "emulator_length_scale": [float(v) for v in level["emulator_length_scale"]],
+                "emulator_nugget": max(float(level["emulator_nugget"]), NUGGET_START_FLOOR)}
+
+    top, low = start(levels[-1]), [start(level) for level in levels[:-1]]
+    return {**top, "level_rho": [float(level["rho"]) for level in levels[1:]],
+            **{f"low_{name}": [level[name] for level in low] for name in top}}
+
+
 # L-BFGS runs before sampling: at least this many, one per stratum of theta's box (spread_theta_inits), so that
 # two chains do not depend on two starts (on Neddermeyer both spread chains stopped in corner modes)
 START_OPTIMA = 8

@@ -274,13 +274,37 @@ def _check_fidelities(data: CalibrationData | VectorCalibrationData, chosen: Pro
         return
     if chosen.stage_one_fidelities is None:
         takes = [p.name for p in fidelity_programs(chosen.output)]
-        raise ValueError(f"method '{chosen.name}' does not take low-fidelity runs; {', '.join(takes)} does "
-                         f"(review section 8.3), or leave [simulator.low_fidelity] out")
+        raise ValueError(f"method '{chosen.name}' does not take low-fidelity runs; the methods {', '.join(takes)} "
+                         f"take them (review section 8.3), or leave [simulator.low_fidelity] out")
     if options.kernel != "se":
         raise ValueError(f"low-fidelity runs: the multi-fidelity emulator has the squared exponential kernel "
                          f"only; got kernel '{options.kernel}'")
+    _check_fidelity_forms(data, chosen)
     logger.info("%d low-fidelity run set(s): the emulator is multi-fidelity (Kennedy & O'Hagan 2000), method "
                 "'%s'%s", data.fidelities - 1, chosen.name, "" if method else " (the default with them)")
+
+
+def _check_fidelity_forms(data: CalibrationData, chosen: Program) -> None:
+    """What of the multi-fidelity emulator the chosen program takes (the
+    registry's fidelity_* fields): the scale's form, a cheap level's own
+    theta_l and the number of runs, each refusal one line naming the key and
+    the programs that take it, before anything compiles."""
+    def taking(can) -> str:
+        return ", ".join(p.name for p in fidelity_programs(chosen.output) if can(p))
+
+    if data.low_fidelity_rho not in chosen.fidelity_rho:
+        raise ValueError(f"[simulator.low_fidelity] rho = {data.low_fidelity_rho!r}: method '{chosen.name}' "
+                         f"samples a scale of form {', '.join(chosen.fidelity_rho)} only; use method "
+                         f"{taking(lambda p: data.low_fidelity_rho in p.fidelity_rho)}, or rho = \"constant\"")
+    if data.theta_low_names and not chosen.fidelity_theta_low:
+        raise ValueError(f"[simulator.low_fidelity.theta] (the cheap simulator's own {data.theta_low_names}): "
+                         f"method '{chosen.name}' does not take it; use method "
+                         f"{taking(lambda p: p.fidelity_theta_low)}")
+    runs = sum(len(r) for r in data.runs_by_fidelity())
+    if chosen.fidelity_run_limit is not None and runs > chosen.fidelity_run_limit:
+        raise ValueError(f"method '{chosen.name}' samples every level's emulator with theta for at most "
+                         f"{chosen.fidelity_run_limit} runs of all fidelities; these are {runs}: use method "
+                         f"{taking(lambda p: p.fidelity_run_limit is None)} (stage 1's hyperparameters, fixed)")
 
 
 def _stochastic_base(data: CalibrationData, simulator, method: str | None, options: ModelOptions,

@@ -83,6 +83,21 @@ def run_stage_one(kind: str | None, data, options, programs: list[FlatProgram], 
     raise ValueError(f"unknown stage 1 {kind!r}")
 
 
+def as_chain_starts(emulator: dict[str, Any]) -> dict[str, Any]:
+    """Stage 1 of a program that samples the emulator with theta
+    (koh_emulator's joint path): its levels only start the chains
+    (fitting.inits.fidelity_emulator_inits), so its top level's variance
+    factor, a plug-in's, does not enter the fit; the description says so."""
+    if "level_rho" not in emulator:
+        return emulator
+    kept = {k: v for k, v in emulator.items() if k not in ("top_level_variance_factor",
+                                                             "top_level_variance_error_ratio")}
+    return {**kept, "stage1": (f"multi-fidelity, the joint path: {len(emulator['hyperparameters']['levels'])} "
+                               "levels, every level's GP and scale sampled with theta (Kennedy & O'Hagan 2000; "
+                               "Goh et al. 2013); the chains start at stage 1's estimates, level by level "
+                               "at their posterior mode")}
+
+
 def fit_emulator(data: CalibrationData, options: ModelOptions, program: FlatProgram, *, backend,
                  seed: int) -> dict[str, Any]:
     """Stage 1 of modular calibration: the emulator's hyperparameters at the

@@ -47,6 +47,12 @@ class Program:
     runs: bool = False  # needs simulator runs
     stage_one: str | None = None  # see STAGE_ONE_*
     stage_one_fidelities: str | None = None  # stage 1 with cheaper simulators' runs too (None: one fidelity only)
+    # with cheaper simulators' runs: the most runs of all levels it takes (None: any number; the default
+    # with them is a program without a limit), the forms of the scale between levels, and whether a cheap
+    # level may have its own theta_l (Goh et al. 2013)
+    fidelity_run_limit: int | None = None
+    fidelity_rho: tuple[str, ...] = ("constant", "linear")
+    fidelity_theta_low: bool = True
     latent: bool = False  # latent GPs at the data: counts, binomial, censored, functional theta
     approximation: str = "exact"  # exact | hsgp
     discrepancies: tuple[str, ...] = ("gp", "none")
@@ -82,6 +88,10 @@ class Program:
         return path if path.is_absolute() else shipped_models_dir() / path
 
 
+# koh_emulator with cheaper simulators' runs: every gradient factorises the joint covariance of all
+# runs and readings, with one kernel and its gradients per level (docs/multifidelity.md measures the cost)
+JOINT_FIDELITY_RUN_LIMIT = 200
+
 _SCALAR = frozenset({GAP, COMPARE, SBC})
 _GAUSSIAN = (sd.common_data, sd.gaussian_outputs)
 _NOISY = {"noises": NOISES, "known_noise_sd": True}  # the exact Gaussian programs: functions/noise.stan
@@ -95,8 +105,11 @@ PROGRAMS: dict[str, Program] = {program.name: program for program in (
                                                sd.restricted_discrepancy), commands=_SCALAR | {L2}, **_NOISY),
     Program("koh_emulator", "koh_emulator.stan", "full KOH: emulator and calibration in one joint GP",
             runs=True, latent_version="koh_latent_emulator", scalable_version="modular_hsgp",
-            data=(*_GAUSSIAN, *_NOISE_DATA, sd.emulator_inputs), samples_emulator=True, commands=_SCALAR | {L2},
-            **_NOISY),
+            # with cheaper simulators' runs, stage 1's estimates start the chains; every level's GP is sampled
+            stage_one_fidelities=STAGE_ONE_FIDELITY, fidelity_run_limit=JOINT_FIDELITY_RUN_LIMIT,
+            fidelity_rho=("constant",), fidelity_theta_low=False,
+            data=(*_GAUSSIAN, *_NOISE_DATA, sd.sampled_fidelity_runs), samples_emulator=True,
+            commands=_SCALAR | {L2}, **_NOISY),
     Program("emulator", "emulator.stan", "GP emulator of simulator runs (stage 1 of modular)", runs=True,
             helper=True),
     Program("modular", "modular.stan", "modular KOH: stage 2 with the stage-1 emulator fixed", runs=True,
@@ -193,10 +206,11 @@ def for_method(method: str, output: str) -> Program:
 def default_program(output: str, *, simulator: bool, fidelities: int = 1) -> Program:
     """koh with a Stan simulator, else the runs' default: koh_emulator for a
     scalar output, modular for a vector one; with runs of cheaper simulators
-    too, the first of those that takes them."""
+    too, the first of those that takes them at any number of runs."""
     chosen = for_method("koh" if simulator else "koh_emulator" if output == "scalar" else "modular", output)
-    if fidelities > 1 and chosen.stage_one_fidelities is None and not simulator:
-        return fidelity_programs(output)[0]
+    if fidelities > 1 and not simulator and (chosen.stage_one_fidelities is None
+                                             or chosen.fidelity_run_limit is not None):
+        return [p for p in fidelity_programs(output) if p.fidelity_run_limit is None][0]
     return chosen
 
 

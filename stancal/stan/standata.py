@@ -200,17 +200,30 @@ def fidelity_emulator(inputs: StanInputs) -> dict[str, Any]:
     runs = (theta_low_runs(data, levels[-1].get("theta_low_unit")) if data.theta_low_names
             else fidelity_run_data(data))
     cheaper = sum(r["M"] for r in runs[:-1])  # a stochastic simulator is the calibrated one: its runs come last
-    return {"M": sum(r["M"] for r in runs), "L": len(runs),
+    return {**stacked_runs(runs),
             "run_intrinsic_sd": np.concatenate([np.zeros(cheaper),
                                                 np.sqrt(run_intrinsic_variance(data, inputs.emulator))]),
-            "x_sim": np.vstack([r["x_sim"] for r in runs]),
-            "theta_sim": np.vstack([r["theta_sim"] for r in runs]),
-            "y_sim": np.concatenate([r["y_sim"] for r in runs]),
-            "run_level": np.concatenate([np.full(r["M"], k + 1) for k, r in enumerate(runs)]),
             "level_rho": [float(level["rho"]) for level in levels[1:]],
             "level_rho_slope": rho_slope_matrix(levels, len(data.inputs)),
             **theta_low_bounds(data),
             **{name: [level[name] for level in levels] for name in EMULATOR_HYPERPARAMETERS}}
+
+
+def stacked_runs(runs: list[dict[str, Any]]) -> dict[str, Any]:
+    """Every level's runs (emulator_run_data's, cheapest first) stacked, each
+    run with its level: the runs of functions/fidelity.stan's programs."""
+    return {"M": sum(r["M"] for r in runs), "L": len(runs),
+            "x_sim": np.vstack([r["x_sim"] for r in runs]),
+            "theta_sim": np.vstack([r["theta_sim"] for r in runs]),
+            "y_sim": np.concatenate([r["y_sim"] for r in runs]),
+            "run_level": np.concatenate([np.full(r["M"], k + 1) for k, r in enumerate(runs)])}
+
+
+def sampled_fidelity_runs(inputs: StanInputs) -> dict[str, Any]:
+    """koh_emulator.stan's runs: every simulator's, cheapest first, each with
+    its level, and the points; every level's GP and scale are its parameters
+    (one level: the calibrated simulator's runs, as emulator_inputs gives them)."""
+    return {**stacked_runs(fidelity_run_data(inputs.data)), **emulator_points(inputs)}
 
 
 def rho_slope_matrix(levels: list[dict[str, Any]], inputs: int) -> np.ndarray:
