@@ -158,9 +158,15 @@ def test_the_default_method_with_low_fidelity_runs_is_modular_and_says_so(caplog
         plan = plan_scalar(problem(low=10, high=4))
     assert plan.name == "modular" and plan.fidelities == 2 and plan.stage_one == "fidelity_emulator"
     assert "multi-fidelity" in caplog.text
-    with pytest.raises(ValueError, match="method 'modular_hsgp' does not take low-fidelity runs; the methods "
-                                         "koh_emulator, modular take them"):
+    with pytest.raises(ValueError, match="approximation 'hsgp' does not support low-fidelity runs"):
         plan_scalar(problem(low=10, high=4), method="modular", options=model_options(approximation="hsgp"))
+    # above the exact programs' size limit the scalable handover is refused by name, not taken and then
+    # refused for its lack of fidelities with advice that could not work (every fidelity program is exact)
+    with pytest.raises(ValueError, match="the scalable programs do not support low-fidelity runs.*"
+                                         "approximation = 'exact'"):
+        plan_scalar(problem(low=1000, high=4), method="modular")
+    with pytest.raises(ValueError, match="for at most 200 runs of all fidelities; these are 1004: use method modular"):
+        plan_scalar(problem(low=1000, high=4), method="koh_emulator", options=model_options(approximation="exact"))
     assert plan_scalar(problem(low=10, high=4), simulator="any.stan", method="koh").fidelities == 1  # no runs used
     with pytest.raises(ValueError, match="squared exponential kernel only"):
         plan_scalar(problem(low=10, high=4), options=model_options(

@@ -214,8 +214,10 @@ def _recovers(result) -> None:
 @pytest.mark.parametrize("method", ["modular", pytest.param("koh_emulator", marks=pytest.mark.slow)])
 def test_the_runs_programs_take_no_inputs_and_recover_the_truth(method):
     """inputs = []: the emulator is a GP over (k, Ta, T0) only. Known noise
-    0.3, no discrepancy; 2 x (500 + 500) draws for modular (at 2 x (300 +
-    300) R-hat reached 1.011), 2 x (1000 + 1000) for koh_emulator: since
+    0.3, no discrepancy; 2 x (500 + 1000) draws for modular (at 2 x (300 +
+    300) R-hat reached 1.011; at 2 x (500 + 500) it passed on one machine and
+    reached 1.013 on T0[shot2] on another, the same seed on another
+    floating-point path), 2 x (1000 + 1000) for koh_emulator: since
     the weight GPs' nugget enters the experiments' covariance too, the
     joint fit's weakest length scale (component 4's over Ta) mixes slower:
     at 2 x (500 + 500) R-hat sat at the bar (1.017 on it, and 1.009 once
@@ -229,9 +231,9 @@ def test_the_runs_programs_take_no_inputs_and_recover_the_truth(method):
     from stancal.fitting.vector_calibrate import calibrate_vector
 
     data = no_input_data(runs=True)
-    length = {"modular": 500, "koh_emulator": 1000}[method]
-    result = calibrate_vector(data, method=method, discrepancy="none", noise="known", chains=2, warmup=length,
-                              draws=length, seed=2)
+    warmup, draws = {"modular": (500, 1000), "koh_emulator": (1000, 1000)}[method]
+    result = calibrate_vector(data, method=method, discrepancy="none", noise="known", chains=2, warmup=warmup,
+                              draws=draws, seed=2)
     assert result.method == {"modular": "modular_vector", "koh_emulator": "koh_emulator_vector"}[method]
     assert_healthy(result)
     _recovers(result)

@@ -248,6 +248,7 @@ def _scalable_version(data: CalibrationData, base: Program, options: ModelOption
          options.discrepancy not in scalable.discrepancies),
         (("covariates in the discrepancy (a Hilbert-space basis vanishes at its boundary, so it cannot "
          "switch a covariate off)"), options.has_discrepancy and len(data.discrepancy_inputs) > len(data.inputs)),
+        ("low-fidelity runs", data.fidelities > 1 and base.runs and scalable.stage_one_fidelities is None),
     ) if present]
     if options.approximation == "hsgp":
         if obstacles:
@@ -274,12 +275,14 @@ def _check_fidelities(data: CalibrationData | VectorCalibrationData, chosen: Pro
         return
     if chosen.stage_one_fidelities is None:
         takes = [p.name for p in fidelity_programs(chosen.output)]
-        raise ValueError(f"method '{chosen.name}' does not take low-fidelity runs; the methods {', '.join(takes)} "
-                         f"take them (review section 8.3), or leave [simulator.low_fidelity] out")
+        raise ValueError(f"method '{chosen.name}' does not take low-fidelity runs; {' or '.join(takes)} "
+                         f"{'does' if len(takes) == 1 else 'do'} (review section 8.3), or leave "
+                         f"[simulator.low_fidelity] out")
     if options.kernel != "se":
         raise ValueError(f"low-fidelity runs: the multi-fidelity emulator has the squared exponential kernel "
                          f"only; got kernel '{options.kernel}'")
-    _check_fidelity_forms(data, chosen)
+    if isinstance(data, CalibrationData):  # a vector output's forms are checked with its data (VectorCalibrationData)
+        _check_fidelity_forms(data, chosen)
     logger.info("%d low-fidelity run set(s): the emulator is multi-fidelity (Kennedy & O'Hagan 2000), method "
                 "'%s'%s", data.fidelities - 1, chosen.name, "" if method else " (the default with them)")
 
