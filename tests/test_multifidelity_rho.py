@@ -210,6 +210,8 @@ def test_the_summary_and_report_give_rho_over_the_inputs():
     constant = [levels[0], mf.Level(h, 0.4, np.zeros((3, 2)), np.zeros(3))]
     assert rho_of_inputs(data, constant) == {}
     assert rho_lines({"level_rho": [0.4]}) == ["- each level's scale on the one below: 0.4"]
+    # the joint path samples rho: the number shown is stage 1's start, and the line says so
+    assert "at stage 1 (the chains' start" in rho_lines({"level_rho": [0.4], "rho_sampled": True})[0]
 
 
 @pytest.fixture(scope="module")

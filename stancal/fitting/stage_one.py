@@ -92,7 +92,8 @@ def as_chain_starts(emulator: dict[str, Any]) -> dict[str, Any]:
         return emulator
     kept = {k: v for k, v in emulator.items() if k not in ("top_level_variance_factor",
                                                              "top_level_variance_error_ratio")}
-    return {**kept, "stage1": (f"multi-fidelity, the joint path: {len(emulator['hyperparameters']['levels'])} "
+    levels = len(emulator["hyperparameters"]["levels"])
+    return {**kept, "rho_sampled": True, "stage1": (f"multi-fidelity, the joint path: {levels} "
                                "levels, every level's GP and scale sampled with theta (Kennedy & O'Hagan 2000; "
                                "Goh et al. 2013); the chains start at stage 1's estimates, level by level "
                                "at their posterior mode")}

@@ -100,7 +100,10 @@ def rho_lines(emulator: dict) -> list[str]:
     """Each level's scale on the one below: a number, or a linear rho(x)'s
     coefficients, range and profile along each input (Le Gratiet & Garnier 2014)."""
     if "level_rho_slope" not in emulator:
-        return [f"- each level's scale on the one below: {', '.join(f'{r:.3g}' for r in emulator['level_rho'])}"]
+        where = (" at stage 1 (the chains' start: the fit samples it, level_rho in the posterior)"
+                 if emulator.get("rho_sampled") else "")
+        values = ", ".join(f"{r:.3g}" for r in emulator["level_rho"])
+        return [f"- each level's scale on the one below{where}: {values}"]
     lines = []
     for k, (rho, slopes, (low, high), profile) in enumerate(zip(
             emulator["level_rho"], emulator["level_rho_slope"], emulator["level_rho_range"],
