@@ -147,6 +147,7 @@ def _assert_same(there, here, where: str = "gap.json") -> None:
         assert there == here, where
 
 
+@pytest.mark.slow  # the default run's 12-minute budget (docs/validation.md)
 def test_gap_on_stock_workers_that_lose_one_matches_the_local_run(cluster, tmp_path):
     """A gap diagnosis on a cluster of stock `dask worker`s (daemonic, with a
     nanny, several threads), whose first worker is killed once the first fit

@@ -91,6 +91,7 @@ def by_name(summary):
 
 
 # ---- cooling: the withheld effect is a simulator variant ---------------------
+@pytest.mark.slow  # the default run's 12-minute budget (docs/validation.md)
 def test_cooling_withheld_effect_ranks_first_and_shrinks_the_gap(cooling_gap):
     summary, out = cooling_gap
     assert_gap_json_healthy(summary, out)
@@ -105,6 +106,7 @@ def test_cooling_withheld_effect_ranks_first_and_shrinks_the_gap(cooling_gap):
         assert cands[decoy]["shrinkage"]["mean"] < 0.2, decoy
 
 
+@pytest.mark.slow  # the default run's 12-minute budget (docs/validation.md)
 def test_cooling_theta_moves_to_the_truth(cooling_gap):
     summary, _ = cooling_gap
     assert_gap_json_healthy(summary)
@@ -116,6 +118,7 @@ def test_cooling_theta_moves_to_the_truth(cooling_gap):
     assert c["q05"] < 4e-4 < c["q95"]
 
 
+@pytest.mark.slow  # the default run's 12-minute budget (docs/validation.md)
 def test_cooling_where(cooling_gap):
     summary, _ = cooling_gap
     assert_gap_json_healthy(summary)
@@ -128,6 +131,7 @@ def test_cooling_where(cooling_gap):
     assert any(r["from"] <= 55 <= r["to"] for r in t_regions)
 
 
+@pytest.mark.slow  # the default run's 12-minute budget (docs/validation.md)
 def test_cooling_report_folder(cooling_gap):
     summary, out = cooling_gap
     for name in ("gap.json", "report.md", "report.html", "importance.png", "where.png", "candidates.png",

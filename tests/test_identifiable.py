@@ -270,6 +270,7 @@ def least_squares_k(physical: pd.DataFrame) -> float:
     return float(k_ls)
 
 
+@pytest.mark.slow  # the default run's 12-minute budget (docs/validation.md)
 def test_l2_from_simulator_runs_uses_the_emulator(exact_cooling_data):
     """Without a Stan simulator, L2 projects koh_emulator's zeta onto the
     emulator's mean: its interval holds the least-squares k (0.05047, 3 se

@@ -71,6 +71,7 @@ def test_koh_vector_posterior_matches_quadrature():
     np.testing.assert_allclose(log_lik, norm.logpdf(p["T"].to_numpy(), f, p["sd"].to_numpy()), rtol=1e-6)
 
 
+@pytest.mark.slow  # the default run's 12-minute budget (docs/validation.md)
 def test_the_cli_calibrates_the_cooling_curves_by_koh_and_by_modular(tmp_path):
     # health not asserted: 2 x 150 draws check the config contract (files and fields), no statistics
     """The issue's config contract with both a Stan simulator and runs: koh
@@ -142,6 +143,7 @@ def wind_gap(tmp_path_factory):
     return json.loads((out / "gap.json").read_text()), out
 
 
+@pytest.mark.slow  # the default run's 12-minute budget (docs/validation.md)
 def test_vector_gap_finds_the_withheld_draught(wind_gap):
     """Proof 2: the forced-convection variant ranks first with shrinkage
     above 0.5; the decoys (humidity, probe depth) stay below 0.2; k's error
@@ -162,6 +164,7 @@ def test_vector_gap_finds_the_withheld_draught(wind_gap):
     assert (out / "report.md").is_file() and (out / "baseline" / "curves.png").is_file()
 
 
+@pytest.mark.slow  # the default run's 12-minute budget (docs/validation.md)
 def test_vector_gap_locates_the_draught_along_time_and_wind(wind_gap):
     """Where: the gap depends on wind and time, not on humidity or probe
     depth. Fitted without the draught, k settles between the calm and the
