@@ -204,8 +204,9 @@ def fit_vector_fidelity_emulator(data: VectorCalibrationData, seed: int) -> Vect
                     "simulator's runs %.3g with the cheaper runs, %.3g without (standardised weights); its own GP's "
                     "variance times %.3g", c + 1, gp.value.rho_text(), gp.value.loo_with, gp.value.loo_without,
                     gp.variance_factor_applied)
-    if emulator.fidelity_warning():  # the scalar path's warning, at the components that matter
-        logger.warning("%s", emulator.fidelity_warning())
+    warning = emulator.fidelity_warning()  # the scalar path's warning, at the components that matter
+    if warning:
+        logger.warning("%s", warning)
     return emulator
 
 

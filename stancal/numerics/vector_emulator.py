@@ -201,7 +201,7 @@ class VectorEmulator:
         variance; None with one fidelity."""
         if self.fidelities == 1:
             return None
-        fitted = [gp for gp in self.components if isinstance(gp, FidelityComponentGP) and gp.value is not None]
+        fitted = self._fitted_fidelity_components()
         return {"levels": self.fidelities,
                 "level_rho": [gp.value.rho for gp in fitted],
                 "loo_rmse": [gp.value.loo_with for gp in fitted],
@@ -209,12 +209,16 @@ class VectorEmulator:
                 "top_level_variance_factor": [gp.variance_factor_applied for gp in fitted],
                 "warning": self.fidelity_warning()}
 
+    def _fitted_fidelity_components(self) -> list[FidelityComponentGP]:
+        """The components whose multi-fidelity fit measured the cheaper runs' value."""
+        return [gp for gp in self.components if isinstance(gp, FidelityComponentGP) and gp.value is not None]
+
     def fidelity_warning(self) -> str | None:
         """One line when the cheaper runs do not help (issue 34, item 4): at
         the components that carry at least MATERIAL_SHARE of the runs'
         variance and are not helped (CheapRunsValue.warning), or at every
         component when none is helped; None with one fidelity or otherwise."""
-        values = [gp.value for gp in self.components if isinstance(gp, FidelityComponentGP) and gp.value is not None]
+        values = [gp.value for gp in self._fitted_fidelity_components()]
         if not values:
             return None
         share = self.basis.explained
