@@ -119,7 +119,7 @@ def test_koh_emulator_takes_low_fidelity_runs_when_asked_and_modular_stays_the_d
 
 def test_the_joint_path_refuses_a_linear_rho_and_too_many_runs_in_one_line():
     with pytest.raises(ValueError, match=r"^\[simulator.low_fidelity\] rho = 'linear': method 'koh_emulator' "
-                                         r"samples a scale of form constant only; use method modular"):
+                                         r"takes a scale of form constant only; use method modular"):
         plan_scalar(problem(low=10, high=8, low_fidelity_rho="linear"), method="koh_emulator")
     many = problem(low=JOINT_FIDELITY_RUN_LIMIT - 3, high=4)
     with pytest.raises(ValueError, match=rf"at most {JOINT_FIDELITY_RUN_LIMIT} runs of all fidelities; these are "

@@ -270,9 +270,18 @@ def test_the_program_itself_rejects_the_joint_switch_with_cheap_runs(nested_prob
         get_backend().log_density_functions(plan.main_program(), to_stan_json(stan_data))
 
 
-def test_a_linear_rho_is_refused_for_a_vector_output():
-    with pytest.raises(DataError, match=r"low_fidelity_rho 'linear' \(\[simulator.low_fidelity\] rho\)"):
-        problem(low=20, high=8, low_fidelity_rho="linear")
+def test_a_linear_rho_is_refused_for_a_vector_output_by_the_registry():
+    """The registry says which scale forms a program takes (fidelity_rho),
+    for vector outputs as for scalars: the plan refuses, in one line, before
+    anything compiles; the data hold the form like the scalar data."""
+    from stancal.fitting.plan import plan_vector
+
+    data = problem(low=20, high=8, low_fidelity_rho="linear")
+    assert data.low_fidelity_rho == "linear" and data.theta_low_names == [] and data.run_count() == 28
+    with pytest.raises(ValueError, match=r"^\[simulator.low_fidelity\] rho = 'linear': method 'modular_vector' "
+                                         r"takes a scale of form constant only; no method takes 'linear' for a "
+                                         r"vector output yet: use rho = \"constant\"$"):
+        plan_vector(data, None, "modular")
 
 
 def test_cheap_runs_need_the_calibrated_simulators_runs():

@@ -230,7 +230,7 @@ def _latent_parametrization(data: CalibrationData, chosen: Program, options: Mod
 def dense_size(data: CalibrationData, program: Program) -> int:
     """The size of the dense matrix the exact program factorises at every
     gradient: the points, plus the runs for an emulator."""
-    runs = sum(len(r) for r in data.runs_by_fidelity()) if program.runs else 0
+    runs = data.run_count() if program.runs else 0
     return len(data.physical) + runs
 
 
@@ -281,33 +281,37 @@ def _check_fidelities(data: CalibrationData | VectorCalibrationData, chosen: Pro
     if options.kernel != "se":
         raise ValueError(f"low-fidelity runs: the multi-fidelity emulator has the squared exponential kernel "
                          f"only; got kernel '{options.kernel}'")
-    if isinstance(data, CalibrationData):  # a vector output's forms are checked with its data (VectorCalibrationData)
-        _check_fidelity_forms(data, chosen)
+    _check_fidelity_forms(data, chosen)
     logger.info("%d low-fidelity run set(s): the emulator is multi-fidelity (Kennedy & O'Hagan 2000), method "
                 "'%s'%s", data.fidelities - 1, chosen.name, "" if method else " (the default with them)")
 
 
-def _check_fidelity_forms(data: CalibrationData, chosen: Program) -> None:
+def _check_fidelity_forms(data: CalibrationData | VectorCalibrationData, chosen: Program) -> None:
     """What of the multi-fidelity emulator the chosen program takes (the
     registry's fidelity_* fields): the scale's form, a cheap level's own
     theta_l and the number of runs, each refusal one line naming the key and
     the programs that take it, before anything compiles."""
-    def taking(can) -> str:
-        return ", ".join(p.name for p in fidelity_programs(chosen.output) if can(p))
+    def instead(what: str, can, fallback: str = "") -> str:
+        takers = ", ".join(p.name for p in fidelity_programs(chosen.output) if can(p))
+        if takers:
+            return f"use method {takers}" + (f", or {fallback}" if fallback else "")
+        return f"no method takes {what} for a {chosen.output} output yet" + (f": use {fallback}" if fallback else "")
 
-    if data.low_fidelity_rho not in chosen.fidelity_rho:
-        raise ValueError(f"[simulator.low_fidelity] rho = {data.low_fidelity_rho!r}: method '{chosen.name}' "
-                         f"samples a scale of form {', '.join(chosen.fidelity_rho)} only; use method "
-                         f"{taking(lambda p: data.low_fidelity_rho in p.fidelity_rho)}, or rho = \"constant\"")
+    rho = data.low_fidelity_rho
+    if rho not in chosen.fidelity_rho:
+        raise ValueError(f"[simulator.low_fidelity] rho = {rho!r}: method '{chosen.name}' takes a scale of form "
+                         f"{', '.join(chosen.fidelity_rho)} only; "
+                         f"{instead(repr(rho), lambda p: rho in p.fidelity_rho, 'rho = \"constant\"')}")
     if data.theta_low_names and not chosen.fidelity_theta_low:
         raise ValueError(f"[simulator.low_fidelity.theta] (the cheap simulator's own {data.theta_low_names}): "
-                         f"method '{chosen.name}' does not take it; use method "
-                         f"{taking(lambda p: p.fidelity_theta_low)}")
-    runs = sum(len(r) for r in data.runs_by_fidelity())
+                         f"method '{chosen.name}' does not take it; "
+                         f"{instead('theta_l', lambda p: p.fidelity_theta_low)}")
+    runs = data.run_count()
     if chosen.fidelity_run_limit is not None and runs > chosen.fidelity_run_limit:
         raise ValueError(f"method '{chosen.name}' samples every level's emulator with theta for at most "
-                         f"{chosen.fidelity_run_limit} runs of all fidelities; these are {runs}: use method "
-                         f"{taking(lambda p: p.fidelity_run_limit is None)} (stage 1's hyperparameters, fixed)")
+                         f"{chosen.fidelity_run_limit} runs of all fidelities; these are {runs}: "
+                         f"{instead('them', lambda p: p.fidelity_run_limit is None)} (stage 1's hyperparameters, "
+                         f"fixed)")
 
 
 def _stochastic_base(data: CalibrationData, simulator, method: str | None, options: ModelOptions,

@@ -460,6 +460,10 @@ class CalibrationData:
         """Every simulator's runs, cheapest first, the calibrated one's last."""
         return [*self.low_fidelity_runs, *([] if self.runs is None else [self.runs])]
 
+    def run_count(self) -> int:
+        """Runs of every fidelity."""
+        return sum(len(r) for r in self.runs_by_fidelity())
+
     def _check_runs_on_link_scale(self, table: pd.DataFrame) -> None:
         """The runs' output is the simulator's mean: it must lie where the link is defined."""
         link = LINKS[self.observations.likelihood]

@@ -22,6 +22,7 @@ from stancal.problem.data import (
     simulators_runs,
     warn_outside_runs,
 )
+from stancal.problem.fidelity_rho import check_low_fidelity_rho
 from stancal.problem.output_basis import DEFAULT_VARIANCE_SHARE, OutputBasis
 from stancal.problem.validation import DataError, described
 from stancal.problem.validation import row_labels as _rows
@@ -124,7 +125,9 @@ class VectorCalibrationData:
             self.basis = OutputBasis.from_runs(grid, self.run_outputs, variance_share, components)
             self._check_indices_on_grid()
         self.low_fidelity_runs, self.low_fidelity_settings, self.low_fidelity_weights = self._check_low_fidelity(
-            low_fidelity_runs, low_fidelity_rho)
+            low_fidelity_runs)
+        # which forms a program takes is the registry's (stancal.fitting.plan), as for scalar outputs
+        self.low_fidelity_rho = check_low_fidelity_rho(low_fidelity_rho, len(self.low_fidelity_runs), False)
         self.scaling = self._scaling()
 
     @property
@@ -136,7 +139,16 @@ class VectorCalibrationData:
         """How many simulators of the process have runs: 1, or more with low-fidelity runs."""
         return 1 + len(self.low_fidelity_runs)
 
-    def _check_low_fidelity(self, given: list[pd.DataFrame], rho: str
+    @property
+    def theta_low_names(self) -> list[str]:
+        """The cheapest simulator's own theta_l: none, a vector output's levels share theta."""
+        return []
+
+    def run_count(self) -> int:
+        """Runs of every fidelity (a run is one curve, many rows)."""
+        return sum(len(s) for s in [*self.low_fidelity_settings, *([] if self.runs is None else [self.run_settings])])
+
+    def _check_low_fidelity(self, given: list[pd.DataFrame]
                             ) -> tuple[list[pd.DataFrame], list[pd.DataFrame], list[np.ndarray]]:
         """Each cheaper level's runs checked as the runs are, their settings
         (one row per run) and their weights on the calibrated simulator's
@@ -146,9 +158,6 @@ class VectorCalibrationData:
         if self.basis is None:
             raise DataError("low-fidelity runs need the runs of the simulator being calibrated (runs = ...): "
                             "the basis and the emulator's top level come from them")
-        if rho != "constant":
-            raise DataError(f"low_fidelity_rho {rho!r} ([simulator.low_fidelity] rho): a vector output's "
-                            f"multi-fidelity emulator takes a constant rho only")
         checked = [self._check_runs(runs, "low-fidelity runs", warn=False) for runs in given]
         return ([table for table, _, _, _ in checked], [settings for _, settings, _, _ in checked],
                 [self.basis.project(grid, outputs) for _, _, outputs, grid in checked])
