@@ -32,7 +32,7 @@ from dataclasses import replace
 import numpy as np
 from scipy import optimize
 
-from stancal.numerics.multifidelity import Level, level_objective, mean_function
+from stancal.numerics.multifidelity import Level, level_objective, mean_function, rho_start
 from stancal.numerics.scalable_emulator import Hyperparameters, fit_hyperparameters, pack, unpack
 
 INACTIVE = 1e10  # a length scale whose squared-exponential factor is exactly 1 over the unit cube
@@ -97,8 +97,8 @@ def _theta_low_starts(q_low: int) -> list[np.ndarray]:
 
 
 def _slope(below: np.ndarray, y: np.ndarray) -> float:
-    """rho's start: y's regression on the level below (1 where that is constant)."""
-    return float(np.polyfit(below, y, 1)[0]) if np.ptp(below) > 0 else 1.0
+    """rho's start: y's regression on the level below, with an intercept (1 where that is constant)."""
+    return float(rho_start(y, below[:, None])[0])
 
 
 def _from_start(objective, start: np.ndarray, y: np.ndarray, below: np.ndarray, h: Hyperparameters):
