@@ -211,3 +211,32 @@ def test_a_mode_beyond_the_runs_is_named_and_the_heaviest_one_warned_of():
     with pytest.warns(InputRangeWarning, match="theta's posterior lies beyond the simulator runs: k 1.964 above"):
         report(beyond_runs([mode(1.964, 0.5, None)], runs))
     assert beyond_runs([mode(1.964, 0.5, None)], None)[0].beyond_runs == []
+
+
+def test_a_mode_held_by_one_chain_gets_the_r_hat_the_health_check_gives_it():
+    """A mode one chain found (the multi-fidelity coverage study's seed 13:
+    weight 0.003 at the box's edge) has a split R-hat of its own, which the
+    fit's health check takes over the chain's two halves. theta_summary
+    reported R-hat over the heavy mode alone (ArviZ gives one chain NaN,
+    which max() dropped or kept by the order of the modes): the same R-hat
+    in both, whatever the order."""
+    import xarray as xr
+
+    from stancal.results.diagnostics import check_sampler
+    from stancal.results.modes import Mode
+    from stancal.results.summaries import theta_summary
+
+    rng = np.random.default_rng(3)
+    theta = rng.normal(1.2, 0.05, (4, 400, 1))
+    theta[1] = 1.95 + 0.02 * rng.standard_normal((400, 1)) + np.linspace(0, 0.03, 400)[:, None]  # drifts
+    posterior = xr.Dataset({"theta": (("chain", "draw", "theta_dim_0"), theta)},
+                           coords={"chain": range(4), "draw": range(400), "theta_dim_0": ["k"]})
+    stats = xr.Dataset({"energy": (("chain", "draw"), rng.normal(size=(4, 400))),
+                        "diverging": (("chain", "draw"), np.zeros((4, 400), bool)),
+                        "tree_depth": (("chain", "draw"), np.full((4, 400), 3))})
+    mode = {"theta_mean": {}, "theta_q05": {}, "theta_q95": {}, "mean_log_density": 0.0}
+    heavy, light = Mode([0, 2, 3], weight=0.997, **mode), Mode([1], weight=0.003, **mode)
+    health = check_sampler(posterior, stats, 10, ["theta"], [[0, 2, 3], [1]])
+    assert health.max_rhat > 1.01  # the drifting chain's halves disagree
+    for modes in ([heavy, light], [light, heavy]):
+        assert theta_summary(posterior, modes, ["k"])["k"]["rhat"] == pytest.approx(health.max_rhat)

@@ -58,9 +58,9 @@ def _bfmi(energy: np.ndarray) -> np.ndarray:
     return np.square(np.diff(energy, axis=1)).mean(axis=1) / np.var(energy, axis=1)
 
 
-def _as_chains(posterior: xr.Dataset, chains: list[int]) -> xr.Dataset:
-    """The given chains; a single chain as its two halves, so that R-hat
-    still compares the start of the chain with its end."""
+def as_chains(posterior: xr.Dataset, chains: list[int]) -> xr.Dataset:
+    """The given chains (a theta mode's); a single chain as its two halves,
+    so that R-hat still compares the start of the chain with its end."""
     if len(chains) > 1:
         return posterior.isel(chain=chains)
     half = posterior.sizes["draw"] // 2
@@ -105,11 +105,11 @@ def check_sampler(posterior: xr.Dataset, sample_stats: xr.Dataset, max_treedepth
 
     chains = posterior.sizes["chain"]
     groups = modes if modes and len(modes) > 1 else [list(range(chains))]
-    rhat = xr.concat([ast.rhat(_as_chains(posterior[parameters], group)) for group in groups],
+    rhat = xr.concat([ast.rhat(as_chains(posterior[parameters], group)) for group in groups],
                      dim="mode").max("mode")
     # the modes' draws are independent samples of their parts of the posterior: their ESS add up
-    ess_bulk = sum(ast.ess(_as_chains(posterior[parameters], group), method="bulk") for group in groups)
-    ess_tail = sum(ast.ess(_as_chains(posterior[parameters], group), method="tail") for group in groups)
+    ess_bulk = sum(ast.ess(as_chains(posterior[parameters], group), method="bulk") for group in groups)
+    ess_tail = sum(ast.ess(as_chains(posterior[parameters], group), method="tail") for group in groups)
     max_rhat, worst_rhat = _extreme(rhat, largest=True)
     min_bulk, worst_bulk = _extreme(ess_bulk, largest=False)
     min_tail, worst_tail = _extreme(ess_tail, largest=False)

@@ -9,6 +9,7 @@ import numpy as np
 import pandas as pd
 import xarray as xr
 
+from stancal.results.diagnostics import as_chains
 from stancal.results.modes import Mode
 
 QUANTILES = (0.05, 0.5, 0.95)
@@ -77,6 +78,8 @@ def theta_summary(posterior: xr.Dataset, modes: list[Mode], theta_names: list[st
     ESS the smallest); masses unknown, that of the first mode; never the
     chains blended. ``variable``: another parameter vector summarised the
     same way (theta_low, a cheap simulator's own theta_l)."""
+    import arviz_stats as ast
+
     keys = ("mean", "sd", "q05", "q50", "q95", "rhat", "ess_bulk")
     if len(modes) > 1 and modes[0].weight is not None:
         theta = np.asarray(posterior[variable])  # (chain, draw, theta)
@@ -84,13 +87,15 @@ def theta_summary(posterior: xr.Dataset, modes: list[Mode], theta_names: list[st
         weights = np.concatenate([np.full(len(m.chains) * theta.shape[1], m.weight / (len(m.chains) * theta.shape[1]))
                                   for m in modes])
         per_mode = [posterior_table(posterior[[variable]].isel(chain=m.chains)) for m in modes]
+        # R-hat within each mode as the health check takes it (a mode of one chain: its two halves)
+        rhat = np.max([np.asarray(ast.rhat(as_chains(posterior[[variable]], m.chains))[variable]) for m in modes], 0)
         out = {}
         for j, name in enumerate(theta_names):
             mean = float(weights @ draws[:, j])
             sd = float(np.sqrt(weights @ (draws[:, j] - mean) ** 2))
             label = f"{variable}[{name}]"
             out[name] = dict(zip(keys, [mean, sd, *weighted_quantiles(draws[:, j], weights, QUANTILES),
-                                        max(float(t.loc[label, "rhat"]) for t in per_mode),
+                                        float(rhat[j]),
                                         min(float(t.loc[label, "ess_bulk"]) for t in per_mode)], strict=True))
         return out
     if len(modes) > 1:  # masses unknown (see modes.report)
