@@ -224,7 +224,7 @@ def test_a_mode_held_by_one_chain_gets_the_r_hat_the_health_check_gives_it():
 
     from stancal.results.diagnostics import check_sampler
     from stancal.results.modes import Mode
-    from stancal.results.summaries import theta_summary
+    from stancal.results.summaries import summary_by_mode, theta_summary
 
     rng = np.random.default_rng(3)
     theta = rng.normal(1.2, 0.05, (4, 400, 1))
@@ -240,3 +240,5 @@ def test_a_mode_held_by_one_chain_gets_the_r_hat_the_health_check_gives_it():
     assert health.max_rhat > 1.01  # the drifting chain's halves disagree
     for modes in ([heavy, light], [light, heavy]):
         assert theta_summary(posterior, modes, ["k"])["k"]["rhat"] == pytest.approx(health.max_rhat)
+    table = summary_by_mode(posterior, [heavy, light])  # the summary's block of the one-chain mode too
+    assert table.loc["theta[k]", "rhat"].max() == pytest.approx(health.max_rhat)

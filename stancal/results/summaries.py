@@ -59,12 +59,13 @@ def posterior_table(posterior: xr.Dataset) -> pd.DataFrame:
 
 def summary_by_mode(posterior: xr.Dataset, modes: list[Mode]) -> pd.DataFrame:
     """posterior_table, with several theta modes one block per mode
-    (columns ``mode`` and ``weight``)."""
+    (columns ``mode`` and ``weight``); a mode one chain holds is read as
+    its two halves, so its R-hat is the health check's (check_sampler)."""
     if len(modes) <= 1:
         return posterior_table(posterior)
     blocks = []
     for k, mode in enumerate(modes, start=1):
-        block = posterior_table(posterior.isel(chain=mode.chains))
+        block = posterior_table(as_chains(posterior, mode.chains))  # R-hat as the health check takes it
         block.insert(0, "weight", np.nan if mode.weight is None else mode.weight)
         block.insert(0, "mode", k)
         blocks.append(block)
@@ -78,24 +79,20 @@ def theta_summary(posterior: xr.Dataset, modes: list[Mode], theta_names: list[st
     ESS the smallest); masses unknown, that of the first mode; never the
     chains blended. ``variable``: another parameter vector summarised the
     same way (theta_low, a cheap simulator's own theta_l)."""
-    import arviz_stats as ast
-
     keys = ("mean", "sd", "q05", "q50", "q95", "rhat", "ess_bulk")
     if len(modes) > 1 and modes[0].weight is not None:
         theta = np.asarray(posterior[variable])  # (chain, draw, theta)
         draws = np.concatenate([theta[m.chains].reshape(-1, theta.shape[-1]) for m in modes])
         weights = np.concatenate([np.full(len(m.chains) * theta.shape[1], m.weight / (len(m.chains) * theta.shape[1]))
                                   for m in modes])
-        per_mode = [posterior_table(posterior[[variable]].isel(chain=m.chains)) for m in modes]
-        # R-hat within each mode as the health check takes it (a mode of one chain: its two halves)
-        rhat = np.max([np.asarray(ast.rhat(as_chains(posterior[[variable]], m.chains))[variable]) for m in modes], 0)
+        per_mode = [posterior_table(as_chains(posterior[[variable]], m.chains)) for m in modes]
         out = {}
         for j, name in enumerate(theta_names):
             mean = float(weights @ draws[:, j])
             sd = float(np.sqrt(weights @ (draws[:, j] - mean) ** 2))
             label = f"{variable}[{name}]"
             out[name] = dict(zip(keys, [mean, sd, *weighted_quantiles(draws[:, j], weights, QUANTILES),
-                                        float(rhat[j]),
+                                        max(float(t.loc[label, "rhat"]) for t in per_mode),
                                         min(float(t.loc[label, "ess_bulk"]) for t in per_mode)], strict=True))
         return out
     if len(modes) > 1:  # masses unknown (see modes.report)
