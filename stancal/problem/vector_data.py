@@ -215,6 +215,21 @@ class VectorCalibrationData:
         and so the basis, are unchanged."""
         return self._rebuilt(self.source.iloc[list(rows)], self.runs)
 
+    def with_output(self, y: np.ndarray) -> VectorCalibrationData:
+        """The same problem with other measured values (simulated ones, one per
+        row of ``physical`` in its order) and this problem's scaling kept, as
+        CalibrationData.with_output: a fit of simulated data must standardise
+        as the simulation did (the runs, and so the basis, are unchanged)."""
+        y = np.asarray(y, float)
+        if y.shape != (len(self.physical),):
+            raise ValueError(f"with_output: {len(self.physical)} values needed (one per measured value); "
+                             f"got shape {y.shape}")
+        source = self.source.copy()
+        source[self.output] = y
+        other = self._rebuilt(source, self.runs)
+        other.scaling = self.scaling
+        return other
+
     def with_runs(self, runs: pd.DataFrame) -> VectorCalibrationData:
         """The same problem with other simulator runs (a long table, as ``runs``),
         its basis made again from them."""

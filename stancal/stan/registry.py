@@ -140,7 +140,7 @@ PROGRAMS: dict[str, Program] = {program.name: program for program in (
             "modular KOH for a vector output: one emulator GP per basis component, ragged experiments",
             output="vector", methods=("modular",), runs=True, stage_one=STAGE_ONE_BASIS,
             stage_one_fidelities=STAGE_ONE_BASIS_FIDELITY, kernels=("se",),
-            estimate_rho=False, data=(vd.basis_emulator, vd.modular_weights), commands=frozenset({GAP, DESIGN}),
+            estimate_rho=False, data=(vd.basis_emulator, vd.modular_weights), commands=frozenset({GAP, DESIGN, SBC}),
             starts_at_modes=True),
     Program("koh_emulator_vector", "modular_vector.stan",
             "koh_emulator for a vector output: the basis weights' GP hyperparameters sampled with theta",
