@@ -135,7 +135,7 @@ PROGRAMS: dict[str, Program] = {program.name: program for program in (
     Program("koh_vector", "koh_vector.stan",
             "KOH for a vector output with a cheap Stan simulator, ragged experiments", output="vector",
             methods=("koh",), simulator=True, estimate_rho=False, data=(vd.simulator_at_values,),
-            commands=frozenset({GAP})),
+            commands=frozenset({GAP, SBC})),
     Program("modular_vector", "modular_vector.stan",
             "modular KOH for a vector output: one emulator GP per basis component, ragged experiments",
             output="vector", methods=("modular",), runs=True, stage_one=STAGE_ONE_BASIS,
