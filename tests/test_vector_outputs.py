@@ -244,9 +244,9 @@ def test_component_emulator_predicts_held_out_curves_within_its_bands():
 
 # ---- modular_vector.stan against a quadrature of the same posterior ---------
 
-def log_density_reference(stan_data: dict, emulator, theta_unit: np.ndarray) -> float:
-    """modular_vector.stan's log likelihood (no discrepancy, known noise) at
-    one shared theta, in numpy: the reference the sampler is checked against."""
+def moments_reference(stan_data: dict, emulator, theta_unit: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """modular_vector.stan's mean and covariance of the standardised values
+    (no discrepancy, known noise) at one shared theta, in numpy."""
     points = np.column_stack([np.asarray(stan_data["x"]), np.tile(theta_unit, (stan_data["E"], 1))])
     experiment = np.asarray(stan_data["experiment"]) - 1
     components = np.asarray(stan_data["components"])
@@ -257,6 +257,13 @@ def log_density_reference(stan_data: dict, emulator, theta_unit: np.ndarray) -> 
         mu += components[:, c] * mean[experiment]
         K += components[:, c, None] * cov[np.ix_(experiment, experiment)] * components[None, :, c]
     K[np.diag_indices_from(K)] += 1e-6 * max(gp.prior_variance for gp in emulator.components)  # add_jitter's
+    return mu, K
+
+
+def log_density_reference(stan_data: dict, emulator, theta_unit: np.ndarray) -> float:
+    """modular_vector.stan's log likelihood (no discrepancy, known noise) at
+    one shared theta, in numpy: the reference the sampler is checked against."""
+    mu, K = moments_reference(stan_data, emulator, theta_unit)
     L = np.linalg.cholesky(K)
     z = np.linalg.solve(L, np.asarray(stan_data["y"]) - mu)
     return float(-0.5 * z @ z - np.log(np.diag(L)).sum())

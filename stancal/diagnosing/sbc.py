@@ -14,6 +14,13 @@ independent; censored outputs are censored as the data were
 standardisation: the programs' priors live on the standardised scale, so
 re-standardising each simulated data set would fit a different prior from
 the one simulated.
+
+A vector output (VectorCalibrationData) goes the same way through
+calibrate_vector: its y_rep are the replicated readings at each
+experiment's output indices, put into a copy of the data by
+VectorCalibrationData.with_output. The registry's commands say which
+programs SBC takes (Program.commands); the others are refused before
+anything compiles.
 """
 
 from __future__ import annotations
@@ -30,15 +37,20 @@ from stancal.diagnosing.sbc_ranks import Uniformity, fractional_ranks, rank_of, 
 from stancal.fitting.calibrate import calibrate
 from stancal.fitting.cluster import FitFailure, FitRunner, FitTask, fit_runner
 from stancal.fitting.confounding import stage_one_emulator
-from stancal.fitting.plan import make_plan, model_keywords
+from stancal.fitting.plan import Plan, make_plan, model_keywords
 from stancal.fitting.resume import Resume, keep_whole, write_json
 from stancal.fitting.seeds import fit_seed
+from stancal.fitting.vector_calibrate import calibrate_vector, prediction_rows
 from stancal.problem import advice
 from stancal.problem.data import CalibrationData
 from stancal.problem.sampling import SamplerOptions
+from stancal.problem.vector_data import VectorCalibrationData
 from stancal.results.result import CalibrationResult
+from stancal.results.vector_result import VectorCalibrationResult
 from stancal.stan.backends import get_backend
+from stancal.stan.registry import SBC, STAGE_ONE_BASIS, STAGE_ONE_BASIS_FIDELITY, commands_taking
 from stancal.stan.standata import build_stan_data, to_stan_json
+from stancal.stan.vector_standata import build_vector_stan_data
 
 PRIOR_THINNING = 5  # prior draws kept: every 5th of one long chain
 SBC_CHAINS, SBC_WARMUP = 2, 300  # each fit's defaults: many fits, each of a small posterior
@@ -89,26 +101,36 @@ def _thinned(values: np.ndarray, count: int) -> np.ndarray:
     return values[np.linspace(0, len(values) - 1, count).round().astype(int)]
 
 
-def log_likelihood_draws(fit: CalibrationResult) -> np.ndarray:
+def log_likelihood_draws(fit: CalibrationResult | VectorCalibrationResult) -> np.ndarray:
     """The fit program's log-likelihood (its log_lik summed over the
     observations) at every posterior draw."""
     return np.asarray(fit.idata["log_likelihood"]["y"]).reshape(-1, len(fit.data.physical)).sum(1)
 
 
-def log_likelihood_at(fit: CalibrationResult, parameters: dict[str, np.ndarray],
+def _fit_stan_data(fit: CalibrationResult | VectorCalibrationResult, functional_parametrization: str | None,
+                   discrepancy_parametrization: str | None) -> dict[str, Any]:
+    """The Stan data of a fit's program on its data: a vector output's with
+    one prediction row per experiment (only log_lik is read), a scalar
+    output's with its prediction points and the given parametrisations."""
+    if isinstance(fit, VectorCalibrationResult):
+        return build_vector_stan_data(fit.data, fit.row.data, fit.options, prediction_rows(fit.data, 1), fit.emulator)
+    points = fit.idata["predictions_constant_data"].to_dataset().to_dataframe().reset_index(drop=True)
+    options = replace(fit.options, functional_parametrization=functional_parametrization
+                      or fit.options.functional_parametrization,
+                      discrepancy_parametrization=discrepancy_parametrization
+                      or fit.options.discrepancy_parametrization)
+    return build_stan_data(fit.data, fit.row.data, options, points,
+                           emulator_hyperparameters=fit.emulator.get("hyperparameters"))
+
+
+def log_likelihood_at(fit: CalibrationResult | VectorCalibrationResult, parameters: dict[str, np.ndarray],
                        functional_parametrization: str | None = None,
                        discrepancy_parametrization: str | None = None) -> float:
     """The same log-likelihood on the fit's data at the program's own
     ``parameters`` (one draw, in ``functional_parametrization`` and
     ``discrepancy_parametrization`` if given: the prior's, which a fit may
     have left), through its generated quantities."""
-    points = fit.idata["predictions_constant_data"].to_dataset().to_dataframe().reset_index(drop=True)
-    options = replace(fit.options, functional_parametrization=functional_parametrization
-                      or fit.options.functional_parametrization,
-                      discrepancy_parametrization=discrepancy_parametrization
-                      or fit.options.discrepancy_parametrization)
-    stan_data = build_stan_data(fit.data, fit.row.data, options, points,
-                                emulator_hyperparameters=fit.emulator.get("hyperparameters"))
+    stan_data = _fit_stan_data(fit, functional_parametrization, discrepancy_parametrization)
     draws = get_backend(fit.backend).generate_quantities(
         fit.program, to_stan_json(stan_data), {k: np.asarray(v)[None, None] for k, v in parameters.items()}, seed=1)
     return float(draws["log_lik"].sum())
@@ -125,16 +147,17 @@ def functional_parametrizations(calibrate_options: dict[str, Any]) -> tuple[str 
     return "non_centred", calibrate_options.get("functional_parametrization", "non_centred")
 
 
-def simulated_ranks(data: CalibrationData, truth: dict[str, float], truth_parameters: dict[str, np.ndarray],
-                    draws_per_fit: int, prior_parametrization: str | None = None,
-                    prior_discrepancy: str | None = None, out_dir: str | Path | None = None,
+def simulated_ranks(data: CalibrationData | VectorCalibrationData, truth: dict[str, float],
+                    truth_parameters: dict[str, np.ndarray], draws_per_fit: int,
+                    prior_parametrization: str | None = None, prior_discrepancy: str | None = None,
+                    out_dir: str | Path | None = None,
                     **calibrate_options: Any) -> dict[str, int]:
     """Fit one simulated data set and rank each true value among L evenly
     thinned posterior draws, and the log-likelihood at the truth among its
     values at those draws (run where the fit runs: only ranks travel back).
     In ``out_dir``, beside the fit: the truth (TRUTH) and the thinned draws
     each was ranked among (RANKED_DRAWS), so that a rank can be checked."""
-    fit = calibrate(data, out_dir=out_dir, **calibrate_options)
+    fit = _calibrate_for(data)(data, out_dir=out_dir, **calibrate_options)
     posterior = _scalars(fit.idata["posterior"].to_dataset())
     at_truth = {name: value for name, value in truth.items() if name in posterior}
     at_truth[LOG_LIKELIHOOD] = log_likelihood_at(fit, truth_parameters, prior_parametrization, prior_discrepancy)
@@ -169,8 +192,38 @@ def _sampling(calibrate_options: dict[str, Any], seed: int | None, draws_per_fit
     return sampling
 
 
+def _calibrate_for(data: CalibrationData | VectorCalibrationData):
+    """The calibration of the data's output kind: calibrate, or calibrate_vector."""
+    return calibrate_vector if isinstance(data, VectorCalibrationData) else calibrate
+
+
+def _require_sbc(plan: Plan) -> None:
+    """Refuse, before anything compiles, a program the registry does not let SBC take."""
+    if SBC not in plan.program.commands:
+        takers = commands_taking(SBC, plan.program.output)
+        raise ValueError(f"simulation-based calibration does not take program '{plan.name}' yet; for a "
+                         f"{plan.program.output} output it takes {', '.join(takers) or 'none'}")
+
+
+def _stage_one_from_runs(plan: Plan) -> bool:
+    """Stage 1 reads the runs alone, which the simulations share: the GP and
+    multi-fidelity emulators (stage_one_emulator) and a vector output's basis
+    emulators (one GP per component weight of the runs, of one fidelity or several)."""
+    return stage_one_emulator(plan) or plan.stage_one in (STAGE_ONE_BASIS, STAGE_ONE_BASIS_FIDELITY)
+
+
+def _prior_draws(prior_fit, simulations: int, values: int) -> tuple[dict, dict, np.ndarray]:
+    """S evenly thinned draws of the prior run: every scalar component, the
+    program's own parameters, and the replicated outputs (``values`` each)."""
+    prior = {k: _thinned(v, simulations) for k, v in _scalars(prior_fit.idata["prior"].to_dataset()).items()}
+    parameters = {k: _thinned(np.asarray(v).reshape(v.shape[0] * v.shape[1], *v.shape[2:]), simulations)
+                  for k, v in prior_fit.idata["prior_stan_parameters"].data_vars.items()}
+    replicated = np.asarray(prior_fit.idata["prior_predictive"]["y"]).reshape(-1, values)
+    return prior, parameters, _thinned(replicated, simulations)
+
+
 def simulation_based_calibration(
-    data: CalibrationData,
+    data: CalibrationData | VectorCalibrationData,
     *,
     simulator: str | Path | None = None,
     method: str | None = None,
@@ -183,8 +236,10 @@ def simulation_based_calibration(
     scheduler: str | FitRunner | None = None,
     **calibrate_options: Any,
 ) -> SBCResult:
-    """SBC of the program ``calibrate`` runs on ``data`` (the design: its
-    inputs and covariates; its outputs are replaced by simulated ones).
+    """SBC of the program ``calibrate`` (``calibrate_vector`` for a
+    VectorCalibrationData) runs on ``data`` (the design: its inputs and
+    covariates, a vector output's experiments and output indices; its outputs
+    are replaced by simulated ones).
     ``program``: fit with this program instead (e.g. a deliberately wrong
     copy) while simulating from the method's own. Each fit keeps
     ``draws_per_fit`` draws, evenly thinned from 2 x draws_per_fit per chain.
@@ -197,44 +252,52 @@ def simulation_based_calibration(
     Every fit reuses the prior run's stage 1 where it reads the runs alone
     (the emulator's hyperparameters, which the simulations share), so it fits
     the program its data were simulated from, at a fraction of the cost: the
-    SBC then checks stage 2 given stage 1, not stage 1's own randomness."""
+    SBC then checks stage 2 given stage 1, not stage 1's own randomness.
+    A program the registry does not let SBC take is refused before anything compiles."""
     sampling = _sampling(calibrate_options, seed, draws_per_fit)
-    resume = Resume(out_dir, seed)  # a rerun into the same folder reuses the simulations it finished
-    seed = resume.seed
     started = time.perf_counter()
     chains, warmup, per_chain = sampling.chains, sampling.warmup, sampling.draws
     prior_parametrization, fit_parametrization = functional_parametrizations(calibrate_options)
-    prior_options = dict(calibrate_options)
+    vector = isinstance(data, VectorCalibrationData)
+    model = model_keywords(calibrate_options, vector=vector)  # the plan's; the prior run's below
+    prior_model = dict(model)
     if fit_parametrization:
-        calibrate_options["functional_parametrization"] = fit_parametrization
-        prior_options["functional_parametrization"] = prior_parametrization
-    # a latent discrepancy's prior without data: non-centred (centred is a funnel there)
-    prior_options["discrepancy_parametrization"] = "non_centred"
-    prior_fit = calibrate(data, simulator=simulator, method=method, prior=True, chains=1, warmup=warmup,
-                          draws=PRIOR_THINNING * simulations, seed=seed, **prior_options)
+        model["functional_parametrization"] = fit_parametrization
+        prior_model["functional_parametrization"] = prior_parametrization
+    if not vector:  # a latent discrepancy's prior without data: non-centred (centred is a funnel there)
+        prior_model["discrepancy_parametrization"] = "non_centred"
     # one plan for every fit (simulated data sets share the design): its programs' code is part of each
     # fit's fingerprint
-    plan = make_plan(data, simulator, method, program, **model_keywords(calibrate_options, vector=False))
-    # the simulations share the runs, so a stage 1 from the runs alone (stage_one_emulator: not the scalable
-    # one, which reads y) is the prior's: each fit conditions on the hyperparameters its data were simulated with
-    reused = prior_fit.emulator if stage_one_emulator(plan) and prior_fit.emulator else None
+    plan = make_plan(data, simulator, method, program, **model)
+    _require_sbc(plan)  # before the output folder is written to, and before anything compiles
+    resume = Resume(out_dir, seed)  # a rerun into the same folder reuses the simulations it finished
+    seed = resume.seed
+    prior_fit = _calibrate_for(data)(data, simulator=simulator, method=method, prior=True, chains=1, warmup=warmup,
+                                     draws=PRIOR_THINNING * simulations, seed=seed,
+                                     **calibrate_options, **prior_model)
+    # the simulations share the runs, so a stage 1 from the runs alone (not the scalable one, which reads y)
+    # is the prior's: each fit conditions on the hyperparameters its data were simulated with
+    reused = prior_fit.emulator if _stage_one_from_runs(plan) and prior_fit.emulator else None
     plan = replace(plan, stage_one_result=reused)
-    prior = {k: _thinned(v, simulations) for k, v in _scalars(prior_fit.idata["prior"].to_dataset()).items()}
-    prior_parameters = {k: _thinned(np.asarray(v).reshape(v.shape[0] * v.shape[1], *v.shape[2:]), simulations)
-                        for k, v in prior_fit.idata["prior_stan_parameters"].data_vars.items()}
-    replicated = np.asarray(prior_fit.idata["prior_predictive"]["y"]).reshape(-1, len(data.physical))
-    replicated = _thinned(replicated, simulations)
+    prior, prior_parameters, replicated = _prior_draws(prior_fit, simulations, len(data.physical))
+    prior_discrepancy = None if vector else prior_fit.options.discrepancy_parametrization
     tasks = [FitTask(f"simulation {s}", simulated_ranks, dict(
         data=data.with_output(replicated[s]), truth={name: float(v[s]) for name, v in prior.items()},
         truth_parameters={name: v[s] for name, v in prior_parameters.items()},
         prior_parametrization=prior_parametrization,
-        prior_discrepancy=prior_fit.options.discrepancy_parametrization, draws_per_fit=draws_per_fit, plan=plan,
+        prior_discrepancy=prior_discrepancy, draws_per_fit=draws_per_fit, plan=plan,
         chains=chains, warmup=warmup, draws=per_chain, seed=fit_seed(seed, f"simulation {s}"),
         out_dir=None if out_dir is None else Path(out_dir) / "fits" / f"{s:04d}", **calibrate_options))
         for s in range(simulations)]
     with fit_runner(scheduler) as runner:
         runner.prepare([], calibrate_options.get("backend"))  # the prior's fit compiled the programs here
         outcomes = resume.map(runner, tasks, keep=keep_whole, restore=lambda task, folder, ranks: ranks)
+    return _result(outcomes, simulations, draws_per_fit, level, seed, started, out_dir)
+
+
+def _result(outcomes: list, simulations: int, draws_per_fit: int, level: float, seed: int, started: float,
+            out_dir: str | Path | None) -> SBCResult:
+    """Each parameter's ranks over the simulations that finished, their uniformity tests, and sbc.json."""
     ranks: dict[str, list[int]] = {}
     failed = [s for s, outcome in enumerate(outcomes) if isinstance(outcome, FitFailure)]
     for outcome in outcomes:

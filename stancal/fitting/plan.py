@@ -7,6 +7,7 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
+from typing import Any
 
 from stancal.fitting.run_variance import require_replicates, run_replicates
 from stancal.numerics.hsgp import first_basis
@@ -50,8 +51,9 @@ class Plan:
     fidelities: int = 1  # simulators with runs: more than 1 with cheaper simulators' runs
     # stage 1's results, when every fit of this plan has the same runs (an SBC's simulations change y
     # only, a gap's refits drop physical rows only): reused, not refitted; only where stage 1 reads the
-    # runs alone (confounding.stage_one_emulator: the GP and multi-fidelity ones, not the scalable one)
-    stage_one_result: dict | None = field(default=None, compare=False, repr=False)
+    # runs alone (confounding.stage_one_emulator: the GP and multi-fidelity ones, not the scalable one; a vector
+    # output's basis emulators)
+    stage_one_result: Any = field(default=None, compare=False, repr=False)  # a dict (scalar) or VectorEmulator
 
     @property
     def stage_one(self) -> str | None:

@@ -124,6 +124,7 @@ def calibrate_vector(
     max_treedepth: int = 10,
     out_dir: str | Path | None = None,
     plan: Plan | None = None,
+    prior: bool = False,
 ) -> VectorCalibrationResult:
     """KOH for a vector output. ``method``: koh (``simulator``, a Stan file
     with vector simulator(matrix X, vector theta), rows of X = (inputs...,
@@ -140,7 +141,11 @@ def calibrate_vector(
     h' beta of the discrepancy mean over the physical columns.
     ``program``: your copy of the method's program. ``new_rows``: where f,
     delta and zeta are drawn (default: prediction_rows). ``out_dir``: the
-    posterior is written there as soon as sampling ends."""
+    posterior is written there as soon as sampling ends. ``prior``: also draw
+    from the prior (the same program, ``prior_only = 1``) into the ``prior``,
+    ``prior_predictive`` and ``prior_stan_parameters`` groups, as calibrate()
+    does (simulation-based calibration draws its truths there). A ``plan``
+    holding stage 1's result (Plan.stage_one_result) reuses it."""
     SamplerOptions(chains, warmup, draws, seed, adapt_delta, max_treedepth)  # checked before anything else
     if plan is None:
         plan = plan_vector(data, simulator, method, VectorOptions(
@@ -152,7 +157,8 @@ def calibrate_vector(
     stan_backend = get_backend(backend)
     compile_s = stan_backend.compile([flat])  # 0.0: compiled earlier
     new_rows = prediction_rows(data) if new_rows is None else new_rows
-    emulator = run_stage_one(plan.stage_one, data, options, [flat], backend=stan_backend, seed=seed)
+    emulator = plan.stage_one_result if plan.stage_one_result is not None else run_stage_one(
+        plan.stage_one, data, options, [flat], backend=stan_backend, seed=seed)
     stan_data = build_vector_stan_data(data, row.data, options, new_rows, emulator)
     inits, start_modes = chain_inits(row, stan_backend, flat, stan_data, emulator, chains, seed)
     logger.info("sampling %s: %d experiments, %d values%s; %d chains x (%d + %d)", row.name,
@@ -168,8 +174,19 @@ def calibrate_vector(
     except StanRuntimeError as err:
         raise explained(err, simulator, points) from None
     terms = mean_terms(data, options)
-    tree = vector_datatree(sample.draws, sample.sample_stats, data, new_rows, stan_backend.parameter_names(flat),
-                           options, terms, samples_emulator=row.samples_emulator, from_runs=row.runs)
+
+    def datatree(drawn):
+        return vector_datatree(drawn.draws, drawn.sample_stats, data, new_rows, stan_backend.parameter_names(flat),
+                               options, terms, samples_emulator=row.samples_emulator, from_runs=row.runs)
+
+    tree = datatree(sample)
+    if prior:  # the same chains' starts and settings, another seed
+        prior_tree = datatree(stan_backend.sample(
+            flat, {**stan_json, "prior_only": 1}, inits=inits, chains=chains, warmup=warmup, draws=draws,
+            seed=seed + 1, adapt_delta=adapt_delta, max_treedepth=max_treedepth))
+        for group, source in (("prior", "posterior"), ("prior_predictive", "posterior_predictive"),
+                              ("prior_stan_parameters", "stan_parameters")):
+            tree[group] = prior_tree[source]
     result = VectorCalibrationResult(tree, data, row.name, flat, stan_backend.name,
                                      {"compile_s": compile_s, "sample_s": sample.load_seconds + sample.sample_seconds},
                                      options, emulator, terms, start_modes=start_modes)

@@ -224,6 +224,21 @@ class VectorCalibrationData:
         and so the basis, are unchanged."""
         return self._rebuilt(self.source.iloc[list(rows)], self.runs)
 
+    def with_output(self, y: np.ndarray) -> VectorCalibrationData:
+        """The same problem with other measured values (simulated ones, one per
+        row of ``physical`` in its order) and this problem's scaling kept, as
+        CalibrationData.with_output: a fit of simulated data must standardise
+        as the simulation did (the runs, and so the basis, are unchanged)."""
+        y = np.asarray(y, float)
+        if y.shape != (len(self.physical),):
+            raise ValueError(f"with_output: {len(self.physical)} values needed (one per measured value); "
+                             f"got shape {y.shape}")
+        source = self.source.copy()
+        source[self.output] = y
+        other = self._rebuilt(source, self.runs)
+        other.scaling = self.scaling
+        return other
+
     def with_runs(self, runs: pd.DataFrame) -> VectorCalibrationData:
         """The same problem with other simulator runs (a long table, as ``runs``),
         its basis made again from them."""
@@ -235,7 +250,8 @@ class VectorCalibrationData:
             source, self.experiment, self.inputs, self.output, self.output_index, bounds_of(self.parameters),
             bounds_of(self.per_experiment), runs, self.run, self.noise_sd, self.covariates,
             **self._basis_options, levels=self.levels,
-            low_fidelity_runs=self.low_fidelity_runs if runs is not None else ())
+            low_fidelity_runs=self.low_fidelity_runs if runs is not None else (),
+            low_fidelity_rho=self.low_fidelity_rho if runs is not None else "constant")
 
     def variant(self, inputs: Sequence[str],
                 extra_theta: Mapping[str, tuple[float, float]]) -> VectorCalibrationData:

@@ -22,6 +22,7 @@ from stancal.results.result import (
     AT_OBSERVATIONS,  # the scalar programs' per-value quantities; both vector programs give them
 )
 from stancal.results.summaries import posterior_table, summary_by_mode, theta_summary
+from stancal.stan.registry import Program, program
 from stancal.stan.source import FlatProgram
 
 
@@ -40,6 +41,11 @@ class VectorCalibrationResult:
     modes: list = field(default_factory=list)
     # theta's modes found by L-BFGS before sampling, where the chains started (stancal.fitting.inits.StartMode)
     start_modes: list = field(default_factory=list)
+
+    @property
+    def row(self) -> Program:
+        """The registry row of the program that made this result."""
+        return program(self.method)
 
     def theta_summary(self) -> dict[str, dict[str, float]]:
         """Shared theta's summary (stancal.results.summaries.theta_summary: modes
