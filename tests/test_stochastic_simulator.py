@@ -440,6 +440,59 @@ def test_modular_hsgp_carries_the_misfit_at_the_experiments(small):
     np.testing.assert_allclose(np.diff(stan), np.diff(reference), rtol=1e-6, atol=1e-6)
 
 
+def _basis_case(points: np.ndarray, nugget: float, threshold: float):
+    """error_basis at theta = 0.5 of 400 random runs in (x, theta) and a
+    GP of sd 1, length scales 0.3; the exact GP part of its covariance."""
+    from stancal.numerics import scalable_emulator as scalable
+
+    xt = np.random.default_rng(3).uniform(size=(400, 2))
+    h = scalable.Hyperparameters(0.0, 1.0, np.array([0.3, 0.3]), nugget)
+    basis = scalable.error_basis(points, np.array([0.5]), xt, h, threshold)
+    at = np.column_stack([points, np.full(len(points), 0.5)])
+    cross = scalable.se_correlation(at, xt, h.length_scale)
+    exact = scalable.se_correlation(at, at, h.length_scale) - cross @ np.linalg.solve(
+        scalable.run_covariance(xt, h), cross.T)
+    return basis, exact
+
+
+def test_the_error_basis_rank_at_distinct_points_is_the_gps_not_the_nuggets():
+    """Review of issue 33: nugget^2 S in the Nystroem matrix raised every
+    eigenvalue by nugget^2 where the points are distinct (S = I), so a
+    nugget above the DEFAULT threshold (ERROR_RANK_SHARE of the residual
+    variance; for a residual sd of 0.1, 3e-4) took the rank to
+    MAX_ERROR_RANK, capped: 40 columns of white noise. At distinct points
+    the nugget is on the independent residual; the columns are the GP
+    part's eigenvalues above the threshold (6 of them at nugget 0.02, which
+    also widens the GP part through the runs' diagonal), which they leave
+    at most the threshold of (measured 2.5e-4 against 3e-4)."""
+    from stancal.numerics.scalable_emulator import ERROR_RANK_SHARE
+
+    points = np.random.default_rng(4).uniform(size=(120, 1))
+    threshold = ERROR_RANK_SHARE * 0.1**2
+    basis, exact = _basis_case(points, 0.02, threshold)
+    assert basis.columns.shape[1] == np.sum(np.linalg.eigvalsh(exact) > threshold) < 40
+    assert not basis.rank_capped
+    assert np.linalg.norm(exact - basis.columns @ basis.columns.T, 2) <= threshold
+    assert np.all(basis.residual_variance >= 0.02**2)
+
+
+def test_every_group_of_identical_points_shares_its_misfit_beyond_the_landmarks():
+    """With more points than LANDMARKS (610 distinct, the first 10 twice), a
+    group with no landmark among it still shares one nugget draw: the
+    columns carry nugget^2 between the two points of every group, over the
+    GP's covariance there (to 2e-3 of nugget^2 = 0.01: the Nystroem error
+    of the GP part, measured 2e-5, seed 4)."""
+    from stancal.numerics.scalable_emulator import LANDMARKS
+
+    distinct = np.random.default_rng(4).uniform(size=(LANDMARKS + 10, 1))
+    points = np.vstack([distinct, distinct[:10]])
+    basis, exact = _basis_case(points, 0.1, 1e-4)
+    assert not basis.rank_capped
+    first, second = np.arange(10), LANDMARKS + 10 + np.arange(10)
+    shared = (basis.columns[first] * basis.columns[second]).sum(1) - exact[first, second]
+    np.testing.assert_allclose(shared, 0.1**2, atol=2e-3 * 0.1**2)
+
+
 @pytest.mark.slow
 def test_the_scalable_path_takes_a_stochastic_simulator(case):
     """modular_hsgp with the intrinsic variance on its precomputed-weight

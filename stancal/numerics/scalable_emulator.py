@@ -349,8 +349,13 @@ def error_basis(x_unit: np.ndarray, theta_unit: np.ndarray, xt_runs: np.ndarray,
     at most LANDMARKS of the points, C ~ C(P, L) C(L, L)^+ C(L, P), reduced
     by an SVD. Each point's residual is its local-GP variance minus what the
     columns explain (the Nystroem part is at most the exact variance, the
-    local one at least it). C carries the emulator's nugget, its misfit, where
-    two points are one (as modular.stan's nugget_obs: Higdon et al. 2008)."""
+    local one at least it). C carries the emulator's nugget, its misfit
+    (as modular.stan's nugget_obs: Higdon et al. 2008), nugget^2 S with
+    S_ij = 1 where two points are one: at every point on the residual, and
+    the part groups of identical points share, nugget^2 G G' (G: one
+    indicator column per group of two or more; none at distinct points),
+    exactly, as columns beside the Nystroem ones before the SVD (every group
+    shares it, a landmark among it or not; its cost grows with the groups)."""
     points = np.column_stack([x_unit, np.broadcast_to(theta_unit, (len(x_unit), len(theta_unit)))])
     rng = np.random.default_rng(0)
     landmarks = (np.arange(len(points)) if len(points) <= LANDMARKS
@@ -365,16 +370,25 @@ def error_basis(x_unit: np.ndarray, theta_unit: np.ndarray, xt_runs: np.ndarray,
         to_landmarks[start : start + 1000] = h.sd**2 * (
             se_correlation(block, points[landmarks], h.length_scale)
             - se_correlation(block, xt_runs, h.length_scale) @ runs_solve)
-        to_landmarks[start : start + 1000] += h.nugget**2 * (block[:, None, :] == points[landmarks][None]).all(-1)
     eigenvalues, eigenvectors = np.linalg.eigh(to_landmarks[landmarks])
     kept = eigenvalues > 1e-10 * max(eigenvalues.max(), 1e-300)
     half = to_landmarks @ (eigenvectors[:, kept] / np.sqrt(eigenvalues[kept]))  # C ~ half half'
+    half = np.hstack([half, h.nugget * identical_groups(points)])
     left, singular, _ = np.linalg.svd(half, full_matrices=False)
     above = int(np.sum(singular**2 > threshold))
     rank = min(above, MAX_ERROR_RANK)
     columns = left[:, :rank] * singular[:rank]
     local = local_variance(x_unit, theta_unit, xt_runs, h, known) + h.nugget**2
     return ErrorBasis(columns, np.maximum(local - (columns**2).sum(1), 0.0), above > rank)
+
+
+def identical_groups(points: np.ndarray) -> np.ndarray:
+    """(points, groups): one indicator column per group of two or more
+    identical points (same_point's groups; none where all are distinct)."""
+    _, group, sizes = np.unique(points, axis=0, return_inverse=True, return_counts=True)
+    group = group.ravel()  # numpy 2.0.0 gave the inverse the input's rank
+    shared = np.flatnonzero(sizes > 1)
+    return (group[:, None] == shared[None, :]).astype(float)
 
 
 @dataclass
