@@ -32,9 +32,9 @@ from stancal.numerics.scalable_emulator import (
     NEIGHBOURS,
     Hyperparameters,
     ScalableEmulator,
+    add_run_nugget,
     chebyshev_basis,
     least_squares_theta,
-    shared_nugget,
 )
 from stancal.numerics.vector_emulator import VectorEmulator
 from stancal.problem.data import CalibrationData
@@ -247,10 +247,7 @@ def _one_fidelity_mean(data: CalibrationData, hyperparameters: dict[str, Any], k
     length = np.asarray(hyperparameters["emulator_length_scale"], float)
     k_runs = ard_cross_cov(runs_xt, runs_xt, kernel_id, sd, length)
     intrinsic = run_intrinsic_variance(data, hyperparameters)
-    k_runs[np.diag_indices_from(k_runs)] += float(hyperparameters["emulator_nugget"]) ** 2 + intrinsic
-    shared = shared_nugget(runs_xt, intrinsic)  # a stochastic simulator's replicates share one (emulator.stan)
-    if shared is not None:
-        k_runs[shared] += float(hyperparameters["emulator_nugget"]) ** 2
+    add_run_nugget(k_runs, runs_xt, float(hyperparameters["emulator_nugget"]), intrinsic)
     weights = np.linalg.solve(k_runs, s.standardise(data.runs_on_link_scale()) - mean)
     return lambda xt: mean + ard_cross_cov(xt, runs_xt, kernel_id, sd, length) @ weights
 

@@ -109,11 +109,21 @@ def run_covariance(xt: np.ndarray, h: Hyperparameters, known: np.ndarray | None 
     Staum 2010), as emulator.stan's run_intrinsic_sd, its replicates sharing
     one nugget (shared_nugget)."""
     K = h.sd**2 * se_correlation(xt, xt, h.length_scale)
-    K[np.diag_indices_from(K)] += run_nugget_variance(h) + (0.0 if known is None else known)
+    add_run_nugget(K, xt, h.nugget, known, JITTER * h.sd**2)
+    return K
+
+
+def add_run_nugget(K: np.ndarray, xt: np.ndarray, nugget: float, known: np.ndarray | None,
+                   jitter: float = 0.0) -> np.ndarray | None:
+    """Adds to the runs' kernel matrix K, in place, what emulator.stan adds:
+    each run's nugget^2, jitter and known (intrinsic) variance on the
+    diagonal, and nugget^2 between a stochastic simulator's replicates, which
+    share one draw of it (shared_nugget). Returns that pattern (None: none)."""
+    K[np.diag_indices_from(K)] += nugget**2 + jitter + (0.0 if known is None else known)
     shared = shared_nugget(xt, known)
     if shared is not None:
-        K[shared] += h.nugget**2
-    return K
+        K[shared] += nugget**2
+    return shared
 
 
 def run_nugget_variance(h: Hyperparameters) -> float:
@@ -140,10 +150,7 @@ def negative_log_posterior(u: np.ndarray, xt: np.ndarray, y: np.ndarray,
     h = unpack(u)
     correlation = se_correlation(xt, xt, h.length_scale)
     K = h.sd**2 * correlation
-    K[np.diag_indices_from(K)] += run_nugget_variance(h) + (0.0 if known is None else known)
-    shared = shared_nugget(xt, known)
-    if shared is not None:
-        K[shared] += h.nugget**2
+    shared = add_run_nugget(K, xt, h.nugget, known, JITTER * h.sd**2)
     try:
         factor = linalg.cho_factor(K, lower=True)
     except linalg.LinAlgError:
