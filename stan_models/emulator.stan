@@ -5,10 +5,13 @@
 // A stochastic simulator's runs carry their own known (stage-1 smoothed)
 // intrinsic variance on the diagonal: stochastic kriging (Ankenman, Nelson &
 // Staum 2010), f then emulates the simulator's mean; 0 for a deterministic one.
+// Its replicates (runs at one (x, theta)) share one nugget: the emulator's
+// misfit to the mean is one value per setting (functions/same_point.stan).
 // Stancal fixes the hyperparameters at their posterior mode on the
 // unconstrained scale (found by optimisation) for stage 2.
 functions {
 #include gp_kernels.stan
+#include same_point.stan
 #include loo.stan
 #include priors.stan
 }
@@ -27,6 +30,8 @@ data {
 transformed data {
   array[M] vector[D + Q] xt_sim;
   for (j in 1:M) xt_sim[j] = append_row(x_sim[j], theta_sim[j]);
+  // a stochastic simulator's replicates share one nugget draw; the identity otherwise
+  matrix[M, M] replicated = replicated_runs(xt_sim, rep_array(1, M), run_intrinsic_sd);
 }
 parameters {
   real emulator_mean;
@@ -40,8 +45,8 @@ model {
   emulator_length_scale ~ emulator_length_scale();   // inverse gamma(2, 1)
   emulator_nugget ~ emulator_nugget();               // half-normal(0, 0.05)
   if (!prior_only) {
-    matrix[M, M] K = add_diag(emulator_run_cov(xt_sim, kernel_id, emulator_sd, emulator_length_scale,
-                                               emulator_nugget), square(run_intrinsic_sd));
+    matrix[M, M] K = emulator_run_cov(xt_sim, kernel_id, emulator_sd, emulator_length_scale, emulator_nugget,
+                                      replicated, run_intrinsic_sd);
     y_sim ~ multi_normal_cholesky(rep_vector(emulator_mean, M), cholesky_decompose(K));
   }
 }
@@ -49,9 +54,9 @@ generated quantities {
   vector[M] log_lik;       // log p(y_sim_j | other runs, hyperparameters), original units
   vector[M] loo_error;     // leave-one-out prediction error of each run, original units
   {
-    matrix[M, M] K_inv = chol2inv(cholesky_decompose(add_diag(
-      emulator_run_cov(xt_sim, kernel_id, emulator_sd, emulator_length_scale, emulator_nugget),
-      square(run_intrinsic_sd))));
+    matrix[M, M] K_inv = chol2inv(cholesky_decompose(
+      emulator_run_cov(xt_sim, kernel_id, emulator_sd, emulator_length_scale, emulator_nugget, replicated,
+                       run_intrinsic_sd)));
     vector[M] g = K_inv * (y_sim - emulator_mean);
     vector[M] c = diagonal(K_inv);
     log_lik = -0.5 * log(2 * pi()) + 0.5 * log(c) - 0.5 * square(g) ./ c - log(y_scale);

@@ -18,6 +18,7 @@ functions {
 #include gp_conditional.stan
 #include noise.stan
 #include fidelity.stan
+#include same_point.stan
 #include koh_joint.stan
 #include loo.stan
 #include priors.stan
@@ -196,9 +197,9 @@ generated quantities {
       = koh_joint_quantities_rng(y_sim, y, xt_sim, x, theta_unit, x_delta, h, beta, x_new, x_delta_new,
                                  h_new, normals_new, prior_only, kernel_id, w_sim, rep_matrix(w_top, N),
                                  rep_matrix(w_top, P), to_array_1d(level_mean),
-                                 level_sd, level_length_scale, run_nugget_sd,
+                                 level_sd, level_length_scale, diag_matrix(square(run_nugget_sd)),
                                  rho, delta_sd, delta_length_scale, weighted_noise_variance(noise_var, noise_weight),
-                                 rep_matrix(0, N, N), bias, source_bias_normals_rng(bias_normals_new, n_biased, P),
+                                 0, bias, source_bias_normals_rng(bias_normals_new, n_biased, P),
                                  y_center, y_scale);
     log_lik = q.1;
     y_loo_mean = q.2;

@@ -16,6 +16,7 @@ functions {
 #include gp_kernels.stan
 #include gp_conditional.stan
 #include fidelity.stan
+#include same_point.stan
 #include koh_joint.stan
 #include loo.stan
 #include latent_gp.stan

@@ -5,7 +5,8 @@
 // emulator at (x_i, theta) is normal with mean m(theta) and covariance
 // V(theta); V is carried into the likelihood:
 //   y ~ N(rho * m(theta) + h' beta, rho^2 (V(theta) + nugget^2 S) + K_delta + diag(noise variances)),
-//   S_ij = 1 where points i and j are one (the emulator's misfit there, below),
+//   S_ij = 1 where points i and j are one (the emulator's misfit there, below; f_new and y_rep
+//   carry it too, functions/koh_joint.stan),
 // with the measurement noise of functions/noise.stan (Student-t: given its mixture weights),
 // and each biased source's bias GP beside K_delta (functions/source_bias.stan),
 // with optional discrepancy mean terms h (a candidate unmodelled effect).
@@ -15,15 +16,16 @@
 // The emulator's nugget (the part of the runs a smooth GP misses) is part of
 // its uncertainty at the physical points too (Higdon et al. 2008). A
 // stochastic simulator's runs add their own intrinsic variance on the runs'
-// diagonal only: the emulator is of the simulator's MEAN (stochastic kriging,
-// Ankenman, Nelson & Staum 2010), and reality's own scatter is the noise
-// model's job (Baker et al. 2022).
+// diagonal only, and its replicates share one nugget: the emulator is of the
+// simulator's MEAN (stochastic kriging, Ankenman, Nelson & Staum 2010), and
+// reality's own scatter is the noise model's job (Baker et al. 2022).
 functions {
 #include gp_kernels.stan
 #include gp_conditional.stan
 #include noise.stan
 #include fidelity.stan
 #include fidelity_theta.stan
+#include same_point.stan
 #include koh_joint.stan
 #include loo.stan
 #include priors.stan
@@ -94,15 +96,17 @@ transformed data {
   matrix[N, L] w_obs = fidelity_point_weights(level_rho, level_rho_slope, x, rep_array(L, N));
   matrix[P, L] w_new = fidelity_point_weights(level_rho, level_rho_slope, x_new, rep_array(L, P));
   row_vector[L] w_top = fidelity_widest(w_obs, emulator_sd);  // the jitter's scale
-  // each run's own variance: its level's nugget and, for a stochastic simulator, its intrinsic variance
-  vector[M] run_nugget_sd = sqrt(square(to_vector(emulator_nugget)[run_level]) + square(run_intrinsic_sd));
+  // each run's own covariance: its level's nugget, one draw per setting for a stochastic simulator's
+  // replicates, and their intrinsic variance on the diagonal (functions/same_point.stan)
+  matrix[M, M] run_own = run_own_cov(replicated_runs(xt_sim, run_level, run_intrinsic_sd),
+                                     to_vector(emulator_nugget)[run_level], run_intrinsic_sd);
   // the emulator's misfit at the physical points: the top level's nugget where two points are one
   // (Higdon et al. 2008), not the intrinsic variance
   matrix[N, N] nugget_obs = square(emulator_nugget[L]) * same_point(x);
   vector[N] top_mean = w_obs * to_vector(emulator_mean);  // the top level's prior mean at each point
   real top_variance = fidelity_variance(w_top, emulator_sd);
   matrix[M, M] L_sim = cholesky_decompose(
-    fidelity_run_cov(xt_sim, w_sim, w_top, kernel_id, emulator_sd, emulator_length_scale, run_nugget_sd));
+    fidelity_run_cov(xt_sim, w_sim, w_top, kernel_id, emulator_sd, emulator_length_scale, run_own));
   vector[M] alpha_sim = mdivide_right_tri_low(
     mdivide_left_tri_low(L_sim, y_sim - w_sim * to_vector(emulator_mean))', L_sim)';
   // the physical points share theta, so the emulator's covariance among them
@@ -181,7 +185,7 @@ model {
       // stage 2 leaves out the runs' density everywhere (docs/multifidelity.md: a choice, with its cost)
       array[M] vector[D + Q + Q_low] xt_run = runs_at_theta_low(x_sim, theta_sim, run_level, theta_low_unit);
       matrix[M, M] L_run = cholesky_decompose(
-        fidelity_run_cov(xt_run, w_sim, w_top, kernel_id, emulator_sd, emulator_length_scale, run_nugget_sd));
+        fidelity_run_cov(xt_run, w_sim, w_top, kernel_id, emulator_sd, emulator_length_scale, run_own));
       vector[M] alpha_run = mdivide_right_tri_low(
         mdivide_left_tri_low(L_run, y_sim - w_sim * to_vector(emulator_mean))', L_run)';
       emulated = fidelity_at_points(
@@ -231,9 +235,9 @@ generated quantities {
       = koh_joint_quantities_rng(y_sim, y, xt_run, x, append_row(theta_unit, theta_low_unit), x_delta, h, beta,
                                  x_new, x_delta_new, h_new, normals_new, prior_only, kernel_id, w_sim, w_obs, w_new,
                                  emulator_mean,
-                                 emulator_sd, emulator_length_scale, run_nugget_sd, rho, delta_sd,
+                                 emulator_sd, emulator_length_scale, run_own, rho, delta_sd,
                                  delta_length_scale, weighted_noise_variance(noise_var, noise_weight),
-                                 square(rho) * nugget_obs, bias, source_bias_normals_rng(bias_normals_new, n_biased, P),
+                                 square(emulator_nugget[L]), bias, source_bias_normals_rng(bias_normals_new, n_biased, P),
                                  y_center, y_scale);
     log_lik = q.1;
     y_loo_mean = q.2;

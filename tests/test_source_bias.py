@@ -187,9 +187,12 @@ def numpy_biased_readings(d: dict, p: dict, emulator: bool, nugget_at_points: bo
     parameter point, rho = 1, one biased source: a new reading by that source
     at the prediction points less its noise, zeta + b (mean and sd, original
     units), and y_rep at the rows (zeta, plus b at the biased source's rows,
-    plus fresh noise; on modular the emulator's nugget at the points, fresh
-    too). Without an emulator zeta = f(theta) + delta, Newton's law; with one,
-    f is the squared exponential emulator given the runs and the data."""
+    plus fresh noise). Without an emulator zeta = f(theta) + delta, Newton's
+    law; with one, f is the squared exponential emulator given the runs and
+    the data, on modular with its nugget, its misfit, one value per point
+    (shared where a new point is a row's), conditioned on the data as the
+    rest of f is (review of issue 33: y_rep drew it afresh and the new points
+    left it out)."""
     x, x_new = np.asarray(d["x_delta"]), np.asarray(d["x_delta_new"])
     biased = np.asarray(d["bias_of"]) == 1
     noise = np.square(np.asarray(p["noise_sd"])[np.asarray(d["source"]) - 1])
@@ -212,19 +215,19 @@ def numpy_biased_readings(d: dict, p: dict, emulator: bool, nugget_at_points: bo
         xt, xt_new = (np.column_stack([np.asarray(a)[:, :d["D"]], np.tile(p["theta_unit"], (len(a), 1))])
                       for a in (x, x_new))
         sd, ls, nugget, m = p["emulator_sd"], p["emulator_length_scale"], p["emulator_nugget"], len(xt_sim)
-        same_point = (xt[:, None, :] == xt[None, :, :]).all(-1)
-        point_nugget = nugget**2 * same_point if nugget_at_points else 0 * rows
-        f_rows = se(xt, xt, sd, ls)
+        misfit = nugget**2 if nugget_at_points else 0.0  # the emulator's misfit: part of f at a point
+        f_rows = se(xt, xt, sd, ls) + misfit * (xt[:, None, :] == xt[None, :, :]).all(-1)
+        f_new_rows = se(xt_new, xt, sd, ls) + misfit * (xt_new[:, None, :] == xt[None, :, :]).all(-1)
         cov = np.block([[se(xt_sim, xt_sim, sd, ls) + nugget**2 * np.eye(m), se(xt_sim, xt, sd, ls)],
-                        [se(xt, xt_sim, sd, ls), f_rows + point_nugget + rows + np.diag(noise)]])
+                        [se(xt, xt_sim, sd, ls), f_rows + rows + np.diag(noise)]])
         cov += 1e-6 * sd**2 * np.eye(len(cov))
         mean = p["emulator_mean"]
         resid = np.concatenate([d["y_sim"], d["y"]]) - mean
         rows_cross = np.hstack([se(xt, xt_sim, sd, ls), f_rows + rows])
         rows_prior = f_rows + rows
-        new_cross = np.hstack([se(xt_new, xt_sim, sd, ls), se(xt_new, xt, sd, ls) + new])
-        new_prior = new_prior + se(xt_new, xt_new, sd, ls)
-        f, f_new, extra = np.full(len(x), mean), np.full(len(x_new), mean), np.diag(point_nugget)
+        new_cross = np.hstack([se(xt_new, xt_sim, sd, ls), f_new_rows + new])
+        new_prior = new_prior + se(xt_new, xt_new, sd, ls) + misfit * (xt_new[:, None, :] == xt_new[None]).all(-1)
+        f, f_new, extra = np.full(len(x), mean), np.full(len(x_new), mean), np.zeros(len(x))
     out = {}
     for name, cross, prior, shift, fresh in (("new", new_cross, new_prior, f_new, 0),
                                              ("rows", rows_cross, rows_prior, f, noise + extra)):

@@ -10,6 +10,7 @@ import logging
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 from conftest import assert_healthy, case_study_module, fit, no_stancal_warnings
 from scipy import stats
@@ -87,12 +88,17 @@ def test_a_deterministic_simulators_disagreeing_replicates_are_warned_about(case
     assert "if the simulator is stochastic, set stochastic = true" in caplog.text
 
 
-def stochastic_kriging(settings, means, counts, intrinsic, xt_new, mean, sd, length, run_variance):
+def stochastic_kriging(settings, means, counts, intrinsic, xt_new, mean, sd, length, run_variance,
+                       setting_variance=0.0):
     """Ankenman, Nelson & Staum (2010), eq. (5) and (6), on the settings'
     averages: the mean and MSE of the simulator's mean at xt_new, with
-    Sigma_eps = diag((run_variance + V_i) / n_i), squared exponential kernel;
-    run_variance: what every run has besides (the nugget, the jitter)."""
-    k_settings = ard_cross_cov(settings, settings, 1, sd, length) + np.diag((run_variance + intrinsic) / counts)
+    Sigma_eps = diag(setting_variance + (run_variance + V_i) / n_i), squared
+    exponential kernel; run_variance: what every run has on its own besides
+    (the jitter; a deterministic simulator's nugget); setting_variance: what
+    a setting's runs share (a stochastic simulator's nugget, the emulator's
+    misfit to its mean there, which replicates do not average down)."""
+    k_settings = ard_cross_cov(settings, settings, 1, sd, length) + np.diag(
+        setting_variance + (run_variance + intrinsic) / counts)
     k_new = ard_cross_cov(xt_new, settings, 1, sd, length)
     prediction = mean + k_new @ np.linalg.solve(k_settings, means - mean)
     mse = ard_cross_cov(xt_new, xt_new, 1, sd, length) - k_new @ np.linalg.solve(k_settings, k_new.T)
@@ -116,8 +122,9 @@ def small():
 
 
 def test_the_emulator_mean_is_stochastic_krigings_on_the_averages(small):
-    """Each run with its intrinsic variance on the diagonal (stancal) and each
-    setting's average with the variance / n (Ankenman et al.) give one predictor."""
+    """Each run with its intrinsic variance on the diagonal and the nugget
+    shared by a setting's replicates (stancal), and each setting's average
+    with the nugget plus the variance / n (Ankenman et al.) give one predictor."""
     from stancal.fitting.stage_one import emulator_mean_function
 
     data, replicates, surface, hyper = small
@@ -129,7 +136,7 @@ def test_the_emulator_mean_is_stochastic_krigings_on_the_averages(small):
         xt = np.hstack([data.scaling.to_unit(points, data.inputs), np.full((len(points), 1), theta)])
         reference, _ = stochastic_kriging(replicates.settings, replicates.means, replicates.counts,
                                           surface.at(replicates.settings), xt, 0.3, 1.2, np.array([0.5, 0.9, 0.7]),
-                                          0.02**2)
+                                          0.0, setting_variance=0.02**2)
         np.testing.assert_allclose(row, reference, rtol=1e-8, atol=1e-8)
 
 
@@ -138,7 +145,9 @@ def test_modular_stan_density_is_stochastic_krigings(small):
     built on the settings' averages: y ~ N(m(theta), MSE(theta) + nugget^2 S +
     sigma^2 I), S_ij = 1 where x_i = x_j: the intrinsic variance on the runs
     only, the nugget (the emulator's misfit, one value at one point) at the
-    physical points too; to 1e-8, up to a constant."""
+    physical points too; a setting's replicates share the nugget (review: it
+    sat on each run alone, so n replicates averaged it down to nugget^2 / n);
+    to 1e-8, up to a constant."""
     from stancal.stan.backends import get_backend
 
     data, replicates, surface, hyper = small
@@ -159,10 +168,143 @@ def test_modular_stan_density_is_stochastic_krigings(small):
                     - np.log(theta * (1 - theta)))  # without the Jacobian of theta_unit
         mean, mse = stochastic_kriging(replicates.settings, replicates.means, replicates.counts,
                                        surface.at(replicates.settings), np.hstack([x, np.full((len(x), 1), theta)]),
-                                       0.3, 1.2, np.array([0.5, 0.9, 0.7]), 0.02**2 + jitter)
+                                       0.3, 1.2, np.array([0.5, 0.9, 0.7]), jitter, setting_variance=0.02**2)
         covariance = mse + 0.02**2 * same + (sigma**2 + jitter) * np.eye(len(y))
         reference.append(stats.multivariate_normal(mean, covariance).logpdf(y))
     np.testing.assert_allclose(np.diff(stan), np.diff(reference), rtol=1e-8, atol=1e-8)
+
+
+def emulator_reference(xt, y, u, intrinsic, shared):
+    """emulator.stan's log density, written out: y_sim ~ N(m, K + nugget^2 S
+    + jitter + diag(V)), S the runs that share a nugget draw (``shared``),
+    with its priors and the Jacobian of its log-scale parameters;
+    u = (mean, log sd, log length scales, log nugget)."""
+    mean, sd, length, nugget = u[0], np.exp(u[1]), np.exp(u[2:-1]), np.exp(u[-1])
+    K = ard_cross_cov(xt, xt, 1, sd, length) + nugget**2 * shared + np.diag(1e-6 * sd**2 + intrinsic)
+    prior = -0.5 * mean**2 - 0.5 * sd**2 + np.sum(-3 * np.log(length) - 1 / length) - 0.5 * (nugget / 0.05) ** 2
+    return stats.multivariate_normal(np.full(len(y), mean), K).logpdf(y) + prior + u[1:].sum()
+
+
+@pytest.mark.parametrize("stochastic", [True, False])
+def test_stage_one_shares_the_nugget_within_a_setting(small, stochastic):
+    """Stage 1's objective, emulator.stan's log density and the scalable
+    path's (scalable_emulator.negative_log_posterior), against numpy at
+    several hyperparameters, to 1e-8 up to a constant: a stochastic
+    simulator's replicates share one nugget draw (S_ij = 1 within a setting),
+    a deterministic simulator's runs each have their own (S = I, as before)."""
+    from stancal.numerics.scalable_emulator import negative_log_posterior
+    from stancal.stan.backends import get_backend
+    from stancal.stan.standata import build_emulator_data
+
+    data, replicates, surface, hyper = small
+    plan = plan_scalar(data, None, "modular", model_options(stochastic=stochastic))
+    intrinsic = run_intrinsic_variance(data, hyper if stochastic else {})
+    stan_data = {**build_emulator_data(data, plan.options), "run_intrinsic_sd": np.sqrt(intrinsic)}
+    _, log_density = get_backend().log_density_functions(plan.stan_programs()[0], to_stan_json(stan_data))
+    xt = unit_settings(data)
+    same = (xt[:, None, :] == xt[None, :, :]).all(axis=2)
+    assert same.sum() == 3 * len(xt)  # three runs per setting
+    shared = same if stochastic else np.eye(len(xt))
+    rng = np.random.default_rng(4)
+    points = [np.concatenate([[rng.normal(0, 0.3), rng.normal(0, 0.2)], np.log(rng.uniform(0.3, 1, 3)),
+                              [np.log(rng.uniform(0.01, 0.1))]]) for _ in range(4)]
+    reference = [emulator_reference(xt, stan_data["y_sim"], u, intrinsic, shared) for u in points]
+    stan = log_density(np.array(points))
+    python = [-negative_log_posterior(u, xt, stan_data["y_sim"], intrinsic if stochastic else None)[0]
+              for u in points]
+    np.testing.assert_allclose(np.diff(stan), np.diff(reference), rtol=1e-8, atol=1e-8)
+    np.testing.assert_allclose(np.diff(python), np.diff(reference), rtol=1e-8, atol=1e-8)
+
+
+def test_the_scalable_nuggets_gradient_with_shared_draws(small):
+    """negative_log_posterior's gradient in the log nugget, with replicates
+    sharing it, against a central difference (step 1e-5: error ~1e-9)."""
+    from stancal.numerics.scalable_emulator import negative_log_posterior
+
+    data, replicates, surface, hyper = small
+    xt, y = unit_settings(data), data.scaling.standardise(data.runs["temperature"].to_numpy())
+    intrinsic = run_intrinsic_variance(data, hyper)
+    u = np.array([0.1, 0.0, np.log(0.5), np.log(0.9), np.log(0.7), np.log(0.05)])
+    step = np.zeros_like(u)
+    step[-1] = 1e-5
+    difference = (negative_log_posterior(u + step, xt, y, intrinsic)[0]
+                  - negative_log_posterior(u - step, xt, y, intrinsic)[0]) / 2e-5
+    assert negative_log_posterior(u, xt, y, intrinsic)[1][-1] == pytest.approx(difference, rel=1e-6, abs=1e-6)
+
+
+def test_a_deterministic_modular_density_is_unchanged(small):
+    """A deterministic simulator's runs (the same replicated runs, no
+    intrinsic variance) keep the nugget each on its own, as before the
+    nugget was shared within a setting: modular.stan's log density is
+    kriging on every run with nugget^2 + jitter on its diagonal (that is,
+    on the settings' averages with it divided by n), to 1e-8."""
+    from stancal.stan.backends import get_backend
+
+    data, replicates, surface, hyper = small
+    plan = plan_scalar(data, None, "modular", model_options(discrepancy="none"))
+    deterministic = {k: v for k, v in hyper.items() if k != "intrinsic_variance"}
+    stan_data = build_stan_data(data, plan.program.data, plan.options, data.physical[["t", "T0"]].iloc[:2],
+                                emulator_hyperparameters=deterministic)
+    assert not np.any(stan_data["run_intrinsic_sd"])
+    _, log_density = get_backend().log_density_functions(plan.main_program(), to_stan_json(stan_data))
+    sigma, jitter = 0.05, 1e-6 * 1.2**2
+    y, x = stan_data["y"], data.scaling.to_unit(data.physical, data.inputs)
+    same = (x[:, None, :] == x[None, :, :]).all(axis=2)
+    stan, reference = [], []
+    for theta in (0.2, 0.45, 0.7, 0.9):
+        stan.append(log_density(np.array([[np.log(theta / (1 - theta)), np.log(sigma)]]))[0]
+                    - np.log(theta * (1 - theta)))
+        mean, mse = stochastic_kriging(replicates.settings, replicates.means, replicates.counts,
+                                       np.zeros(len(replicates.counts)), np.hstack([x, np.full((len(x), 1), theta)]),
+                                       0.3, 1.2, np.array([0.5, 0.9, 0.7]), 0.02**2 + jitter)
+        reference.append(stats.multivariate_normal(mean, mse + 0.02**2 * same + (sigma**2 + jitter) * np.eye(len(y)))
+                         .logpdf(y))
+    np.testing.assert_allclose(np.diff(stan), np.diff(reference), rtol=1e-8, atol=1e-8)
+
+
+def test_y_rep_and_new_points_carry_the_misfit_the_data_condition_on(small):
+    """At one parameter point, 2,500 runs of modular.stan's generated
+    quantities (a stochastic simulator, a nugget of 0.3, standardised):
+    f_new at three new points (one at a physical point, which shares its
+    misfit) and y_rep at the rows have the mean and sd of the written-out
+    model's Gaussian conditional given the runs and the data, with the
+    emulator's misfit part of f at every point (review of issue 33: y_rep drew
+    the misfit afresh, its sd 5.6 to 6.1 times the reference's here, and
+    f_new left it out, 0.65 to 5.4 times, the runs averaging it down too)."""
+    from test_source_bias import fixed_parameter_draws, gaussian_conditional
+
+    data, replicates, surface, hyper = small
+    hyper = {**hyper, "emulator_nugget": 0.3}
+    plan = plan_scalar(data, None, "modular", model_options(discrepancy="none", stochastic=True))
+    new = pd.DataFrame({"t": [data.physical["t"][0], 12.0, 30.0], "T0": [data.physical["T0"][0], 70.0, 85.0]})
+    d = to_stan_json(build_stan_data(data, plan.program.data, plan.options, new, emulator_hyperparameters=hyper))
+    assert d["estimate_rho"] == 0 and d["H"] == 0 and d["kernel_id"] == 1
+    theta, sigma, nugget, sd, length = 0.4, 0.05, 0.3, 1.2, np.array([0.5, 0.9, 0.7])
+    point = {"theta_unit": [theta], "noise_sd": [sigma]}  # every other parameter is empty here
+    draws = 2500
+    drawn = fixed_parameter_draws(plan.main_program(), d, point, draws)
+    # the reference, standardised: runs with the nugget shared within a setting and V on the diagonal
+    sim, x = unit_settings(data), data.scaling.to_unit(data.physical, data.inputs)
+    xt, xt_new = (np.hstack([a, np.full((len(a), 1), theta)]) for a in (x, data.scaling.to_unit(new, data.inputs)))
+    jitter = 1e-6 * sd**2
+
+    def f_cov(a, b):  # the emulator at points of one theta: its GP and its misfit, one value at one point
+        return ard_cross_cov(a, b, 1, sd, length) + nugget**2 * (a[:, None, :] == b[None, :, :]).all(-1)
+
+    runs = f_cov(sim, sim) + np.diag(run_intrinsic_variance(data, hyper) + jitter)
+    cross = ard_cross_cov(sim, xt, 1, sd, length)
+    cov = np.block([[runs, cross], [cross.T, f_cov(xt, xt) + (sigma**2 + jitter) * np.eye(len(xt))]])
+    resid = np.concatenate([d["y_sim"], d["y"]]) - 0.3
+    for name, points, fresh in (("f_new", xt_new, 0.0), ("y_rep", xt, sigma**2)):
+        mean, covariance = gaussian_conditional(cov, resid, np.hstack([ard_cross_cov(points, sim, 1, sd, length),
+                                                                        f_cov(points, xt)]), f_cov(points, points))
+        mean = d["y_center"] + d["y_scale"] * (0.3 + mean)
+        sd_reference = d["y_scale"] * np.sqrt(np.diag(covariance) + fresh)
+        values = drawn[name]
+        # the sd of 2,500 normal draws has relative se 1.4 %, their mean se sd / 50: 7 % and 5 se hold
+        # every point with room (a 5-se miss has probability 6e-7 per point)
+        np.testing.assert_allclose(values.std(axis=1), sd_reference, rtol=0.07, err_msg=name)
+        assert np.all(np.abs(values.mean(axis=1) - mean) <= 5 * sd_reference / np.sqrt(draws)), name
 
 
 @pytest.mark.parametrize(("keywords", "match"), [
@@ -192,8 +334,10 @@ def test_the_config_key_reaches_the_model_options():
 def test_the_deterministic_emulator_takes_the_simulators_noise_for_its_misfit(case):
     """Stage 1 alone: the deterministic emulator's nugget is the runs' pooled
     scatter (about 1 deg C), carried to the physical points as misfit; the
-    stochastic emulator's nugget, with the scatter on the runs' diagonal, is a
-    tenth of it or less."""
+    stochastic emulator's nugget, with the scatter on the runs' diagonal and
+    the nugget one value per setting, is its misfit to the simulator's mean:
+    0.29 deg C against 1.14 here (seed 1), a quarter (with a nugget of each
+    run's own it was 0.07, a setting's share 0.07 / sqrt(5) = 0.03)."""
     from stancal.fitting.stage_one import run_stage_one
     from stancal.stan.backends import get_backend
 
@@ -204,7 +348,7 @@ def test_the_deterministic_emulator_takes_the_simulators_noise_for_its_misfit(ca
                                  seed=1)
         nuggets[stochastic] = emulator["hyperparameters"]["emulator_nugget"] * case.scaling.y_scale
     assert 0.7 < nuggets[False] < 1.5
-    assert nuggets[True] < 0.1 * nuggets[False]
+    assert nuggets[True] < 0.4 * nuggets[False]  # 0.25 measured: the stage-1 optimum is deterministic given the seed
 
 
 @pytest.mark.slow  # a fit with stage 1 on 300 runs, about a minute: the default run checks the model against numpy
@@ -238,8 +382,9 @@ def test_the_stochastic_fit_recovers_k_and_the_measurement_sd(case, tmp_path):
 
 def test_the_scalable_emulator_is_stochastic_krigings_too(small):
     """modular_hsgp's stage 1 (stancal.numerics.scalable_emulator) with the
-    intrinsic variance: its mean and its local-GP variance at the points (all
-    runs are neighbours in this small case) are stochastic kriging's."""
+    intrinsic variance and the nugget shared by a setting's replicates: its
+    mean and its variance at the points (the local GP's, all runs neighbours
+    in this small case, plus the nugget, its misfit there) are stochastic kriging's."""
     from stancal.numerics.scalable_emulator import JITTER, ScalableEmulator, exact_mean
     from stancal.stan.standata import emulator_run_data
 
@@ -254,9 +399,98 @@ def test_the_scalable_emulator_is_stochastic_krigings_too(small):
                             theta[None, :])[:, 0]
     reference, mse = stochastic_kriging(replicates.settings, replicates.means, replicates.counts,
                                         surface.at(replicates.settings), np.hstack([x, np.full((len(x), 1), 0.4)]),
-                                        0.3, 1.2, np.array([0.5, 0.9, 0.7]), 0.02**2 + JITTER * 1.2**2)
+                                        0.3, 1.2, np.array([0.5, 0.9, 0.7]), JITTER * 1.2**2,
+                                        setting_variance=0.02**2)
     np.testing.assert_allclose(mean, reference, rtol=1e-8, atol=1e-8)
-    np.testing.assert_allclose(emulator.variance(x, theta), np.diag(mse), rtol=1e-6, atol=1e-10)
+    np.testing.assert_allclose(emulator.variance(x, theta), np.diag(mse) + 0.02**2, rtol=1e-6, atol=1e-10)
+
+
+def test_modular_hsgp_carries_the_misfit_at_the_experiments(small):
+    """modular_hsgp against the numpy reference of modular's density (review
+    of issue 33: it carried V on the runs but no nugget at the experiments,
+    so crossing the size limit changed the model). At the theta where its
+    emulator error is taken (0.5, a Chebyshev node of the mean's degree 4:
+    the mean is exact there) and with every eigenvector kept, its error
+    covariance is stochastic kriging's MSE plus nugget^2 S, S_ij = 1 where
+    two physical points are one, and its log density across the noise sd is
+    modular's, y ~ N(m, MSE + nugget^2 S + sigma^2 I); to 1e-6 (the local
+    GP's jitter on the runs, 1e-6 of the GP's variance, is the gap)."""
+    from stancal.numerics.scalable_emulator import JITTER
+    from stancal.stan.backends import get_backend
+
+    data, replicates, surface, hyper = small
+    hyper = {**hyper, "theta_degrees": [4], "variance_theta": [0.5], "error_threshold": 1e-12}
+    plan = plan_scalar(data, None, "modular_hsgp", model_options(discrepancy="none", stochastic=True))
+    stan_data = build_stan_data(data, plan.program.data, plan.options, data.physical[["t", "T0"]].iloc[:2],
+                                emulator_hyperparameters=hyper)
+    x = data.scaling.to_unit(data.physical, data.inputs)
+    same = (x[:, None, :] == x[None, :, :]).all(axis=2)
+    mean, mse = stochastic_kriging(replicates.settings, replicates.means, replicates.counts,
+                                   surface.at(replicates.settings), np.hstack([x, np.full((len(x), 1), 0.5)]),
+                                   0.3, 1.2, np.array([0.5, 0.9, 0.7]), JITTER * 1.2**2, setting_variance=0.02**2)
+    error = mse + 0.02**2 * same  # the emulator's error at the points, its misfit included
+    basis = np.asarray(stan_data["emulator_error_basis"])
+    np.testing.assert_allclose(basis @ basis.T + stan_data["emulator_variance"] * np.eye(len(x)), error,
+                               rtol=1e-6, atol=1e-9)
+    _, log_density = get_backend().log_density_functions(plan.main_program(), to_stan_json(stan_data))
+    sigmas = np.array([0.03, 0.05, 0.1, 0.2])
+    stan = log_density(np.column_stack([np.zeros(4), np.log(sigmas)]))  # theta_unit = 0.5
+    reference = [stats.multivariate_normal(mean, error + sigma**2 * np.eye(len(x))).logpdf(stan_data["y"])
+                 - 0.5 * sigma**2 + np.log(sigma) for sigma in sigmas]  # its half-normal prior, its Jacobian
+    np.testing.assert_allclose(np.diff(stan), np.diff(reference), rtol=1e-6, atol=1e-6)
+
+
+def _basis_case(points: np.ndarray, nugget: float, threshold: float):
+    """error_basis at theta = 0.5 of 400 random runs in (x, theta) and a
+    GP of sd 1, length scales 0.3; the exact GP part of its covariance."""
+    from stancal.numerics import scalable_emulator as scalable
+
+    xt = np.random.default_rng(3).uniform(size=(400, 2))
+    h = scalable.Hyperparameters(0.0, 1.0, np.array([0.3, 0.3]), nugget)
+    basis = scalable.error_basis(points, np.array([0.5]), xt, h, threshold)
+    at = np.column_stack([points, np.full(len(points), 0.5)])
+    cross = scalable.se_correlation(at, xt, h.length_scale)
+    exact = scalable.se_correlation(at, at, h.length_scale) - cross @ np.linalg.solve(
+        scalable.run_covariance(xt, h), cross.T)
+    return basis, exact
+
+
+def test_the_error_basis_rank_at_distinct_points_is_the_gps_not_the_nuggets():
+    """Review of issue 33: nugget^2 S in the Nystroem matrix raised every
+    eigenvalue by nugget^2 where the points are distinct (S = I), so a
+    nugget above the DEFAULT threshold (ERROR_RANK_SHARE of the residual
+    variance; for a residual sd of 0.1, 3e-4) took the rank to
+    MAX_ERROR_RANK, capped: 40 columns of white noise. At distinct points
+    the nugget is on the independent residual; the columns are the GP
+    part's eigenvalues above the threshold (6 of them at nugget 0.02, which
+    also widens the GP part through the runs' diagonal), which they leave
+    at most the threshold of (measured 2.5e-4 against 3e-4)."""
+    from stancal.numerics.scalable_emulator import ERROR_RANK_SHARE
+
+    points = np.random.default_rng(4).uniform(size=(120, 1))
+    threshold = ERROR_RANK_SHARE * 0.1**2
+    basis, exact = _basis_case(points, 0.02, threshold)
+    assert basis.columns.shape[1] == np.sum(np.linalg.eigvalsh(exact) > threshold) < 40
+    assert not basis.rank_capped
+    assert np.linalg.norm(exact - basis.columns @ basis.columns.T, 2) <= threshold
+    assert np.all(basis.residual_variance >= 0.02**2)
+
+
+def test_every_group_of_identical_points_shares_its_misfit_beyond_the_landmarks():
+    """With more points than LANDMARKS (610 distinct, the first 10 twice), a
+    group with no landmark among it still shares one nugget draw: the
+    columns carry nugget^2 between the two points of every group, over the
+    GP's covariance there (to 1e-9; measured 1e-13 at seed 4, 19 columns,
+    all of C's eigenvalues above 1e-4 kept)."""
+    from stancal.numerics.scalable_emulator import LANDMARKS
+
+    distinct = np.random.default_rng(4).uniform(size=(LANDMARKS + 10, 1))
+    points = np.vstack([distinct, distinct[:10]])
+    basis, exact = _basis_case(points, 0.1, 1e-4)
+    assert not basis.rank_capped
+    first, second = np.arange(10), LANDMARKS + 10 + np.arange(10)
+    shared = (basis.columns[first] * basis.columns[second]).sum(1) - exact[first, second]
+    np.testing.assert_allclose(shared, 0.1**2, atol=1e-9)
 
 
 @pytest.mark.slow

@@ -128,6 +128,19 @@ matrix fidelity_run_cov(array[] vector xt_sim, matrix w_sim, row_vector w_top, i
 }
 
 /**
+ * fidelity_run_cov with the runs' own covariance given whole (same_point.stan's
+ * run_own_cov: a stochastic simulator's replicates share their nugget).
+ *
+ * @param run_own_cov the runs' own covariance beside the kernel
+ * @return covariance matrix of the runs, with the jitter
+ */
+matrix fidelity_run_cov(array[] vector xt_sim, matrix w_sim, row_vector w_top, int kernel_id,
+                        array[] real level_sd, array[,] real level_length_scale, matrix run_own_cov) {
+  return add_jitter(fidelity_cov(xt_sim, w_sim, kernel_id, level_sd, level_length_scale) + run_own_cov,
+                    fidelity_variance(w_top, level_sd));
+}
+
+/**
  * Prior for the scales between fidelities when they are sampled with theta
  * (koh_emulator.stan; Kennedy & O'Hagan 2000, section 3): normal(1, 0.5).
  * Every level's runs are standardised on one scale, so a cheap simulator

@@ -32,6 +32,7 @@ from stancal.numerics.scalable_emulator import (
     NEIGHBOURS,
     Hyperparameters,
     ScalableEmulator,
+    add_run_nugget,
     chebyshev_basis,
     least_squares_theta,
 )
@@ -245,8 +246,8 @@ def _one_fidelity_mean(data: CalibrationData, hyperparameters: dict[str, Any], k
     sd, mean = float(hyperparameters["emulator_sd"]), float(hyperparameters["emulator_mean"])
     length = np.asarray(hyperparameters["emulator_length_scale"], float)
     k_runs = ard_cross_cov(runs_xt, runs_xt, kernel_id, sd, length)
-    k_runs[np.diag_indices_from(k_runs)] += (float(hyperparameters["emulator_nugget"]) ** 2
-                                             + run_intrinsic_variance(data, hyperparameters))
+    intrinsic = run_intrinsic_variance(data, hyperparameters)
+    add_run_nugget(k_runs, runs_xt, float(hyperparameters["emulator_nugget"]), intrinsic)
     weights = np.linalg.solve(k_runs, s.standardise(data.runs_on_link_scale()) - mean)
     return lambda xt: mean + ard_cross_cov(xt, runs_xt, kernel_id, sd, length) @ weights
 

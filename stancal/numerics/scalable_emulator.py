@@ -78,14 +78,52 @@ def se_correlation(a: np.ndarray, b: np.ndarray, length_scale: np.ndarray) -> np
     return np.exp(-0.5 * np.maximum(sq, 0.0))
 
 
+def same_point(points: np.ndarray) -> np.ndarray:
+    """(n, n) boolean: True where two of the n points are identical, so they
+    share one draw of the emulator's nugget (functions/same_point.stan).
+    Grouped exactly, as latent_data groups replicates."""
+    _, group = np.unique(points, axis=0, return_inverse=True)
+    group = group.ravel()  # numpy 2.0.0 gave the inverse the input's rank
+    return group[:, None] == group[None, :]
+
+
+def shared_nugget(xt: np.ndarray, known: np.ndarray | None) -> np.ndarray | None:
+    """Off the diagonal, where two runs with a known (intrinsic) variance are
+    replicates, one setting (x, theta): they share one draw of the nugget, the
+    emulator's misfit to the simulator's mean (functions/same_point.stan's
+    replicated_runs; stochastic kriging, Ankenman, Nelson & Staum 2010). None
+    where no two runs share one (a deterministic simulator's runs keep the
+    nugget each on its own)."""
+    if known is None:
+        return None
+    stochastic = np.asarray(known, float) > 0
+    shared = same_point(xt) & stochastic[:, None] & stochastic[None, :]
+    np.fill_diagonal(shared, False)
+    return shared if shared.any() else None
+
+
 def run_covariance(xt: np.ndarray, h: Hyperparameters, known: np.ndarray | None = None) -> np.ndarray:
     """emulator_run_cov of functions/gp_kernels.stan (squared exponential);
     ``known``: each run's own known variance on the diagonal too (a stochastic
     simulator's intrinsic variance: stochastic kriging, Ankenman, Nelson &
-    Staum 2010), as emulator.stan's run_intrinsic_sd."""
+    Staum 2010), as emulator.stan's run_intrinsic_sd, its replicates sharing
+    one nugget (shared_nugget)."""
     K = h.sd**2 * se_correlation(xt, xt, h.length_scale)
-    K[np.diag_indices_from(K)] += run_nugget_variance(h) + (0.0 if known is None else known)
+    add_run_nugget(K, xt, h.nugget, known, JITTER * h.sd**2)
     return K
+
+
+def add_run_nugget(K: np.ndarray, xt: np.ndarray, nugget: float, known: np.ndarray | None,
+                   jitter: float = 0.0) -> np.ndarray | None:
+    """Adds to the runs' kernel matrix K, in place, what emulator.stan adds:
+    each run's nugget^2, jitter and known (intrinsic) variance on the
+    diagonal, and nugget^2 between a stochastic simulator's replicates, which
+    share one draw of it (shared_nugget). Returns that pattern (None: none)."""
+    K[np.diag_indices_from(K)] += nugget**2 + jitter + (0.0 if known is None else known)
+    shared = shared_nugget(xt, known)
+    if shared is not None:
+        K[shared] += nugget**2
+    return shared
 
 
 def run_nugget_variance(h: Hyperparameters) -> float:
@@ -112,7 +150,7 @@ def negative_log_posterior(u: np.ndarray, xt: np.ndarray, y: np.ndarray,
     h = unpack(u)
     correlation = se_correlation(xt, xt, h.length_scale)
     K = h.sd**2 * correlation
-    K[np.diag_indices_from(K)] += run_nugget_variance(h) + (0.0 if known is None else known)
+    shared = add_run_nugget(K, xt, h.nugget, known, JITTER * h.sd**2)
     try:
         factor = linalg.cho_factor(K, lower=True)
     except linalg.LinAlgError:
@@ -135,7 +173,8 @@ def negative_log_posterior(u: np.ndarray, xt: np.ndarray, y: np.ndarray,
     for d in range(len(ell)):
         sq = (xt[:, d, None] - xt[None, :, d]) ** 2 / ell[d] ** 2
         grad[2 + d] = 0.5 * (weighted * sq).sum() - 3 + 1 / ell[d] + 1
-    grad[-1] = np.trace(W) * h.nugget**2 - (h.nugget / 0.05) ** 2 + 1
+    nugget_spread = np.trace(W) + (0.0 if shared is None else W[shared].sum())  # the nugget's pattern in K
+    grad[-1] = nugget_spread * h.nugget**2 - (h.nugget / 0.05) ** 2 + 1
     return -(log_lik + log_prior + log_jacobian), -grad
 
 
@@ -317,7 +356,13 @@ def error_basis(x_unit: np.ndarray, theta_unit: np.ndarray, xt_runs: np.ndarray,
     at most LANDMARKS of the points, C ~ C(P, L) C(L, L)^+ C(L, P), reduced
     by an SVD. Each point's residual is its local-GP variance minus what the
     columns explain (the Nystroem part is at most the exact variance, the
-    local one at least it)."""
+    local one at least it). C carries the emulator's nugget, its misfit
+    (as modular.stan's nugget_obs: Higdon et al. 2008), nugget^2 S with
+    S_ij = 1 where two points are one: at every point on the residual, and
+    the part groups of identical points share, nugget^2 G G' (G: one
+    indicator column per group of two or more; none at distinct points),
+    exactly, as columns beside the Nystroem ones before the SVD (every group
+    shares it, a landmark among it or not; its cost grows with the groups)."""
     points = np.column_stack([x_unit, np.broadcast_to(theta_unit, (len(x_unit), len(theta_unit)))])
     rng = np.random.default_rng(0)
     landmarks = (np.arange(len(points)) if len(points) <= LANDMARKS
@@ -335,12 +380,22 @@ def error_basis(x_unit: np.ndarray, theta_unit: np.ndarray, xt_runs: np.ndarray,
     eigenvalues, eigenvectors = np.linalg.eigh(to_landmarks[landmarks])
     kept = eigenvalues > 1e-10 * max(eigenvalues.max(), 1e-300)
     half = to_landmarks @ (eigenvectors[:, kept] / np.sqrt(eigenvalues[kept]))  # C ~ half half'
+    half = np.hstack([half, h.nugget * identical_groups(points)])
     left, singular, _ = np.linalg.svd(half, full_matrices=False)
     above = int(np.sum(singular**2 > threshold))
     rank = min(above, MAX_ERROR_RANK)
     columns = left[:, :rank] * singular[:rank]
-    local = local_variance(x_unit, theta_unit, xt_runs, h, known)
+    local = local_variance(x_unit, theta_unit, xt_runs, h, known) + h.nugget**2
     return ErrorBasis(columns, np.maximum(local - (columns**2).sum(1), 0.0), above > rank)
+
+
+def identical_groups(points: np.ndarray) -> np.ndarray:
+    """(points, groups): one indicator column per group of two or more
+    identical points (same_point's groups; none where all are distinct)."""
+    _, group, sizes = np.unique(points, axis=0, return_inverse=True, return_counts=True)
+    group = group.ravel()  # numpy 2.0.0 gave the inverse the input's rank
+    shared = np.flatnonzero(sizes > 1)
+    return (group[:, None] == shared[None, :]).astype(float)
 
 
 @dataclass
@@ -397,7 +452,9 @@ class ScalableEmulator:
             x_unit, self.x_runs, self.theta_runs, self.alpha, self.hyperparameters, nodes))
 
     def variance(self, x_unit: np.ndarray, theta_unit: np.ndarray) -> np.ndarray:
-        return local_variance(x_unit, theta_unit, self.xt_runs, self.hyperparameters, self.known)
+        """Each point's emulator variance: the local GP's, and the nugget, its misfit there (error_basis)."""
+        return (local_variance(x_unit, theta_unit, self.xt_runs, self.hyperparameters, self.known)
+                + self.hyperparameters.nugget**2)
 
     def error_basis(self, x_unit: np.ndarray, theta_unit: np.ndarray, threshold: float) -> ErrorBasis:
         return error_basis(x_unit, theta_unit, self.xt_runs, self.hyperparameters, threshold, self.known)

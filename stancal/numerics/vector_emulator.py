@@ -50,7 +50,13 @@ from stancal.numerics.multifidelity import (
     stacked_residuals,
 )
 from stancal.numerics.multifidelity_variance import variance_correction
-from stancal.numerics.scalable_emulator import Hyperparameters, fit_hyperparameters, run_covariance, se_correlation
+from stancal.numerics.scalable_emulator import (
+    Hyperparameters,
+    fit_hyperparameters,
+    run_covariance,
+    same_point,
+    se_correlation,
+)
 from stancal.problem.output_basis import OutputBasis
 
 HYPERPARAMETER_RUNS = 400  # per component: the mode moves little beyond a few hundred runs
@@ -58,15 +64,6 @@ VARIANCE_RUNS = 400  # the weights' covariance conditions on this many runs at m
 # A component under 1 % of the runs' variance moves the output by a tenth (sqrt(0.01)) of the runs' sd
 # at most: its emulator's error, with or without the cheap runs, is not one to warn of.
 MATERIAL_SHARE = 0.01
-
-
-def same_point(points: np.ndarray) -> np.ndarray:
-    """(n, n) boolean: True where two of the n points are identical, so they
-    share one draw of the weight GPs' nugget (the simulator is
-    deterministic). Grouped exactly, as latent_data groups replicates."""
-    _, group = np.unique(points, axis=0, return_inverse=True)
-    group = group.ravel()  # numpy 2.0.0 gave the inverse the input's rank
-    return group[:, None] == group[None, :]
 
 
 @dataclass

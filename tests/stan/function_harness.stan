@@ -9,6 +9,7 @@ vector simulator(matrix X, vector theta) {
 #include gp_conditional.stan
 #include noise.stan
 #include fidelity.stan
+#include same_point.stan
 #include koh_joint.stan
 #include loo.stan
 #include scaling.stan
