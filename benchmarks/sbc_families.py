@@ -194,6 +194,8 @@ def main() -> None:
     parser.add_argument("--draws-per-fit", type=int, default=100)
     parser.add_argument("--scheduler", default=None, help="a Dask address; default: a local cluster")
     parser.add_argument("--seed", type=int, default=1, help="the SBC's seed (another seed: chance or a fault?)")
+    parser.add_argument("--out", type=Path, default=None,
+                        help="keep each simulation's fit, truth and ranked draws under OUT/FAMILY (resumable)")
     args = parser.parse_args()
     path = Path(__file__).parent / "sbc.json"
     rows = json.loads(path.read_text()) if path.is_file() else {}
@@ -205,7 +207,7 @@ def main() -> None:
             design, options = FAMILIES[family]
             result = simulation_based_calibration(DESIGNS[design](), simulations=args.sims, scheduler=args.scheduler,
                                                   draws_per_fit=args.draws_per_fit, seed=args.seed, warmup=300,
-                                                  **options)
+                                                  out_dir=args.out / family if args.out else None, **options)
         kinds = collections.Counter(type(w.message).__name__ for w in caught)  # SamplerWarning: a fit's trouble
         print(f"{family}: warnings {dict(kinds) or 'none'}")
         rows[family + ("" if args.seed == 1 else f"_seed{args.seed}")] = {
