@@ -242,3 +242,7 @@ def test_a_mode_held_by_one_chain_gets_the_r_hat_the_health_check_gives_it():
         assert theta_summary(posterior, modes, ["k"])["k"]["rhat"] == pytest.approx(health.max_rhat)
     table = summary_by_mode(posterior, [heavy, light])  # the summary's block of the one-chain mode too
     assert table.loc["theta[k]", "rhat"].max() == pytest.approx(health.max_rhat)
+    # masses unknown: the first mode's summary, a one-chain mode's R-hat over its halves too
+    unweighed = Mode([1], **mode), Mode([0, 2, 3], **mode)
+    single = check_sampler(posterior.isel(chain=[1]), stats.isel(chain=[1]), 10, ["theta"], None)
+    assert theta_summary(posterior, list(unweighed), ["k"])["k"]["rhat"] == pytest.approx(single.max_rhat)

@@ -96,7 +96,7 @@ def theta_summary(posterior: xr.Dataset, modes: list[Mode], theta_names: list[st
                                         min(float(t.loc[label, "ess_bulk"]) for t in per_mode)], strict=True))
         return out
     if len(modes) > 1:  # masses unknown (see modes.report)
-        posterior = posterior.isel(chain=modes[0].chains)
+        posterior = as_chains(posterior, modes[0].chains)  # one chain: its two halves, as the health check
     table = posterior_table(posterior[[variable]])
     return {name: {k: float(table.loc[f"{variable}[{name}]", k]) for k in keys} for name in theta_names}
 
