@@ -36,7 +36,6 @@ import numpy as np
 from stancal.diagnosing.sbc_ranks import Uniformity, fractional_ranks, rank_of, uniformity
 from stancal.fitting.calibrate import calibrate
 from stancal.fitting.cluster import FitFailure, FitRunner, FitTask, fit_runner
-from stancal.fitting.confounding import stage_one_emulator
 from stancal.fitting.plan import Plan, make_plan, model_keywords
 from stancal.fitting.resume import Resume, keep_whole, write_json
 from stancal.fitting.seeds import fit_seed
@@ -48,7 +47,7 @@ from stancal.problem.vector_data import VectorCalibrationData
 from stancal.results.result import CalibrationResult
 from stancal.results.vector_result import VectorCalibrationResult
 from stancal.stan.backends import get_backend
-from stancal.stan.registry import SBC, STAGE_ONE_BASIS, STAGE_ONE_BASIS_FIDELITY, commands_taking
+from stancal.stan.registry import SBC, commands_taking
 from stancal.stan.standata import build_stan_data, to_stan_json
 from stancal.stan.vector_standata import build_vector_stan_data
 
@@ -205,13 +204,6 @@ def _require_sbc(plan: Plan) -> None:
                          f"{plan.program.output} output it takes {', '.join(takers) or 'none'}")
 
 
-def _stage_one_from_runs(plan: Plan) -> bool:
-    """Stage 1 reads the runs alone, which the simulations share: the GP and
-    multi-fidelity emulators (stage_one_emulator) and a vector output's basis
-    emulators (one GP per component weight of the runs, of one fidelity or several)."""
-    return stage_one_emulator(plan) or plan.stage_one in (STAGE_ONE_BASIS, STAGE_ONE_BASIS_FIDELITY)
-
-
 def _prior_draws(prior_fit, simulations: int, values: int) -> tuple[dict, dict, np.ndarray]:
     """S evenly thinned draws of the prior run: every scalar component, the
     program's own parameters, and the replicated outputs (``values`` each)."""
@@ -277,10 +269,10 @@ def simulation_based_calibration(
                                      **calibrate_options, **prior_model)
     # the simulations share the runs, so a stage 1 from the runs alone (not the scalable one, which reads y)
     # is the prior's: each fit conditions on the hyperparameters its data were simulated with
-    reused = prior_fit.emulator if _stage_one_from_runs(plan) and prior_fit.emulator else None
+    reused = prior_fit.emulator if plan.stage_one_from_runs and prior_fit.emulator else None
     plan = replace(plan, stage_one_result=reused)
     prior, prior_parameters, replicated = _prior_draws(prior_fit, simulations, len(data.physical))
-    prior_discrepancy = None if vector else prior_fit.options.discrepancy_parametrization
+    prior_discrepancy = getattr(prior_fit.options, "discrepancy_parametrization", None)  # scalar outputs' only
     tasks = [FitTask(f"simulation {s}", simulated_ranks, dict(
         data=data.with_output(replicated[s]), truth={name: float(v[s]) for name, v in prior.items()},
         truth_parameters={name: v[s] for name, v in prior_parameters.items()},

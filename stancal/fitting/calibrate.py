@@ -26,7 +26,7 @@ from stancal.problem.data import CalibrationData
 from stancal.problem.options import ModelOptions
 from stancal.problem.sampling import SamplerOptions
 from stancal.results.diagnostics import parametrization_advice
-from stancal.results.result import CalibrationResult, build_datatree
+from stancal.results.result import CalibrationResult, add_prior, build_datatree
 from stancal.stan.backends import StanRuntimeError, WarmStart, get_backend
 from stancal.stan.registry import STAGE_ONE_SCALABLE
 from stancal.stan.source import FlatProgram
@@ -86,9 +86,7 @@ def _sample(stan_backend, flat: FlatProgram, data: CalibrationData, plan: Plan, 
         prior_sample = stan_backend.sample(flat, {**stan_json, "prior_only": 1}, inits=inits,
                                            **{**sampler, "seed": sampler["seed"] + 1})
         prior_tree = build_datatree(prior_sample, data, fit_points, parameter_names, options)
-        tree["prior"] = prior_tree["posterior"]
-        tree["prior_predictive"] = prior_tree["posterior_predictive"]
-        tree["prior_stan_parameters"] = prior_tree["stan_parameters"]  # the program's own, for SBC
+        add_prior(tree, prior_tree)
     return _Fit(sample, stan_json, tree, parameter_names)
 
 

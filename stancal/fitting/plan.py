@@ -21,6 +21,7 @@ from stancal.problem.vector_data import VectorCalibrationData
 from stancal.stan.registry import (
     L2,
     PROGRAMS,
+    STAGE_ONE_FROM_RUNS,
     STAGE_ONE_PROGRAM,
     Program,
     default_program,
@@ -51,14 +52,18 @@ class Plan:
     fidelities: int = 1  # simulators with runs: more than 1 with cheaper simulators' runs
     # stage 1's results, when every fit of this plan has the same runs (an SBC's simulations change y
     # only, a gap's refits drop physical rows only): reused, not refitted; only where stage 1 reads the
-    # runs alone (confounding.stage_one_emulator: the GP and multi-fidelity ones, not the scalable one; a vector
-    # output's basis emulators)
+    # runs alone (stage_one_from_runs)
     stage_one_result: Any = field(default=None, compare=False, repr=False)  # a dict (scalar) or VectorEmulator
 
     @property
     def stage_one(self) -> str | None:
         """The kind of stage 1 that runs: the program's, or its multi-fidelity one."""
         return self.program.stage_one_fidelities if self.fidelities > 1 else self.program.stage_one
+
+    @property
+    def stage_one_from_runs(self) -> bool:
+        """Stage 1 emulates the simulator from its runs alone (registry.STAGE_ONE_FROM_RUNS)."""
+        return not self.program.simulator and self.stage_one in STAGE_ONE_FROM_RUNS
 
     @property
     def name(self) -> str:

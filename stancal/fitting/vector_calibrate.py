@@ -23,6 +23,7 @@ from stancal.numerics.vector_emulator import VectorEmulator
 from stancal.problem.options import VectorOptions
 from stancal.problem.sampling import SamplerOptions
 from stancal.problem.vector_data import VectorCalibrationData
+from stancal.results.result import add_prior
 from stancal.results.vector_result import VectorCalibrationResult, vector_datatree
 from stancal.stan.backends import StanRuntimeError, get_backend
 from stancal.stan.standata import to_stan_json
@@ -184,9 +185,7 @@ def calibrate_vector(
         prior_tree = datatree(stan_backend.sample(
             flat, {**stan_json, "prior_only": 1}, inits=inits, chains=chains, warmup=warmup, draws=draws,
             seed=seed + 1, adapt_delta=adapt_delta, max_treedepth=max_treedepth))
-        for group, source in (("prior", "posterior"), ("prior_predictive", "posterior_predictive"),
-                              ("prior_stan_parameters", "stan_parameters")):
-            tree[group] = prior_tree[source]
+        add_prior(tree, prior_tree)
     result = VectorCalibrationResult(tree, data, row.name, flat, stan_backend.name,
                                      {"compile_s": compile_s, "sample_s": sample.load_seconds + sample.sample_seconds},
                                      options, emulator, terms, start_modes=start_modes)

@@ -62,6 +62,15 @@ _REEXPRESSED = {"theta_unit", "theta_low_unit", "noise_sd", "delta_sd", "delta_i
                 "bias_sd", "bias_length_scale"}
 
 
+def add_prior(tree, prior_tree) -> None:
+    """The prior run's groups into the fit's tree: its posterior as ``prior``,
+    its replicated data as ``prior_predictive``, and the program's own
+    parameters as ``prior_stan_parameters`` (what SBC simulates from)."""
+    for group, source in (("prior", "posterior"), ("prior_predictive", "posterior_predictive"),
+                          ("prior_stan_parameters", "stan_parameters")):
+        tree[group] = prior_tree[source]
+
+
 def build_datatree(sample: SampleOutput, data: CalibrationData,
                    new_points: pd.DataFrame, parameter_names: list[str],
                    options: ModelOptions) -> xr.DataTree:

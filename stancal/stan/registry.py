@@ -151,6 +151,9 @@ PROGRAMS: dict[str, Program] = {program.name: program for program in (
 )}
 MODELS = PROGRAMS  # the name of the registry in stancal's first releases
 STAGE_ONE_PROGRAM = {STAGE_ONE_GP: "emulator"}  # stage 1 kinds that run a Stan program
+# stage 1 kinds that read the runs alone, not the readings (the scalable one reads y): fits that change y only
+# (an SBC's simulations) can share one stage 1
+STAGE_ONE_FROM_RUNS = frozenset({STAGE_ONE_GP, STAGE_ONE_FIDELITY, STAGE_ONE_BASIS, STAGE_ONE_BASIS_FIDELITY})
 
 
 @dataclass(frozen=True)
