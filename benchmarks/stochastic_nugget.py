@@ -31,13 +31,13 @@ import stancal  # noqa: E402
 from stancal.fitting.run_variance import intrinsic_variance  # noqa: E402
 from stancal.numerics.scalable_emulator import fit_hyperparameters, negative_log_posterior, pack  # noqa: E402
 from stancal.problem.config import load_config  # noqa: E402
+from stancal.problem.run_replicates import RunReplicates  # noqa: E402
 from stancal.stan.standata import emulator_run_data  # noqa: E402
 
 CASE = ROOT / "case_studies" / "stochastic_cooling"
 _spec = importlib.util.spec_from_file_location("make_data", CASE / "make_data.py")
 make_data = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(make_data)
-REPLICATES = make_data.REPLICATES
 
 
 def nugget_degc(xt: np.ndarray, y: np.ndarray, scale: float, known: np.ndarray | None = None) -> float:
@@ -66,13 +66,14 @@ def one_data_set(base: stancal.CalibrationData, runs) -> dict[str, float]:
     true_v = (make_data.intrinsic_sd(runs["t"].to_numpy()) / scale) ** 2
     surface, _ = intrinsic_variance(data, True, 1)
     exact = data.scaling.standardise(make_data.newton(runs["t"], runs["T0"], runs["k"]).to_numpy())
-    one = np.arange(0, len(y), REPLICATES)  # make_data writes a setting's runs together
+    settings = RunReplicates.of(xt, y)  # the runs grouped by setting, as stage 1 groups them
+    at_setting = [np.bincount(settings.setting_of_run, v) / settings.counts for v in (true_v, exact)]
+    v_mean = at_setting[0] / settings.counts  # the variance of a setting's average
     return {"(a) V true": nugget_degc(xt, y, scale, true_v),
             "(b) V estimated": nugget_degc(xt, y, scale, surface.at(xt)),
-            "(d) averages, V/5": nugget_degc(xt[one], y.reshape(-1, REPLICATES).mean(1), scale,
-                                             true_v[one] / REPLICATES),
-            "(c) mean, no V": nugget_degc(xt[one], exact[one], scale),
-            "(e) mean, V/5": nugget_degc(xt[one], exact[one], scale, true_v[one] / REPLICATES),
+            "(d) averages, V/5": nugget_degc(settings.settings, settings.means, scale, v_mean),
+            "(c) mean, no V": nugget_degc(settings.settings, at_setting[1], scale),
+            "(e) mean, V/5": nugget_degc(settings.settings, at_setting[1], scale, v_mean),
             **jacobian_and_zero(xt, y, scale, true_v)}
 
 

@@ -41,6 +41,8 @@ import numpy as np
 from scipy import linalg, optimize
 from scipy.spatial import cKDTree
 
+from stancal.problem.run_replicates import RunReplicates
+
 logger = logging.getLogger("stancal")
 
 SUBSET_SIZE = 1000  # runs for the hyperparameters: the mode moves little beyond it
@@ -81,10 +83,14 @@ def se_correlation(a: np.ndarray, b: np.ndarray, length_scale: np.ndarray) -> np
 def same_point(points: np.ndarray) -> np.ndarray:
     """(n, n) boolean: True where two of the n points are identical, so they
     share one draw of the emulator's nugget (functions/same_point.stan).
-    Grouped exactly, as latent_data groups replicates."""
-    _, group = np.unique(points, axis=0, return_inverse=True)
-    group = group.ravel()  # numpy 2.0.0 gave the inverse the input's rank
+    Grouped exactly, as the runs' replicates are (RunReplicates)."""
+    group = _groups(points).setting_of_run
     return group[:, None] == group[None, :]
+
+
+def _groups(points: np.ndarray) -> RunReplicates:
+    """The points grouped where identical (each point's group, each group's size)."""
+    return RunReplicates.of(points, np.zeros(len(points)))
 
 
 def shared_nugget(xt: np.ndarray, known: np.ndarray | None) -> np.ndarray | None:
@@ -385,17 +391,22 @@ def error_basis(x_unit: np.ndarray, theta_unit: np.ndarray, xt_runs: np.ndarray,
     above = int(np.sum(singular**2 > threshold))
     rank = min(above, MAX_ERROR_RANK)
     columns = left[:, :rank] * singular[:rank]
-    local = local_variance(x_unit, theta_unit, xt_runs, h, known) + h.nugget**2
+    local = point_variance(x_unit, theta_unit, xt_runs, h, known)
     return ErrorBasis(columns, np.maximum(local - (columns**2).sum(1), 0.0), above > rank)
+
+
+def point_variance(x_unit: np.ndarray, theta_unit: np.ndarray, xt_runs: np.ndarray, h: Hyperparameters,
+                   known: np.ndarray | None) -> np.ndarray:
+    """Each point's emulator variance: the local GP's, and the nugget, its misfit there."""
+    return local_variance(x_unit, theta_unit, xt_runs, h, known) + h.nugget**2
 
 
 def identical_groups(points: np.ndarray) -> np.ndarray:
     """(points, groups): one indicator column per group of two or more
     identical points (same_point's groups; none where all are distinct)."""
-    _, group, sizes = np.unique(points, axis=0, return_inverse=True, return_counts=True)
-    group = group.ravel()  # numpy 2.0.0 gave the inverse the input's rank
-    shared = np.flatnonzero(sizes > 1)
-    return (group[:, None] == shared[None, :]).astype(float)
+    groups = _groups(points)
+    shared = np.flatnonzero(groups.counts > 1)
+    return (groups.setting_of_run[:, None] == shared[None, :]).astype(float)
 
 
 @dataclass
@@ -453,8 +464,7 @@ class ScalableEmulator:
 
     def variance(self, x_unit: np.ndarray, theta_unit: np.ndarray) -> np.ndarray:
         """Each point's emulator variance: the local GP's, and the nugget, its misfit there (error_basis)."""
-        return (local_variance(x_unit, theta_unit, self.xt_runs, self.hyperparameters, self.known)
-                + self.hyperparameters.nugget**2)
+        return point_variance(x_unit, theta_unit, self.xt_runs, self.hyperparameters, self.known)
 
     def error_basis(self, x_unit: np.ndarray, theta_unit: np.ndarray, threshold: float) -> ErrorBasis:
         return error_basis(x_unit, theta_unit, self.xt_runs, self.hyperparameters, threshold, self.known)
