@@ -60,8 +60,11 @@ from conftest import COOLING, cooling_data  # noqa: E402
 from test_latent import BEAM, CENSORED, COUNTS, beam_data, censored_data, exact_counts  # noqa: E402
 from test_multifidelity import problem as fidelity_design  # noqa: E402
 from test_multifidelity_theta import problem as theta_low_design  # noqa: E402
+from test_vector_koh import THETA as VECTOR_THETA  # noqa: E402
+from test_vector_koh import WIND  # noqa: E402
 from test_vector_multifidelity import problem as vector_fidelity_design  # noqa: E402
 from test_vector_outputs import long_experiments  # noqa: E402
+from test_vector_sbc import design as vector_design  # noqa: E402
 
 import stancal  # noqa: E402
 from stancal.diagnosing.sbc import simulation_based_calibration  # noqa: E402
@@ -112,28 +115,21 @@ def stochastic_design() -> stancal.CalibrationData:
                                    bounds_of(data.parameters), runs=runs)
 
 
-def vector_design() -> VectorCalibrationData:
-    """tests/test_vector_multifidelity's cooling curves, its expensive runs alone (the module docstring)."""
-    data = vector_fidelity_design(low=VECTOR_CHEAP_RUNS, high=VECTOR_RUNS)
-    return VectorCalibrationData(data.source, data.experiment, data.inputs, data.output, data.output_index,
-                                 bounds_of(data.parameters), runs=data.runs, run=data.run, noise_sd=data.noise_sd)
-
-
 VECTOR_RUNS, VECTOR_CHEAP_RUNS = 8, 24  # expensive and cheap curves of the vector designs
-DRAUGHT = ROOT / "case_studies" / "cooling_wind" / "simulator.stan"  # Newton's law in Stan, theta = (k, Ta)
 
 
 def vector_koh_design() -> VectorCalibrationData:
     """tests/test_vector_koh's ragged cool-downs: 4 experiments, 44 readings (known sd 0.3 degC), no runs."""
-    return VectorCalibrationData(long_experiments(1), "exp", ["T0"], "T", "t", {"k": (0.01, 0.1), "Ta": (15.0, 25.0)},
-                                 noise_sd="sd")
+    return VectorCalibrationData(long_experiments(1), "exp", ["T0"], "T", "t", VECTOR_THETA, noise_sd="sd")
+
+
 DESIGNS = {"counts": lambda: exact_counts("poisson", seed=1), "binomial": binomial_design,
            "censored": censored_design, "beam": beam_data,
            "two_sources": lambda: noise_design(source="instrument"), "known_sd": lambda: noise_design(noise_sd="sd"),
            "cooling": lambda: cooling_data(seed=7), "hetero_noise": hetero_design,
            "theta_low": theta_low_design, "stochastic_cooling": stochastic_design,
            "cooling_fidelity": lambda: load_config(ROOT / "case_studies" / "cooling_fidelity" / "config.toml").data,
-           "fidelity_small": fidelity_design, "vector_cooling": vector_design,
+           "fidelity_small": fidelity_design, "vector_cooling": lambda: vector_design(VECTOR_RUNS),
            "vector_fidelity": lambda: vector_fidelity_design(low=VECTOR_CHEAP_RUNS, high=VECTOR_RUNS),
            "vector_ragged": vector_koh_design}
 LATENT = {
@@ -175,7 +171,7 @@ FIDELITY = {"modular_multifidelity": ("cooling_fidelity", {"method": "modular", 
 # a vector output (calibrate_vector): the cooling curves, known noise sd
 VECTOR = {"modular_vector": ("vector_cooling", {"method": "modular", "discrepancy": "gp"}),
           "modular_vector_multifidelity": ("vector_fidelity", {"method": "modular", "discrepancy": "gp"}),
-          "koh_vector": ("vector_ragged", {"simulator": DRAUGHT, "method": "koh", "discrepancy": "gp"})}
+          "koh_vector": ("vector_ragged", {"simulator": WIND / "simulator.stan", "method": "koh", "discrepancy": "gp"})}
 # every family: its design, then its calibrate() options
 FAMILIES = {
     "koh": ("cooling", {"simulator": SIMULATOR, "method": "koh", "discrepancy": "gp"}),

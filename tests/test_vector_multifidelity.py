@@ -62,12 +62,13 @@ def experiments(seed: int, noise_sd: float = NOISE_SD, starts: tuple[float, ...]
 
 def problem(low: int = 100, high: int = 12, seed: int = 0, nested: bool = False, noise_sd: float = NOISE_SD,
             **extra) -> VectorCalibrationData:
-    """The expensive runs at a Latin hypercube (or, nested, at some of the cheap runs' settings)."""
-    cheap = settings(low, seed + 1)
+    """The expensive runs at a Latin hypercube (or, nested, at some of the cheap runs' settings); low = 0:
+    the expensive runs alone (the same ones: each design has its own seed)."""
+    cheap = settings(low, seed + 1) if low else None
     expensive = cheap.iloc[np.linspace(0, low - 1, high).astype(int)] if nested else settings(high, seed + 2)
     return VectorCalibrationData(experiments(seed, noise_sd), "exp", ["T0"], "temperature", "t", {"k": K_BOUNDS},
                                  runs=long_runs(COOLING.with_loss, expensive), run="run", noise_sd="sd",
-                                 low_fidelity_runs=[long_runs(COOLING.newton, cheap)], **extra)
+                                 low_fidelity_runs=[long_runs(COOLING.newton, cheap)] if low else [], **extra)
 
 
 @pytest.fixture(scope="module")

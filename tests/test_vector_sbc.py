@@ -25,9 +25,7 @@ from stancal.problem.vector_data import VectorCalibrationData
 
 def design(runs: int = 8) -> VectorCalibrationData:
     """The cooling curves with the expensive runs alone (no cheaper ones)."""
-    data = problem(low=24, high=runs)
-    return VectorCalibrationData(data.source, data.experiment, data.inputs, data.output, data.output_index,
-                                 bounds_of(data.parameters), runs=data.runs, run=data.run, noise_sd=data.noise_sd)
+    return problem(low=0, high=runs)
 
 
 def discrepancy_cov(stan_data: dict, sd: float, length_scale: np.ndarray) -> np.ndarray:
