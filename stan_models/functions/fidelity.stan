@@ -123,8 +123,8 @@ row_vector fidelity_widest(matrix w, array[] real level_sd) {
  */
 matrix fidelity_run_cov(array[] vector xt_sim, matrix w_sim, row_vector w_top, int kernel_id,
                         array[] real level_sd, array[,] real level_length_scale, vector run_nugget_sd) {
-  return add_jitter(add_diag(fidelity_cov(xt_sim, w_sim, kernel_id, level_sd, level_length_scale),
-                             square(run_nugget_sd)), fidelity_variance(w_top, level_sd));
+  return fidelity_run_cov(xt_sim, w_sim, w_top, kernel_id, level_sd, level_length_scale,
+                          diag_matrix(square(run_nugget_sd)));
 }
 
 /**

@@ -47,11 +47,12 @@ matrix same_point(array[] vector x) {
  */
 matrix replicated_runs(array[] vector xt, array[] int run_level, vector intrinsic_sd) {
   int m = size(xt);
+  matrix[m, m] same = same_point(xt);
   matrix[m, m] shared = identity_matrix(m);
   for (i in 1:m) {
     for (j in 1:m) {
-      if (i != j && intrinsic_sd[i] > 0 && intrinsic_sd[j] > 0 && run_level[i] == run_level[j]
-          && max(abs(xt[i] - xt[j])) == 0) {
+      if (i != j && same[i, j] == 1 && intrinsic_sd[i] > 0 && intrinsic_sd[j] > 0
+          && run_level[i] == run_level[j]) {
         shared[i, j] = 1;
       }
     }
@@ -75,9 +76,9 @@ matrix run_own_cov(matrix replicated, vector run_nugget, vector intrinsic_sd) {
 
 /**
  * The covariance of one GP emulator's runs (emulator.stan): the kernel over
- * (x, theta), the nugget where runs share one (replicated_runs), the jitter,
- * and each run's intrinsic variance. With no replicates, emulator_run_cov
- * (gp_kernels.stan) plus the intrinsic variance.
+ * (x, theta), the runs' own covariance (run_own_cov: the nugget where runs
+ * share one, and each run's intrinsic variance), and the jitter. With no
+ * replicates, emulator_run_cov (gp_kernels.stan) plus the intrinsic variance.
  *
  * @param xt_sim emulator inputs of the runs, (x, theta) on the unit cube
  * @param kernel_id 1 = squared exponential, 2 = Matern 5/2
@@ -91,7 +92,7 @@ matrix run_own_cov(matrix replicated, vector run_nugget, vector intrinsic_sd) {
 matrix emulator_run_cov(array[] vector xt_sim, int kernel_id, real emulator_sd,
                         array[] real emulator_length_scale, real emulator_nugget, matrix replicated,
                         vector intrinsic_sd) {
-  return add_diag(add_jitter(ard_cov(xt_sim, kernel_id, emulator_sd, emulator_length_scale)
-                             + square(emulator_nugget) * replicated, square(emulator_sd)),
-                  square(intrinsic_sd));
+  return add_jitter(ard_cov(xt_sim, kernel_id, emulator_sd, emulator_length_scale)
+                    + run_own_cov(replicated, rep_vector(emulator_nugget, size(xt_sim)), intrinsic_sd),
+                    square(emulator_sd));
 }
