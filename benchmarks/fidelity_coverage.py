@@ -4,6 +4,9 @@ the truth, with each fit's health and modes (docs/multifidelity.md).
 
 - ``--case two_level``: tests/test_multifidelity.py's problem (40 cheap and
   6 expensive runs, 12 readings, k = 1.2), 4 x (500 + 1000);
+- ``--case two_level_centred``: the same with the expensive runs at their
+  strata's centres (the slow test's design: none leaves the top of k's box
+  to the emulator's extrapolation, as seed 13's scrambled design did);
 - ``--case cooling_fidelity``: the case study's simulators (150 cheap and
   15 expensive runs from fresh Latin hypercubes, the shipped ones at seed 0;
   28 readings with fresh noise; k = 0.05), 4 x (300 + 500).
@@ -50,6 +53,7 @@ def cooling_fidelity(seed: int) -> stancal.CalibrationData:
 
 
 CASES = {"two_level": (lambda seed: two_level.problem(seed=seed), two_level.K_TRUE, 500, 1000),
+         "two_level_centred": (lambda seed: two_level.problem(seed=seed, centred=True), two_level.K_TRUE, 500, 1000),
          "cooling_fidelity": (cooling_fidelity, 0.05, 300, 500)}
 
 
