@@ -3,7 +3,9 @@ kriging) on the stochastic_cooling case: k's 90 % interval against the
 truth and its width, the measurement noise sd's posterior (truth 0.1 deg C),
 the discrepancy's sd (truth: none), and the held-out readings' coverage by
 the 90 % predictive bands of y, with the bands' mean width, in the quiet
-half of the runs' scatter (t below 31 min) and the noisy half:
+half of the runs' scatter (t below 31 min) and the noisy half, at the
+fitted settings (heldout.csv) and at settings without readings
+(heldout_new.csv):
 python case_studies/stochastic_cooling/compare.py [OUT_DIR] [--draws N]
 
 Writes comparison.csv and each fit's report to OUT_DIR (default
@@ -38,23 +40,30 @@ K_TRUE, MEASUREMENT_SD, TIMES = _make_data().K_TRUE, _make_data().MEASUREMENT_SD
 MIDDLE = 0.5 * (TIMES[0] + TIMES[-1])  # min: the runs' quiet half lies below, the noisy half above
 
 
-def row(name: str, result: stancal.CalibrationResult, heldout: pd.DataFrame, y_scale: float) -> dict:
+def band_scores(result: stancal.CalibrationResult, heldout: pd.DataFrame, label: str) -> dict:
+    """The 90 % bands of y at held-out readings: coverage and mean width in each half."""
+    bands = result.predict(heldout[["t", "T0"]], seed=3)
+    inside = (heldout["temperature"] >= bands["y_q05"]) & (heldout["temperature"] <= bands["y_q95"])
+    width = bands["y_q95"] - bands["y_q05"]
+    quiet = heldout["t"] < MIDDLE
+    return {f"coverage_{label}_quiet": inside[quiet].mean(), f"coverage_{label}_noisy": inside[~quiet].mean(),
+            f"band_width_{label}_quiet": width[quiet].mean(), f"band_width_{label}_noisy": width[~quiet].mean()}
+
+
+def row(name: str, result: stancal.CalibrationResult, heldout: dict[str, pd.DataFrame], y_scale: float) -> dict:
     """One fit's line of the table."""
     posterior = result.idata["posterior"]
     k = np.asarray(posterior["theta"]).ravel()
     low, high = np.quantile(k, [0.05, 0.95])
     noise = np.asarray(posterior["noise_sd"]).ravel()  # the posterior is in original units
-    bands = result.predict(heldout[["t", "T0"]], seed=3)
-    inside = (heldout["temperature"] >= bands["y_q05"]) & (heldout["temperature"] <= bands["y_q95"])
-    width = bands["y_q95"] - bands["y_q05"]
-    quiet = heldout["t"] < MIDDLE
     d = result.diagnostics
+    scores = {}
+    for label, readings in heldout.items():
+        scores |= band_scores(result, readings, label)
     return {"emulator": name, "k_mean": k.mean(), "k_q05": low, "k_q95": high, "k_covers_truth": low <= K_TRUE <= high,
             "k_width_90": high - low, "noise_sd_mean": noise.mean(),
             "noise_sd_q05": np.quantile(noise, 0.05), "noise_sd_q95": np.quantile(noise, 0.95),
-            "delta_sd_mean": float(np.asarray(posterior["delta_sd"]).mean()),
-            "coverage_quiet": inside[quiet].mean(), "coverage_noisy": inside[~quiet].mean(),
-            "band_width_quiet": width[quiet].mean(), "band_width_noisy": width[~quiet].mean(),
+            "delta_sd_mean": float(np.asarray(posterior["delta_sd"]).mean()), **scores,
             "emulator_nugget": result.emulator["hyperparameters"]["emulator_nugget"] * y_scale,
             "max_rhat": d.max_rhat, "divergences": d.divergences}
 
@@ -62,7 +71,7 @@ def row(name: str, result: stancal.CalibrationResult, heldout: pd.DataFrame, y_s
 def main(out: Path, draws: int, chains: int = 4) -> pd.DataFrame:
     out.mkdir(parents=True, exist_ok=True)
     problem = load_config(HERE / "config.toml")
-    heldout = pd.read_csv(HERE / "heldout.csv")
+    heldout = {"fitted": pd.read_csv(HERE / "heldout.csv"), "new": pd.read_csv(HERE / "heldout_new.csv")}
     rows = []
     for name, stochastic in (("deterministic", False), ("stochastic", True)):
         result = stancal.calibrate(problem.data, method="modular", stochastic=stochastic, chains=chains, warmup=draws,

@@ -10,7 +10,10 @@ discrepancy. runs.csv: 60 Latin-hypercube settings of (t, T0, k), each run
 5 times (300 runs). physical.csv: the true process measured at 10 times
 from 2 to 60 min from two start temperatures, two cups each, sd 0.1 deg C
 (40 readings); heldout.csv
-holds as many readings again, never fitted (compare.py scores the bands there).
+holds as many readings again, never fitted, and heldout_new.csv readings at
+settings the fit has none at (start temperatures 70 and 80 deg C, times
+halfway between the fitted ones), where the emulator's misfit is not
+conditioned on any reading (compare.py scores the bands at both).
 """
 
 from pathlib import Path
@@ -28,6 +31,8 @@ TIMES = np.linspace(2, 60, 10)  # min
 STARTS = (60.0, 90.0)  # deg C
 MEASUREMENT_SD = 0.1  # deg C
 READINGS = 2  # cups per (t, T0): their spread tells the measurement noise from the emulator's error
+NEW_TIMES = 0.5 * (TIMES[1:] + TIMES[:-1])  # min: held out, between the fitted times
+NEW_STARTS = (70.0, 80.0)  # deg C: held out, between the fitted start temperatures
 
 
 def newton(t, T0, k):
@@ -47,8 +52,8 @@ def runs(rng: np.random.Generator) -> pd.DataFrame:
     return pd.DataFrame({"t": t, "T0": T0, "k": k, "temperature": temperature.round(4)})
 
 
-def readings(rng: np.random.Generator) -> pd.DataFrame:
-    t, T0 = (np.repeat(a.ravel(), READINGS) for a in np.meshgrid(TIMES, STARTS))
+def readings(rng: np.random.Generator, times=TIMES, starts=STARTS) -> pd.DataFrame:
+    t, T0 = (np.repeat(a.ravel(), READINGS) for a in np.meshgrid(times, starts))
     temperature = newton(t, T0, K_TRUE) + MEASUREMENT_SD * rng.standard_normal(t.size)
     return pd.DataFrame({"t": t.round(3), "T0": T0, "temperature": temperature.round(4)})
 
@@ -58,6 +63,8 @@ def main(folder: Path = Path(__file__).parent) -> None:
     runs(rng).to_csv(folder / "runs.csv", index=False)
     readings(rng).to_csv(folder / "physical.csv", index=False)
     readings(rng).to_csv(folder / "heldout.csv", index=False)
+    # drawn last, so the files above stay as they were
+    readings(rng, NEW_TIMES, NEW_STARTS).to_csv(folder / "heldout_new.csv", index=False)
 
 
 if __name__ == "__main__":
