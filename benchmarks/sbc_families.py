@@ -190,6 +190,10 @@ def main() -> None:
     parser.add_argument("--draws-per-fit", type=int, default=100)
     parser.add_argument("--scheduler", default=None, help="a Dask address; default: a local cluster")
     parser.add_argument("--seed", type=int, default=1, help="the SBC's seed (another seed: chance or a fault?)")
+    parser.add_argument("--warmup", type=int, default=300, help="each fit's warm-up per chain")
+    parser.add_argument("--draws", type=int, default=None,
+                        help="each fit's draws per chain (default: the SBC's, 2 x draws-per-fit over the chains); "
+                             "longer fits: is a rejection the model's or short chains'?")
     parser.add_argument("--out", type=Path, default=None,
                         help="keep each simulation's fit, truth and ranked draws under OUT/FAMILY (resumable)")
     args = parser.parse_args()
@@ -202,12 +206,15 @@ def main() -> None:
             warnings.simplefilter("always")
             design, options = FAMILIES[family]
             result = simulation_based_calibration(DESIGNS[design](), simulations=args.sims, scheduler=args.scheduler,
-                                                  draws_per_fit=args.draws_per_fit, seed=args.seed, warmup=300,
+                                                  draws_per_fit=args.draws_per_fit, seed=args.seed,
+                                                  warmup=args.warmup, **({"draws": args.draws} if args.draws else {}),
                                                   out_dir=args.out / family if args.out else None, **options)
         kinds = collections.Counter(type(w.message).__name__ for w in caught)  # SamplerWarning: a fit's trouble
         print(f"{family}: warnings {dict(kinds) or 'none'}")
-        rows[family + ("" if args.seed == 1 else f"_seed{args.seed}")] = {
+        longer = "" if args.warmup == 300 and args.draws is None else f"_warmup{args.warmup}_draws{args.draws}"
+        rows[family + ("" if args.seed == 1 else f"_seed{args.seed}") + longer] = {
             "simulations": args.sims, "draws_per_fit": args.draws_per_fit, "seed": args.seed,
+            "warmup": args.warmup, "draws": args.draws,
             "warnings": dict(kinds),
                         "p_values": {n: t.p_value for n, t in result.tests.items()},
                         "rejected": [n for n, t in result.tests.items() if t.rejected],
