@@ -207,11 +207,12 @@ def main() -> None:
             design, options = FAMILIES[family]
             result = simulation_based_calibration(DESIGNS[design](), simulations=args.sims, scheduler=args.scheduler,
                                                   draws_per_fit=args.draws_per_fit, seed=args.seed,
-                                                  warmup=args.warmup, **({"draws": args.draws} if args.draws else {}),
+                                                  warmup=args.warmup, draws=args.draws,
                                                   out_dir=args.out / family if args.out else None, **options)
         kinds = collections.Counter(type(w.message).__name__ for w in caught)  # SamplerWarning: a fit's trouble
         print(f"{family}: warnings {dict(kinds) or 'none'}")
-        longer = "" if args.warmup == 300 and args.draws is None else f"_warmup{args.warmup}_draws{args.draws}"
+        default_fits = args.warmup == parser.get_default("warmup") and args.draws is None
+        longer = "" if default_fits else f"_warmup{args.warmup}_draws{args.draws}"
         rows[family + ("" if args.seed == 1 else f"_seed{args.seed}") + longer] = {
             "simulations": args.sims, "draws_per_fit": args.draws_per_fit, "seed": args.seed,
             "warmup": args.warmup, "draws": args.draws,
