@@ -67,13 +67,13 @@ def one_data_set(base: stancal.CalibrationData, runs) -> dict[str, float]:
     surface, _ = intrinsic_variance(data, True, 1)
     exact = data.scaling.standardise(make_data.newton(runs["t"], runs["T0"], runs["k"]).to_numpy())
     settings = RunReplicates.of(xt, y)  # the runs grouped by setting, as stage 1 groups them
-    at_setting = [np.bincount(settings.setting_of_run, v) / settings.counts for v in (true_v, exact)]
-    v_mean = at_setting[0] / settings.counts  # the variance of a setting's average
+    mean = RunReplicates.of(xt, exact).means  # Newton's law at each setting
+    v_mean = RunReplicates.of(xt, true_v).means / settings.counts  # the variance of a setting's average
     return {"(a) V true": nugget_degc(xt, y, scale, true_v),
             "(b) V estimated": nugget_degc(xt, y, scale, surface.at(xt)),
             "(d) averages, V/5": nugget_degc(settings.settings, settings.means, scale, v_mean),
-            "(c) mean, no V": nugget_degc(settings.settings, at_setting[1], scale),
-            "(e) mean, V/5": nugget_degc(settings.settings, at_setting[1], scale, v_mean),
+            "(c) mean, no V": nugget_degc(settings.settings, mean, scale),
+            "(e) mean, V/5": nugget_degc(settings.settings, mean, scale, v_mean),
             **jacobian_and_zero(xt, y, scale, true_v)}
 
 
