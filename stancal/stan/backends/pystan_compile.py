@@ -36,7 +36,7 @@ from pathlib import Path
 from stancal.stan.backends.base import StanRuntimeError, cache_root
 from stancal.stan.backends.toolchain import Toolchain, choose_toolchain
 from stancal.stan.progress import ticking
-from stancal.stan.source import FlatProgram
+from stancal.stan.source import FlatProgram, shipped_models_dir
 
 logger = logging.getLogger("stancal")
 
@@ -331,8 +331,15 @@ def _compile_in_subprocess(program: FlatProgram, toolchain: Toolchain) -> bool:
 
 
 def program_file(program: FlatProgram) -> str:
-    """The program's file name, for progress and messages."""
-    return Path(program.origin[0][0]).name if program.origin else "the program"
+    """The program's file name, for progress and messages, with the user's
+    files it includes (a simulator): a gap's variants differ only there."""
+    if not program.origin:
+        return "the program"
+    files = dict.fromkeys(Path(file) for file, _ in program.origin)
+    main, *included = files
+    shipped = shipped_models_dir().resolve()
+    users = [path.name for path in included if not path.resolve().is_relative_to(shipped)]
+    return f"{main.name} with {', '.join(users)}" if users else main.name
 
 
 def compile_programs(programs: list[FlatProgram], cores: int | None = None) -> float:
@@ -355,17 +362,18 @@ def compile_programs(programs: list[FlatProgram], cores: int | None = None) -> f
                        len(building), "s" if len(building) > 1 else "", toolchain.describe(), workers,
                        ", ".join(program_file(p) for p in building))
     names = [f"{program_file(p)} ({i + 1}/{len(building)})" for i, p in enumerate(building)]
-    built = {}  # program -> True if this process built it, False if another did meanwhile
+    built = {}  # name -> True if this process built it, False if another did meanwhile
     with ticking(names) as done, ThreadPoolExecutor(max_workers=workers) as pool:  # a thread waits on a subprocess
         builds = {pool.submit(_compile_in_subprocess, p, toolchain): (p, name)
                   for p, name in zip(building, names, strict=True)}
         for build in as_completed(builds):
             program, name = builds[build]
-            built[program_file(program)] = build.result()  # a failure is raised here
+            built[name] = build.result()  # a failure is raised here
             done(name)
     for code in todo:  # into this process's httpstan cache
         _install(code, stored_module(code))
-    for name, here in built.items():
-        logger.info("%s %s in %.0f s", "compiled" if here else "another process compiled", name,
-                    time.perf_counter() - started)
+    for whose, names in (("compiled", [n for n, here in built.items() if here]),
+                         ("another process compiled", [n for n, here in built.items() if not here])):
+        if names:  # each one's own time is in its progress line
+            logger.info("%s %s: %.0f s in all", whose, ", ".join(names), time.perf_counter() - started)
     return time.perf_counter() - started if building else 0.0
