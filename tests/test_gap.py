@@ -5,9 +5,6 @@ Python API with the joint emulator) and shield build-up (Poisson counts; the
 real effect is a multiplicative variant; decoys include a nearly constant
 air pressure)."""
 
-import os
-import threading
-
 import numpy as np
 import pandas as pd
 import pytest
@@ -23,7 +20,6 @@ from conftest import (
 )
 
 import stancal
-from stancal.diagnosing import gap as gap_module
 from stancal.diagnosing.gap import Candidate, CandidateError, check_candidates, diagnose_gap, variant_data
 from stancal.fitting.warm_start import candidate_warmup, refit_draws, refit_warmup
 from stancal.problem.codes import Likelihood
@@ -332,44 +328,6 @@ def test_variant_data_keeps_the_observation_model():
     data = variant_data(problem.data, buildup)
     assert data.observations.likelihood is Likelihood.POISSON
     assert data.levels == problem.data.levels
-
-
-# ---- the variants compile while the baseline's program fits (issue 30) -----------
-def test_the_variants_compile_beside_the_baselines_program_and_fits():
-    """The baseline's program compiles on every core and its fits may start
-    while the variants still compile on one core fewer: on the old code (every
-    program compiled before any fit) the variants' compile below waits in
-    vain for the fits, and fails."""
-    fits_started, events = threading.Event(), []
-
-    class Runner:
-        def prepare(self, programs, backend=None, cores=None):
-            if programs == ["variant"]:
-                assert fits_started.wait(timeout=30), "the fits waited for the variants' compile"
-            events.append((programs[0], cores))
-            return 12.0
-
-    with gap_module._compiling(Runner(), ["koh"], ["variant"], None) as (compiled, built):
-        assert compiled == 12.0
-        fits_started.set()
-        events.append("fits")
-        assert built() == 12.0
-    assert events == [("koh", None), "fits", ("variant", max(1, (os.cpu_count() or 1) - 1))]
-
-
-def test_the_baselines_program_is_fitted_before_the_variants_are_waited_for():
-    candidates = [Candidate("v", stan=COOLING / "simulator_quadratic_loss.stan", inputs=("t",)),
-                  Candidate("humidity", formula="humidity")]
-    events = []
-
-    def run(tasks):
-        events.append(list(tasks))
-        return [f"fit of {task}" for task in tasks]
-
-    fits = gap_module._full_fits(run, lambda c, start: gap_module.label_name(c), candidates, False, [],
-                                 lambda: events.append("variants built"))
-    assert events == [["the baseline", "candidate 'humidity'"], "variants built", ["candidate 'v'"]]
-    assert fits == ["fit of the baseline", "fit of candidate 'v'", "fit of candidate 'humidity'"]
 
 
 # ---- bad candidates: errors that name the candidate ----------------------------

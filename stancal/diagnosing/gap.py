@@ -36,14 +36,10 @@ discrepancy is not identified, while its variation is.
 
 from __future__ import annotations
 
-import contextlib
 import functools
 import logging
-import os
 import re
 import warnings
-from collections.abc import Callable, Iterator
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -345,9 +341,11 @@ def diagnose_gap(
 
     labels = [None, *candidates]
     failed: list[FitFailure] = []
-    variants = [variant_program(data, c, plan) for c in candidates if c.kind == "variant"]
-    with fit_runner(scheduler) as runner, \
-            _compiling(runner, plan.stan_programs(), variants, calibrate_options.get("backend")) as (compiled, built):
+    with fit_runner(scheduler) as runner:
+        # every program up front, side by side on the machine's cores, then on every worker
+        compiled = runner.prepare([*plan.stan_programs(), *(variant_program(data, c, plan) for c in candidates
+                                                            if c.kind == "variant")],
+                                  calibrate_options.get("backend"))
         clock.lap("compile" if compiled else COMPILED_EARLIER)
         # a theta that carries the constant's level: the constant leaves every fit alike (checked once, here;
         # from runs, on stage 1's emulator, which every fit then reuses: stage 1 reads the runs alone, which the
@@ -366,7 +364,7 @@ def diagnose_gap(
                             fit_seed(seed, f"warm {label_name(c)}")))
 
         fits = _full_fits(functools.partial(run, runner), fit_task, candidates, warm_candidates and not vector,
-                          failed, built)
+                          failed)
         labels, fits = _without_failures(labels, fits, failed)
         clock.lap("fits")
         scores = [psis_score(r) for r in fits]
@@ -408,42 +406,16 @@ def _gap_plan(data, simulator, method: str | None, calibrate_options: dict[str, 
     return replace(plan, options=replace(plan.options, mean_formula=None, mean_intercept=True))
 
 
-@contextlib.contextmanager
-def _compiling(runner: FitRunner, programs: list[FlatProgram], variants: list[FlatProgram],
-               backend: str | None) -> Iterator[tuple[float, Callable[[], float]]]:
-    """Compile the baseline's ``programs`` and yield their compile seconds
-    and a wait for the candidates' simulator ``variants``, which compile in
-    a thread meanwhile, on a core fewer than the machine's: beside the
-    baseline's program, then beside the fits that need only it. Compiled
-    one after the other, the last variant left a core idle for a minute of
-    a fresh demo's five on two cores (issue 30: start the first fits while
-    the variants still compile)."""
-    with ThreadPoolExecutor(max_workers=1) as compiler:
-        cores = max(1, (os.cpu_count() or 1) - len(programs))
-        variants_built = compiler.submit(runner.prepare, variants, backend, cores)
-        yield runner.prepare(programs, backend), variants_built.result
-
-
-def _full_fits(run, fit_task, candidates: list[Candidate], warm: bool, failed: list[FitFailure],
-               variants_built: Callable[[], float]) -> list:
+def _full_fits(run, fit_task, candidates: list[Candidate], warm: bool, failed: list[FitFailure]) -> list:
     """The baseline's and the candidates' fits to all the data: the baseline
-    first and each candidate started where it ended when ``warm``, else side
-    by side, the fits of the baseline's program first, while the variants
-    still compile (``variants_built`` waits for them; a vector result's fits
-    start cold)."""
-    if warm:
-        baseline = run([fit_task(None, None)])
-        if isinstance(baseline[0], FitFailure):  # raises: without the baseline, nothing to start from or compare
-            _record_failure(None, baseline[0], failed)
-        variants_built()
-        return [*baseline, *run([fit_task(c, baseline[0]) for c in candidates])]
-    labels = [None, *candidates]
-    first = [c for c in labels if c is None or c.kind != "variant"]
-    fits = dict(zip(map(label_name, first), run([fit_task(c, None) for c in first]), strict=True))
-    variants_built()
-    later = [c for c in candidates if c.kind == "variant"]
-    fits |= dict(zip(map(label_name, later), run([fit_task(c, None) for c in later]), strict=True))
-    return [fits[label_name(c)] for c in labels]
+    first and each candidate started where it ended when ``warm``, else all
+    side by side (a vector result's fits start cold)."""
+    if not warm:
+        return run([fit_task(c, None) for c in [None, *candidates]])
+    baseline = run([fit_task(None, None)])
+    if isinstance(baseline[0], FitFailure):  # raises: without the baseline, nothing to start from or compare
+        _record_failure(None, baseline[0], failed)
+    return [*baseline, *run([fit_task(c, baseline[0]) for c in candidates])]
 
 
 def _without_failures(labels: list, fits: list, failed: list[FitFailure]) -> tuple[tuple, tuple]:

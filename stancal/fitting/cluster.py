@@ -239,12 +239,11 @@ class FitRunner:
             self._cluster.close()  # kills the workers: their private caches go with the scratch folder
             shutil.rmtree(self._scratch, ignore_errors=True)
 
-    def prepare(self, programs: list[FlatProgram], backend: str | None = None, cores: int | None = None) -> float:
+    def prepare(self, programs: list[FlatProgram], backend: str | None = None) -> float:
         """Compile the programs here (stanc's errors point at the user's
-        lines; ``cores``: at most that many at a time) and install them on
-        every worker before any fit of them starts. Returns the seconds spent
-        compiling (0.0: all compiled earlier)."""
-        compile_s = get_backend(backend).compile(programs, cores)
+        lines) and install them on every worker before any fit starts.
+        Returns the seconds spent compiling (0.0: all compiled earlier)."""
+        compile_s = get_backend(backend).compile(programs)
         if self.client is not None:
             self.client.run(_prepare_worker, programs, backend)
         return compile_s

@@ -148,12 +148,11 @@ class StanBackend(Protocol):
         """Raise StanProgramError, with the user's file and line, if stanc rejects the program."""
         ...
 
-    def compile(self, programs: list[FlatProgram], cores: int | None = None) -> float:
+    def compile(self, programs: list[FlatProgram]) -> float:
         """Compile the programs that are not compiled yet (each once, however
-        often it is listed), in parallel over the machine's cores (``cores``:
-        at most that many at a time), so that the fits after it start at
-        once. Returns the seconds spent compiling: 0.0 when every program
-        came from a cache (compiled earlier)."""
+        often it is listed), in parallel over the machine's cores, so that the
+        fits after it start at once. Returns the seconds spent compiling:
+        0.0 when every program came from a cache (compiled earlier)."""
         ...
 
     def sample(

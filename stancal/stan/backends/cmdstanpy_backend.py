@@ -61,14 +61,14 @@ class CmdStanPyBackend:
     def check(self, program: FlatProgram) -> None:
         self._model(program)
 
-    def compile(self, programs: list[FlatProgram], cores: int | None = None) -> float:
+    def compile(self, programs: list[FlatProgram]) -> float:
         # each compile is a make subprocess: threads are enough to run them side by side
         from concurrent.futures import ThreadPoolExecutor
 
         unique = {p.code: p for p in programs}.values()  # each program once
         building = any(not (cache_dir() / p.digest / "model").exists() for p in unique)
         started = time.perf_counter()
-        with ThreadPoolExecutor(max_workers=cores or os.cpu_count() or 1) as pool:
+        with ThreadPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
             list(pool.map(self._model, unique))
         return time.perf_counter() - started if building else 0.0
 

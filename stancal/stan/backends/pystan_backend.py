@@ -166,10 +166,10 @@ class PyStanBackend:
         except RuntimeError as err:
             raise StanRuntimeError(program.explain(str(err))) from None
 
-    def compile(self, programs: list[FlatProgram], cores: int | None = None) -> float:
+    def compile(self, programs: list[FlatProgram]) -> float:
         for program in {p.code: p for p in programs if not stored_module(p.code).is_file()}.values():
             self.check(program, show_warnings=True)  # stanc's errors first, with the user's lines
-        return compile_programs(programs, cores)
+        return compile_programs(programs)
 
     @staticmethod
     def check(program: FlatProgram, show_warnings: bool = False) -> None:

@@ -27,7 +27,6 @@ import shutil
 import subprocess
 import sys
 import tempfile
-import threading
 import time
 from concurrent.futures import ThreadPoolExecutor, as_completed
 from importlib.machinery import EXTENSION_SUFFIXES
@@ -231,9 +230,6 @@ def release_private_httpstan_cache(folder: Path) -> None:
 
 _private_folder: Path | None = None
 _held_lock = None  # this process's lock on its folder, held until it exits
-# one folder per process even when two threads ask first at once (stancal gap compiles its
-# candidates' variants in a thread while the baseline's program compiles)
-_folder_made = threading.Lock()
 
 
 def _sweep_abandoned(root: Path) -> None:
@@ -261,18 +257,17 @@ def ensure_private_httpstan_cache() -> Path:
     The folder lives under the machine's cache, locked by this process while
     it runs, and is removed at exit (or by the next process, after a kill)."""
     global _held_lock
-    with _folder_made:
-        if _private_folder is not None:
-            return _private_folder
-        root = cache_root() / "pystan" / "processes"
-        root.mkdir(parents=True, exist_ok=True)
-        _sweep_abandoned(root)
-        folder = root / f"{os.getpid()}-{os.urandom(6).hex()}"
-        _held_lock = open(folder.with_suffix(".lock"), "w")  # held for the process's life
-        fcntl.flock(_held_lock, fcntl.LOCK_EX)
-        use_private_httpstan_cache(folder)
-        atexit.register(_remove_own_folder, folder, os.getpid())
-        return folder
+    if _private_folder is not None:
+        return _private_folder
+    root = cache_root() / "pystan" / "processes"
+    root.mkdir(parents=True, exist_ok=True)
+    _sweep_abandoned(root)
+    folder = root / f"{os.getpid()}-{os.urandom(6).hex()}"
+    _held_lock = open(folder.with_suffix(".lock"), "w")  # held for the process's life
+    fcntl.flock(_held_lock, fcntl.LOCK_EX)
+    use_private_httpstan_cache(folder)
+    atexit.register(_remove_own_folder, folder, os.getpid())
+    return folder
 
 
 def _remove_own_folder(folder: Path, owner: int) -> None:
@@ -342,10 +337,9 @@ def program_file(program: FlatProgram) -> str:
     return f"{main.name} with {', '.join(users)}" if users else main.name
 
 
-def compile_programs(programs: list[FlatProgram], cores: int | None = None) -> float:
+def compile_programs(programs: list[FlatProgram]) -> float:
     """Compile (or fetch from the store) the programs this process's httpstan
-    cache lacks, one per core at a time (``cores``: at most that many at a
-    time; None: the machine's). Another process compiling the same
+    cache lacks, one per core at a time. Another process compiling the same
     program at the same moment is waited for, not repeated. Returns the
     seconds spent building: 0.0 when every program was built earlier."""
     ensure_private_httpstan_cache()
@@ -353,7 +347,7 @@ def compile_programs(programs: list[FlatProgram], cores: int | None = None) -> f
     if not todo:
         return 0.0
     building = [p for p in todo.values() if not stored_module(p.code).is_file()]
-    workers = max(1, min(len(building), cores or os.cpu_count() or 1))
+    workers = max(1, min(len(building), os.cpu_count() or 1))
     started = time.perf_counter()
     toolchain = prepare_toolchain() if building else Toolchain()
     if building:
