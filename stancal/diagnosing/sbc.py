@@ -8,8 +8,12 @@ function of the parameters and the data, is ranked too (Modrák et al.
 marginal ranks nearly uniform.
 
 The prior and the prior predictive come from the same program run with
-``prior_only = 1`` (its y_rep), thinned so the draws are nearly
-independent; censored outputs are censored as the data were
+``prior_only = 1`` (its y_rep), long enough that its evenly thinned draws
+are nearly independent, as SBC's truths must be (Talts et al. 2018): a
+hierarchical prior (Student-t's mixture weights under their degrees of
+freedom) is a funnel that NUTS leaves slowly, and truths thinned from a
+sticky stretch of its chain fail the rank test with no fit at fault
+(_independent_prior); censored outputs are censored as the data were
 (CalibrationData.with_output). Every fit keeps the original data's
 standardisation: the programs' priors live on the standardised scale, so
 re-standardising each simulated data set would fit a different prior from
@@ -25,8 +29,11 @@ anything compiles.
 
 from __future__ import annotations
 
+import functools
 import json
+import math
 import time
+import warnings
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -44,6 +51,7 @@ from stancal.problem import advice
 from stancal.problem.data import CalibrationData
 from stancal.problem.sampling import SamplerOptions
 from stancal.problem.vector_data import VectorCalibrationData
+from stancal.results.diagnostics import SamplerWarning
 from stancal.results.result import CalibrationResult
 from stancal.results.vector_result import VectorCalibrationResult
 from stancal.stan.backends import get_backend
@@ -51,7 +59,11 @@ from stancal.stan.registry import SBC, commands_taking
 from stancal.stan.standata import build_stan_data, to_stan_json
 from stancal.stan.vector_standata import build_vector_stan_data
 
-PRIOR_THINNING = 5  # prior draws kept: every 5th of one long chain
+PRIOR_THINNING = 5  # the prior run's first length: 5 draws per simulation, evenly thinned to one
+# the prior run is long enough when its smallest effective sample size is at least 2 per simulation: thinned
+# to one draw per simulation, successive truths are then at least two autocorrelation times apart
+PRIOR_ESS_PER_SIMULATION = 2
+PRIOR_MAX_THINNING = 200  # and at most 200 draws per simulation
 SBC_CHAINS, SBC_WARMUP = 2, 300  # each fit's defaults: many fits, each of a small posterior
 LOG_LIKELIHOOD = "log_likelihood"  # ranked beside the parameters (Modrák et al. 2023)
 TRUTH = "truth.json"  # in each simulation's folder: the values it was simulated from
@@ -66,6 +78,7 @@ class SBCResult:
     tests: dict[str, Uniformity]
     seconds: float
     failed: list[int] = field(default_factory=list)  # simulations whose fit raised
+    prior_run: dict[str, Any] = field(default_factory=dict)  # its draws and smallest ESS (_independent_prior)
 
     def verdict(self, name: str) -> str:
         test = self.tests[name]
@@ -78,7 +91,7 @@ class SBCResult:
                 "parameters": {name: {"ranks": ranks, "p_value": self.tests[name].p_value,
                                       "rejected": self.tests[name].rejected, "verdict": self.verdict(name)}
                                for name, ranks in self.ranks.items()},
-                "failed_simulations": self.failed, "seconds": round(self.seconds, 1)}
+                "failed_simulations": self.failed, "prior_run": self.prior_run, "seconds": round(self.seconds, 1)}
 
 
 def _scalars(group, draw: int | None = None) -> dict[str, np.ndarray]:
@@ -94,6 +107,42 @@ def _scalars(group, draw: int | None = None) -> dict[str, np.ndarray]:
             column = values[(slice(None), *index)]
             out[key] = column if draw is None else column[draw]
     return out
+
+
+def _smallest_ess(prior_fit) -> tuple[float, str]:
+    """The prior run's smallest effective sample size, bulk or tail, over
+    every scalar SBC ranks, and that scalar's name."""
+    import arviz_stats as ast
+    import xarray as xr
+
+    scalars = _scalars(prior_fit.idata["prior"].to_dataset())
+    draws = xr.Dataset({name: (("chain", "draw"), values[None]) for name, values in scalars.items()})
+    ess = {(name, kind): float(value) for kind in ("bulk", "tail")
+           for name, value in ast.ess(draws, method=kind).data_vars.items()}
+    (name, _), smallest = min(ess.items(), key=lambda item: item[1])
+    return smallest, name
+
+
+def _independent_prior(run_prior, simulations: int):
+    """``run_prior(draws=...)`` run long enough that its draws, thinned to one
+    per simulation, are nearly independent: while its smallest ESS is below
+    PRIOR_ESS_PER_SIMULATION per simulation, again, longer by the shortfall
+    (at most PRIOR_MAX_THINNING draws per simulation; short even then, a
+    SamplerWarning says so). Returns the run and a record of it."""
+    draws, needed, longest = PRIOR_THINNING * simulations, PRIOR_ESS_PER_SIMULATION * simulations, \
+        PRIOR_MAX_THINNING * simulations
+    while True:
+        prior_fit = run_prior(draws=draws)
+        ess, worst = _smallest_ess(prior_fit)
+        if ess >= needed or draws >= longest:
+            break
+        draws = min(longest, math.ceil(1.25 * draws * needed / max(ess, 1.0)))
+    if ess < needed:
+        warnings.warn(f"SBC's prior run: {worst}'s effective sample size is {ess:.0f} in {draws} draws, below "
+                      f"{needed} ({PRIOR_ESS_PER_SIMULATION} per simulation): its truths are not independent "
+                      f"draws of the prior, and its ranks may be rejected with no fit at fault; reparametrise "
+                      f"the prior (non-centred) or run fewer simulations", SamplerWarning, stacklevel=3)
+    return prior_fit, {"draws": draws, "min_ess": round(ess, 1), "min_ess_of": worst}
 
 
 def _thinned(values: np.ndarray, count: int) -> np.ndarray:
@@ -234,7 +283,7 @@ def simulation_based_calibration(
     are replaced by simulated ones).
     ``program``: fit with this program instead (e.g. a deliberately wrong
     copy) while simulating from the method's own. Each fit keeps
-    ``draws_per_fit`` draws, evenly thinned from 2 x draws_per_fit per chain.
+    ``draws_per_fit`` draws, evenly thinned from 2 x draws_per_fit over the chains.
     The fits run side by side on Dask (``scheduler``, see stancal.fitting.cluster).
     Under ``out_dir``, each simulation's folder holds its fit, its truth and
     the draws each truth was ranked among; a rerun with the same ``out_dir``
@@ -264,9 +313,9 @@ def simulation_based_calibration(
     _require_sbc(plan)  # before the output folder is written to, and before anything compiles
     resume = Resume(out_dir, seed)  # a rerun into the same folder reuses the simulations it finished
     seed = resume.seed
-    prior_fit = _calibrate_for(data)(data, simulator=simulator, method=method, prior=True, chains=1, warmup=warmup,
-                                     draws=PRIOR_THINNING * simulations, seed=seed,
-                                     **calibrate_options, **prior_model)
+    prior_fit, prior_run = _independent_prior(functools.partial(
+        _calibrate_for(data), data, simulator=simulator, method=method, prior=True, chains=1, warmup=warmup,
+        seed=seed, **calibrate_options, **prior_model), simulations)
     # the simulations share the runs, so a stage 1 from the runs alone (not the scalable one, which reads y)
     # is the prior's: each fit conditions on the hyperparameters its data were simulated with
     reused = prior_fit.emulator if plan.stage_one_from_runs and prior_fit.emulator else None
@@ -284,11 +333,11 @@ def simulation_based_calibration(
     with fit_runner(scheduler) as runner:
         runner.prepare([], calibrate_options.get("backend"))  # the prior's fit compiled the programs here
         outcomes = resume.map(runner, tasks, keep=keep_whole, restore=lambda task, folder, ranks: ranks)
-    return _result(outcomes, simulations, draws_per_fit, level, seed, started, out_dir)
+    return _result(outcomes, simulations, draws_per_fit, level, seed, started, out_dir, prior_run)
 
 
 def _result(outcomes: list, simulations: int, draws_per_fit: int, level: float, seed: int, started: float,
-            out_dir: str | Path | None) -> SBCResult:
+            out_dir: str | Path | None, prior_run: dict[str, Any]) -> SBCResult:
     """Each parameter's ranks over the simulations that finished, their uniformity tests, and sbc.json."""
     ranks: dict[str, list[int]] = {}
     failed = [s for s, outcome in enumerate(outcomes) if isinstance(outcome, FitFailure)]
@@ -298,7 +347,7 @@ def _result(outcomes: list, simulations: int, draws_per_fit: int, level: float, 
                 ranks.setdefault(name, []).append(rank)
     rng = np.random.default_rng(seed)
     tests = {name: uniformity(fractional_ranks(r, draws_per_fit, rng), level, seed) for name, r in ranks.items()}
-    result = SBCResult(simulations, draws_per_fit, ranks, tests, time.perf_counter() - started, failed)
+    result = SBCResult(simulations, draws_per_fit, ranks, tests, time.perf_counter() - started, failed, prior_run)
     if out_dir is not None:
         Path(out_dir).mkdir(parents=True, exist_ok=True)
         (Path(out_dir) / "sbc.json").write_text(json.dumps(result.to_json(), indent=2))
