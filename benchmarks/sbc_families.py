@@ -43,6 +43,7 @@ from __future__ import annotations
 
 import argparse
 import collections
+import fcntl
 import json
 import sys
 import time
@@ -183,6 +184,19 @@ FAMILIES = {
 } | LATENT | NOISE | FIDELITY | VECTOR
 
 
+def add_row(name: str, row: dict) -> dict:
+    """sbc.json with ``row`` added under ``name``: read, changed and written
+    under a lock, so that runs of several families side by side keep each
+    other's rows."""
+    path = Path(__file__).parent / "sbc.json"
+    with open(path.with_suffix(".lock"), "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes
+        rows = json.loads(path.read_text()) if path.is_file() else {}
+        rows[name] = row
+        path.write_text(json.dumps(rows, indent=2))
+    return rows
+
+
 def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--family", nargs="+", default=list(FAMILIES), choices=list(FAMILIES))
@@ -197,8 +211,6 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=None,
                         help="keep each simulation's fit, truth and ranked draws under OUT/FAMILY (resumable)")
     args = parser.parse_args()
-    path = Path(__file__).parent / "sbc.json"
-    rows = json.loads(path.read_text()) if path.is_file() else {}
     for family in args.family:
         started = time.perf_counter()
         # the fits' warnings (sampler trouble in some simulations) are counted into the row, not hidden
@@ -213,14 +225,13 @@ def main() -> None:
         print(f"{family}: warnings {dict(kinds) or 'none'}")
         default_fits = args.warmup == parser.get_default("warmup") and args.draws is None
         longer = "" if default_fits else f"_warmup{args.warmup}_draws{args.draws}"
-        rows[family + ("" if args.seed == 1 else f"_seed{args.seed}") + longer] = {
+        rows = add_row(family + ("" if args.seed == 1 else f"_seed{args.seed}") + longer, {
             "simulations": args.sims, "draws_per_fit": args.draws_per_fit, "seed": args.seed,
-            "warmup": args.warmup, "draws": args.draws,
+            "warmup": args.warmup, "draws": args.draws, "prior_run": result.prior_run,
             "warnings": dict(kinds),
-                        "p_values": {n: t.p_value for n, t in result.tests.items()},
-                        "rejected": [n for n, t in result.tests.items() if t.rejected],
-                        "failed_simulations": len(result.failed), "seconds": time.perf_counter() - started}
-        path.write_text(json.dumps(rows, indent=2))
+            "p_values": {n: t.p_value for n, t in result.tests.items()},
+            "rejected": [n for n, t in result.tests.items() if t.rejected],
+            "failed_simulations": len(result.failed), "seconds": time.perf_counter() - started})
     print("| family | S | L | p-values | rejected | wall time |")
     print("|---|---|---|---|---|---|")
     for family, r in rows.items():
