@@ -127,6 +127,24 @@ def test_theta_density_spans_the_posterior_not_the_prior(synthetic):
     pyplot().close(fig)
 
 
+def test_many_thetas_wrap_into_rows(synthetic, tmp_path):
+    """Eleven θ (the Al-5083 case) were eleven panels in one row, each too
+    narrow to read at a page's width: four a row now, every one labelled,
+    the empty places hidden."""
+    names = [f"theta_{i}" for i in range(11)]
+    synthetic.data = SimpleNamespace(parameters=[SimpleNamespace(name=n, lower=0.0, upper=1.0) for n in names])
+    synthetic.idata = {"posterior": {"theta": np.random.default_rng(2).uniform(0.3, 0.6, (2, 300, 11))}}
+    fig = plot_theta(synthetic)
+    shown = [ax for ax in fig.axes if ax.get_visible()]
+    assert [ax.get_xlabel() for ax in shown] == names
+    assert {ax.get_subplotspec().colspan.start for ax in shown} == {0, 1, 2, 3}  # 4 columns
+    assert {ax.get_subplotspec().rowspan.start for ax in shown} == {0, 1, 2}  # 3 rows
+    assert not outside_canvas(fig)
+    pyplot().close(fig)
+    plot_theta(synthetic, tmp_path / "theta.png")
+    assert (tmp_path / "theta.png").stat().st_size > 0
+
+
 def test_axes_carry_the_units_of_the_config(synthetic):
     from stancal.reporting.series import fit_curves
 

@@ -23,6 +23,7 @@ def pyplot():
 
 
 LEVEL = "90 %"  # every band and interval in these figures: 5 % to 95 % quantiles
+THETA_COLUMNS = 4  # theta's panels per row: eleven in one row (Al-5083) were unreadable at a page's width
 
 
 def _density(values: np.ndarray, low: float, high: float) -> tuple[np.ndarray, np.ndarray]:
@@ -55,18 +56,22 @@ def _posterior_view(values: np.ndarray, p) -> tuple[float, float]:
 def plot_theta(result: CalibrationResult, path: str | Path | None = None, units: dict[str, str] | None = None):
     """Posterior density of each theta over the posterior's own range, one
     colour per mode, its central 90 % interval shaded, and the uniform
-    prior as a dashed reference."""
+    prior as a dashed reference; THETA_COLUMNS panels a row."""
     plt = pyplot()
     posterior = result.idata["posterior"]
     # a cheap simulator's own theta_l (Goh et al. 2013) in panels after theta's
     low = list(getattr(result.data, "low_parameters", [])) if "theta_low" in posterior else []
     params = [*result.data.parameters, *low]
-    fig, axes = plt.subplots(1, len(params), figsize=(4.2 * len(params), 3.4), squeeze=False,
+    columns = min(len(params), THETA_COLUMNS)
+    rows = -(-len(params) // columns)
+    fig, axes = plt.subplots(rows, columns, figsize=(4.2 * columns, 3.4 * rows), squeeze=False,
                              layout="constrained")
+    for ax in axes.flat[len(params):]:  # the last row's empty places
+        ax.set_visible(False)
     theta = np.concatenate([np.asarray(posterior["theta"]), *([np.asarray(posterior["theta_low"])] if low else [])],
                            axis=-1)
     groups = [m.chains for m in result.modes] or [list(range(theta.shape[0]))]
-    for k, (ax, p) in enumerate(zip(axes[0], params, strict=False)):
+    for k, (ax, p) in enumerate(zip(axes.flat, params, strict=False)):
         low, high = _posterior_view(theta[..., k].ravel(), p)
         for g, chains in enumerate(groups):
             values = theta[chains, :, k].ravel()
@@ -83,7 +88,7 @@ def plot_theta(result: CalibrationResult, path: str | Path | None = None, units:
         ax.set_xlabel(axis_label(p.name, units))
         ax.set_ylabel("posterior density" + _per(units, p.name))
     # one legend below the panels, where it covers no density
-    fig.legend(*axes[0][0].get_legend_handles_labels(), loc="outside lower center", ncols=3, fontsize=7)
+    fig.legend(*axes.flat[0].get_legend_handles_labels(), loc="outside lower center", ncols=3, fontsize=7)
     fig.suptitle(f"θ posterior ({result.method})")
     return finish(fig, path)
 
