@@ -42,8 +42,8 @@ def true_variance(data, stored) -> np.ndarray:
 
 
 def fit(problem, chains: int, draws: int, true: bool) -> stancal.CalibrationResult:
-    options = dict(method="modular", stochastic=True, chains=chains, warmup=draws, draws=draws, seed=5,
-                   adapt_delta=0.95)
+    options = {"method": "modular", "stochastic": True, "chains": chains, "warmup": draws, "draws": draws,
+               "seed": 5, "adapt_delta": 0.95}
     if not true:
         return stancal.calibrate(problem.data, **options)
     with mock.patch("stancal.fitting.stage_one.run_intrinsic_variance", true_variance), \

@@ -111,11 +111,15 @@ def _scalars(group, draw: int | None = None) -> dict[str, np.ndarray]:
 
 def _smallest_ess(prior_fit) -> tuple[float, str]:
     """The prior run's smallest effective sample size, bulk or tail, over
-    every scalar SBC ranks, and that scalar's name."""
+    every scalar SBC ranks that varies (a constant has none, and its truths
+    are all alike), and that scalar's name."""
     import arviz_stats as ast
     import xarray as xr
 
-    scalars = _scalars(prior_fit.idata["prior"].to_dataset())
+    scalars = {name: values for name, values in _scalars(prior_fit.idata["prior"].to_dataset()).items()
+               if np.ptp(values) > 0}
+    if not scalars:
+        return math.inf, "none"
     draws = xr.Dataset({name: (("chain", "draw"), values[None]) for name, values in scalars.items()})
     ess = {(name, kind): float(value) for kind in ("bulk", "tail")
            for name, value in ast.ess(draws, method=kind).data_vars.items()}
