@@ -25,6 +25,7 @@ sys.path.insert(0, str(ROOT / "case_studies" / "stochastic_cooling"))
 sys.path.insert(0, str(ROOT))
 
 import compare  # noqa: E402  (the case study's own scoring)
+import make_data  # noqa: E402  (its intrinsic_sd, the truth)
 
 import stancal  # noqa: E402
 from stancal.problem.config import load_config  # noqa: E402
@@ -38,7 +39,7 @@ def true_variance(data, stored) -> np.ndarray:
     runs = emulator_run_data(data)
     t = data.runs["t"].to_numpy()
     assert len(t) == runs["M"]
-    return (compare._make_data().intrinsic_sd(t) / data.scaling.y_scale) ** 2
+    return (make_data.intrinsic_sd(t) / data.scaling.y_scale) ** 2
 
 
 def fit(problem, chains: int, draws: int, true: bool) -> stancal.CalibrationResult:

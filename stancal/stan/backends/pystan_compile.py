@@ -366,8 +366,8 @@ def compile_programs(programs: list[FlatProgram]) -> float:
             done(name)
     for code in todo:  # into this process's httpstan cache
         _install(code, stored_module(code))
-    for whose, names in (("compiled", [n for n, here in built.items() if here]),
-                         ("another process compiled", [n for n, here in built.items() if not here])):
-        if names:  # each one's own time is in its progress line
-            logger.info("%s %s: %.0f s in all", whose, ", ".join(names), time.perf_counter() - started)
+    for whose, here in (("compiled", True), ("another process compiled", False)):
+        which = [name for name, by_us in built.items() if by_us is here]
+        if which:  # each one's own time is in its progress line
+            logger.info("%s %s: %.0f s in all", whose, ", ".join(which), time.perf_counter() - started)
     return time.perf_counter() - started if building else 0.0
