@@ -41,7 +41,7 @@ import numpy as np
 from scipy import linalg, optimize
 from scipy.spatial import cKDTree
 
-from stancal.problem.run_replicates import RunReplicates
+from stancal.problem.run_replicates import group_settings
 
 logger = logging.getLogger("stancal")
 
@@ -84,13 +84,8 @@ def same_point(points: np.ndarray) -> np.ndarray:
     """(n, n) boolean: True where two of the n points are identical, so they
     share one draw of the emulator's nugget (functions/same_point.stan).
     Grouped exactly, as the runs' replicates are (RunReplicates)."""
-    group = _groups(points).setting_of_run
+    group = group_settings(points)[1]
     return group[:, None] == group[None, :]
-
-
-def _groups(points: np.ndarray) -> RunReplicates:
-    """The points grouped where identical (each point's group, each group's size)."""
-    return RunReplicates.of(points, np.zeros(len(points)))
 
 
 def shared_nugget(xt: np.ndarray, known: np.ndarray | None) -> np.ndarray | None:
@@ -404,9 +399,9 @@ def point_variance(x_unit: np.ndarray, theta_unit: np.ndarray, xt_runs: np.ndarr
 def identical_groups(points: np.ndarray) -> np.ndarray:
     """(points, groups): one indicator column per group of two or more
     identical points (same_point's groups; none where all are distinct)."""
-    groups = _groups(points)
-    shared = np.flatnonzero(groups.counts > 1)
-    return (groups.setting_of_run[:, None] == shared[None, :]).astype(float)
+    _, group, counts = group_settings(points)
+    shared = np.flatnonzero(counts > 1)
+    return (group[:, None] == shared[None, :]).astype(float)
 
 
 @dataclass

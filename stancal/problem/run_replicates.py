@@ -20,6 +20,14 @@ def pooled_variance(counts: np.ndarray, variances: np.ndarray) -> float:
     return float(np.sum(dof * np.asarray(variances, float)) / dof.sum())
 
 
+def group_settings(settings: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Rows of ``settings`` (M, K) grouped where exactly equal: the distinct
+    rows, each row's group (an index into them) and each group's size."""
+    distinct, index, counts = np.unique(np.asarray(settings, float), axis=0, return_inverse=True,
+                                        return_counts=True)
+    return distinct, index.ravel(), counts
+
+
 @dataclass(frozen=True)
 class RunReplicates:
     """The runs grouped by their setting (inputs and theta)."""
@@ -33,9 +41,7 @@ class RunReplicates:
     @classmethod
     def of(cls, settings: np.ndarray, output: np.ndarray) -> RunReplicates:
         """Group the runs' ``settings`` (M, D + Q) and ``output`` (M,)."""
-        distinct, index, counts = np.unique(np.asarray(settings, float), axis=0, return_inverse=True,
-                                            return_counts=True)
-        index = index.ravel()
+        distinct, index, counts = group_settings(settings)
         y = np.asarray(output, float)
         sums = np.bincount(index, y, len(counts))
         means = sums / counts
