@@ -123,6 +123,17 @@ def test_predict_with_emulator(name, request):
     assert np.all(np.abs(table["zeta_q50"] - truth) < 1.0)
 
 
+@pytest.mark.parametrize("name", ["koh_emulator_fit", "modular_fit"])
+def test_every_emulator_reports_its_runs_replicates(name, request):
+    """Replicated runs are found and reported on every program that emulates
+    the runs (docs/noise.md), koh_emulator (no stage 1) as modular: the
+    shipped cooling runs repeat no setting."""
+    result = request.getfixturevalue(name)
+    runs = result.emulator["replicated_runs"]
+    assert runs["runs"] == len(result.data.runs) and runs["settings"] == len(result.data.runs)
+    assert runs["replicated_settings"] == 0 and runs["pooled_within_replicate_sd"] is None
+
+
 def test_save_and_load_round_trip(koh_fit, tmp_path):
     path = koh_fit.save(tmp_path / "posterior.nc")
     again = type(koh_fit).load(path)

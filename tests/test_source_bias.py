@@ -31,6 +31,7 @@ from scipy import stats
 import stancal
 from stancal.fitting.plan import make_plan
 from stancal.problem.config import load_config
+from stancal.problem.noise import describes_noise
 from stancal.problem.validation import DataError
 from stancal.reporting.report import write_calibration
 from stancal.stan.backends.base import fresh_prediction_normals
@@ -326,6 +327,17 @@ def test_a_source_column_serves_biased_sources_with_one_noise_sd():
     stan_data = build_stan_data(case_data(frame), plan.program.data, plan.options, frame.iloc[:1])
     assert stan_data["S"] == 1 and stan_data["n_biased"] == 1
     assert (stan_data["bias_of"] == (frame["instrument"] == "camera")).all()
+
+
+def test_biased_sources_under_iid_noise_are_described_in_summary_and_report():
+    """iid noise with a biased source is still a measurement model: summary.json's
+    noise block (and so the report's section) names the biased and reference
+    sources; plain iid noise without a source or known sd has none."""
+    frame = pd.read_csv(CASE / "physical.csv")
+    biased = make_plan(case_data(frame), SIMULATOR, noise="iid", biased_sources=["camera"])
+    assert describes_noise(biased.options, case_data(frame))
+    plain = make_plan(case_data(frame, source=None), SIMULATOR, noise="iid")
+    assert not describes_noise(plain.options, case_data(frame, source=None))
 
 
 def test_reruns_of_generated_quantities_get_fresh_normals_for_the_bias_curves():

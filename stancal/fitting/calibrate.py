@@ -18,6 +18,7 @@ from stancal.fitting.l2 import l2_result
 from stancal.fitting.parametrization_fallback import with_fallback
 from stancal.fitting.plan import Plan, model_options, plan_scalar
 from stancal.fitting.postfit import check_fit, save_draws
+from stancal.fitting.run_variance import with_replicated_runs
 from stancal.fitting.seeds import command_seed
 from stancal.fitting.simulator_check import check_simulator_at_start, explained
 from stancal.fitting.stage_one import as_chain_starts, run_stage_one
@@ -253,6 +254,7 @@ def calibrate(
                                                       backend=stan_backend, seed=seed) or {}
     stage_one_s = 0.0 if plan.stage_one_result else emulator.get("fit_s", 0.0)
     emulator = as_chain_starts(emulator) if plan.program.samples_emulator else emulator
+    emulator = with_replicated_runs(emulator, data, emulates_runs=not plan.program.simulator)
     # theta against the model's own terms (simulator or stage 1's emulator), before any sampling
     plan, confounding = resolve_confounding(plan, data, stan_backend, emulator)
     sampler = replace(sampling, seed=seed).keywords()

@@ -12,9 +12,10 @@ from typing import Any
 from stancal.fitting.run_variance import require_replicates, run_replicates
 from stancal.numerics.hsgp import first_basis
 from stancal.numerics.parametrization import choose_parametrization
+from stancal.problem.advice import config_key
 from stancal.problem.data import CalibrationData
 from stancal.problem.functional import check_functional
-from stancal.problem.noise import check_noise, check_noise_inputs
+from stancal.problem.noise import check_noise, check_noise_inputs, noise_locations
 from stancal.problem.options import EXACT_SIZE_LIMIT, RESTRICTED_DISCREPANCIES, ModelOptions, VectorOptions
 from stancal.problem.source_bias import check_biased_sources
 from stancal.problem.vector_data import VectorCalibrationData
@@ -329,8 +330,9 @@ def _stochastic_base(data: CalibrationData, simulator, method: str | None, optio
     if not options.stochastic:
         return base
     if simulator is not None:
-        raise ValueError("stochastic = true describes a simulator known by its runs; a Stan simulator is a "
-                         "deterministic function of (x, theta): give the runs of the stochastic simulator instead")
+        raise ValueError(f"{config_key('simulator', 'stochastic', True)} describes a simulator known by its runs; "
+                         "a Stan simulator is a deterministic function of (x, theta): give the runs of the "
+                         "stochastic simulator instead")
     if method is None and not base.stochastic_runs:
         base = stochastic_programs("scalar")[0]
         logger.info("a stochastic simulator: method '%s' (%s), the default with stochastic = true",
@@ -345,11 +347,11 @@ def _check_stochastic(data: CalibrationData, chosen: Program, options: ModelOpti
         return
     if not chosen.stochastic_runs:
         taking = ", ".join(p.name for p in stochastic_programs("scalar"))
-        raise ValueError(f"stochastic = true runs on the programs {taking}; this problem runs {chosen.name} "
-                         f"({chosen.description})")
+        raise ValueError(f"{config_key('simulator', 'stochastic', True)} runs on the programs {taking}; this "
+                         f"problem runs {chosen.name} ({chosen.description})")
     if data.fidelities > 1:
-        raise ValueError("stochastic = true with low-fidelity runs is not built: give the stochastic "
-                         "simulator's runs alone")
+        raise ValueError(f"{config_key('simulator', 'stochastic', True)} with low-fidelity runs is not built: "
+                         "give the stochastic simulator's runs alone")
     require_replicates(run_replicates(data))
 
 
@@ -368,6 +370,7 @@ def _check_noise(chosen: Program, options: ModelOptions, data: CalibrationData) 
         taking = [p.name for p in PROGRAMS.values() if p.known_noise_sd]
         raise ValueError(f"a known noise sd (column '{data.noise.noise_sd_column}') runs on the programs "
                          f"{', '.join(taking)}; this problem runs {chosen.name} ({chosen.description})")
+    noise_locations(data, options)  # heteroscedastic: each noise input varies over the physical rows
 
 
 def _check_biased_sources(chosen: Program, options: ModelOptions, data: CalibrationData) -> None:

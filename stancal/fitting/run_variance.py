@@ -38,7 +38,7 @@ def intrinsic_variance(data: CalibrationData, stochastic: bool, seed: int) -> tu
     None for a deterministic one, whose replicates that disagree are warned about."""
     replicates = run_replicates(data)
     summary = {**replicates.summary(data.scaling.y_scale), "stochastic": stochastic}
-    logger.info("stage 1: %s", describe(summary))
+    logger.info("the runs: %s", describe(summary))
     pooled = summary["pooled_within_replicate_sd"]
     if not stochastic:
         if pooled:
@@ -59,3 +59,13 @@ def intrinsic_variance(data: CalibrationData, stochastic: bool, seed: int) -> tu
     logger.info("stage 1: the simulator's intrinsic sd, %s, from %.3g to %.3g at the replicated settings",
                 summary["intrinsic_variance_model"], *summary["intrinsic_sd_range"])
     return surface, summary
+
+
+def with_replicated_runs(emulator: dict, data: CalibrationData, emulates_runs: bool) -> dict:
+    """Stage 1's results with the replicated runs' summary on every program
+    that emulates one simulator's runs: koh_emulator, which samples its
+    emulator with theta, has no stage 1 to find them. Cheaper simulators'
+    runs (multi-fidelity) are not examined: stochastic is not built there."""
+    if not emulates_runs or data.runs is None or data.fidelities > 1 or "replicated_runs" in emulator:
+        return emulator
+    return {**emulator, "replicated_runs": intrinsic_variance(data, stochastic=False, seed=0)[1]}

@@ -147,6 +147,13 @@ def noise_input_names(options, data) -> list[str]:
     return list(options.noise_inputs or data.inputs)
 
 
+def describes_noise(options, data) -> bool:
+    """Whether the fit models its measurements beyond one iid sd (another
+    noise model, a known sd column or biased sources): summary.json then has
+    a noise block, and the report its section."""
+    return options.noise != "iid" or bool(data.noise.noise_sd_column) or bool(options.biased_sources)
+
+
 # the log sd GP's length-scale prior's smallest lognormal scale: 95 % within a factor of 2 of its median
 LENGTH_SCALE_FLOOR = float(np.log(2) / 1.959964)
 
@@ -171,8 +178,9 @@ class NoiseLocations:
         (unit scale): 95 % of its mass between the finest input's spacing
         and its range, both measured on the settings (runs may stretch the
         unit scale beyond them): a GP no shorter than the spacing of the
-        settings it is seen at. With two values (spacing = range) the scale
-        is LENGTH_SCALE_FLOOR, a proper prior around their distance."""
+        settings it is seen at. With four values or fewer (range < 4
+        spacings) the scale is LENGTH_SCALE_FLOOR, 95 % within a factor of 2
+        of the geometric mean of spacing and range (two values: their distance)."""
         counts = [len(np.unique(self.unit[:, j])) for j in range(self.unit.shape[1])]
         finest = int(np.argmax(counts))
         span = float(np.ptp(self.unit[:, finest]))
@@ -198,6 +206,18 @@ def check_noise_locations(locations: NoiseLocations) -> None:
         raise DataError(f"{config_key('model', 'noise', HETEROSCEDASTIC)}: the noise inputs {flat} take one value "
                         "in the physical data; the noise sd cannot vary over them: set [model] noise_inputs to "
                         "inputs that vary, or use noise = \"iid\"")
+
+
+def noise_locations(data, options) -> NoiseLocations | None:
+    """Heteroscedastic noise: the distinct settings of its inputs (by default
+    every simulator input) among ``data``'s physical rows (a CalibrationData),
+    checked; else None. The plan calls it before anything compiles."""
+    if options.noise != HETEROSCEDASTIC:
+        return None
+    inputs = noise_input_names(options, data)
+    locations = NoiseLocations.of(data.scaling.to_unit(data.physical, inputs), inputs)
+    check_noise_locations(locations)
+    return locations
 
 
 def replicate_counts(inputs: np.ndarray) -> dict[str, int]:

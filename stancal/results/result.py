@@ -15,7 +15,15 @@ import xarray as xr
 from stancal.numerics.noise_gp import log_scale_at
 from stancal.problem.data import CalibrationData
 from stancal.problem.functional import functional_grid
-from stancal.problem.noise import OUTLIER_WEIGHT, NoiseLocations, noise_input_names, outlier_rows, replicate_counts
+from stancal.problem.noise import (
+    OUTLIER_WEIGHT,
+    NoiseLocations,
+    describes_noise,
+    noise_input_names,
+    noise_locations,
+    outlier_rows,
+    replicate_counts,
+)
 from stancal.problem.options import ModelOptions
 from stancal.results.diagnostics import Diagnostics
 from stancal.results.modes import Mode
@@ -23,7 +31,7 @@ from stancal.results.summaries import band, summary_by_mode, theta_function_summ
 from stancal.stan.backends.base import Draws, SampleOutput
 from stancal.stan.registry import Program, program
 from stancal.stan.source import FlatProgram
-from stancal.stan.standata import EMULATOR_HYPERPARAMETERS, mean_terms_of, noise_locations
+from stancal.stan.standata import EMULATOR_HYPERPARAMETERS, mean_terms_of
 
 # Stan program variables -> names in the posterior group (original units)
 _REPORTED = {
@@ -418,8 +426,7 @@ class CalibrationResult:
             **({"l2": self.l2} if self.l2 else {}),
             **({"confounding": self.confounding} if self.confounding else {}),
             "likelihood": self.data.observations.likelihood.name.lower(),
-            **({"noise": self.noise_summary()} if self.options.noise != "iid" or self.data.noise.noise_sd_column
-               else {}),
+            **({"noise": self.noise_summary()} if describes_noise(self.options, self.data) else {}),
             **({"censoring": self.data.observations.counts_by_kind()}
                if self.data.observations.any_censored else {}),
             **({"theta_functions": self.theta_functions()} if self.options.functional else {}),

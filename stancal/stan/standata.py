@@ -18,14 +18,7 @@ from stancal.problem.codes import DISCREPANCY_PARAMETRIZATION_CODES
 from stancal.problem.data import CalibrationData
 from stancal.problem.functional import functional_grid
 from stancal.problem.mean_terms import MeanTerms, build_mean_terms
-from stancal.problem.noise import (
-    HETEROSCEDASTIC,
-    NO_LOCATIONS,
-    NoiseLocations,
-    check_noise_locations,
-    noise_input_names,
-    stan_noise_data,
-)
+from stancal.problem.noise import NO_LOCATIONS, noise_locations, stan_noise_data
 from stancal.problem.options import DISCREPANCIES, ModelOptions
 from stancal.problem.source_bias import stan_bias_data
 
@@ -135,17 +128,6 @@ def noise_model(inputs: StanInputs) -> dict[str, Any]:
 def source_biases(inputs: StanInputs) -> dict[str, Any]:
     """Biased measurement sources (functions/source_bias.stan): how many, and each row's."""
     return stan_bias_data(inputs.options.biased_sources, inputs.data.noise)
-
-
-def noise_locations(data: CalibrationData, options: ModelOptions) -> NoiseLocations | None:
-    """Heteroscedastic noise: the distinct settings of its inputs (by default
-    every simulator input) among the physical rows, checked; else None."""
-    if options.noise != HETEROSCEDASTIC:
-        return None
-    inputs = noise_input_names(options, data)
-    locations = NoiseLocations.of(data.scaling.to_unit(data.physical, inputs), inputs)
-    check_noise_locations(locations)
-    return locations
 
 
 def latent_outputs(inputs: StanInputs) -> dict[str, Any]:
