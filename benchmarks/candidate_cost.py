@@ -37,9 +37,9 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 import stancal  # noqa: E402
-from stancal.diagnosing.gap import variant_data  # noqa: E402
 from stancal.diagnosing.scoring import PARETO_K_LIMIT, psis_score  # noqa: E402
 from stancal.fitting.warm_start import warm_candidate_options  # noqa: E402
+from stancal.problem.candidates import variant_data  # noqa: E402
 from stancal.problem.config import load_config  # noqa: E402
 from stancal.problem.data import bounds_of  # noqa: E402
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 import argparse
 import functools
 import logging
+import re
 import sys
 import warnings
 from dataclasses import fields
@@ -157,21 +158,19 @@ def run_gap(args: argparse.Namespace) -> dict:
     from stancal.reporting.gap_report import write_gap_report
 
     problem = load_config(args.config)
-    vector = isinstance(problem.data, VectorCalibrationData)
     if not problem.candidates:
         raise ConfigError("config: `stancal gap` needs a [candidates] section")
-    model = dict(problem.model)
-    method = args.method or model.pop("method", None)
+    model = dict(problem.model)  # the config's whole model (its noise too): every fit, baseline and candidates
+    method = args.method or model.get("method")
+    model.pop("method", None)
+    model["discrepancy"] = _gap_discrepancy(args, model)
+    if args.approximation:
+        model["approximation"] = args.approximation
     # no args.out.mkdir here: the fits and reports create it, so a failure before sampling leaves none
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        analysis = diagnose_gap(problem.data, problem.candidates, simulator=problem.simulator,
-                                method=method, kernel=model.get("kernel", "se"),
-                                discrepancy=_gap_discrepancy(args, model),
-                                **({} if vector else {"approximation": args.approximation
-                                                      or model.get("approximation", "auto")}),
-                                **sampler_options(args), backend=args.backend,
-                                **({"stochastic": True} if model.get("stochastic") else {}),  # [simulator] stochastic
+        analysis = diagnose_gap(problem.data, problem.candidates, simulator=problem.simulator, method=method,
+                                **model, **sampler_options(args), backend=args.backend,
                                 out_dir=args.out, kfold=args.kfold, scheduler=args.scheduler)
     summary = write_gap_report(analysis, args.out, problem.units)
     write_calibration(analysis.baseline, args.out / "baseline",
@@ -234,7 +233,7 @@ def run_compare(args: argparse.Namespace) -> dict:
 
     problem = load_config(args.config)
     _require_command(problem, "compare")
-    model = {k: v for k, v in problem.model.items() if k not in ("method", "discrepancy")}
+    model = {k: v for k, v in problem.model.items() if k not in ("method", "discrepancy", "scaled_lambda")}
     if args.approximation:
         model["approximation"] = args.approximation
     # no args.out.mkdir here: the fits and reports create it, so a failure before sampling leaves none
@@ -318,17 +317,33 @@ def config_programs(problem, all_methods: bool) -> list[FlatProgram]:
         try:
             plans.append(make_plan(problem.data, problem.simulator, method,
                                    program if method == configured else None, **model))
-        except ValueError:  # a method this problem cannot run
-            continue
+        except ValueError:
+            if method == configured:  # the config's own model: what it cannot run is said, not skipped
+                raise
+            continue  # --all-methods: a method this problem cannot run
         programs += plans[-1].stan_programs()
     return programs + [variant_program(problem.data, c, plans[0] if plans else None)
                        for c in problem.candidates if c.kind == "variant"]
 
 
 def run_compile(args: argparse.Namespace) -> dict:
-    programs = [p for config in args.configs for p in config_programs(load_config(config), args.all_methods)]
+    programs = []
+    for config in args.configs:  # every config planned before anything compiles
+        try:
+            programs += config_programs(load_config(config), args.all_methods)
+        except ValueError as err:
+            raise ConfigError(in_config(config, err)) from None
     get_backend(args.backend).compile(programs)
     return {"programs": len({p.code for p in programs})}
+
+
+def in_config(config: Path, err: Exception) -> str:
+    """An input error of a config-driven command, one line, naming the
+    config unless it names a file already (a CSV's line, a Stan program's)
+    or a command-line flag (checked before the config is read)."""
+    message = _one_line(err)
+    named = message.startswith("--") or str(config) in message or re.search(r"\.(csv|stan|toml)\b", message)
+    return message if named else f"{config}: {message}"
 
 
 def _one_line(err: Exception) -> str:
@@ -360,7 +375,9 @@ def _main(argv: list[str] | None) -> int:
         summary = {"gap": run_gap, "compare": run_compare, "calibrate": run_calibrate,
                    "compile": run_compile, "sbc": run_sbc, DESIGN: run_design}[args.command](args)
     except (ConfigError, DataError, StanProgramError, StanRuntimeError, ValueError, RuntimeError) as err:
-        print(f"stancal: error: {_one_line(err)}", file=sys.stderr)
+        config = getattr(args, "config", None)  # an input error names the config it came from
+        message = in_config(config, err) if config and isinstance(err, ValueError) else _one_line(err)
+        print(f"stancal: error: {message}", file=sys.stderr)
         return 2
     if args.command == "compile":
         print(f"{summary['programs']} Stan programs compiled or found in the cache")

@@ -384,6 +384,35 @@ def test_gap_takes_the_discrepancy_from_the_flag_or_the_config(tmp_path, monkeyp
     assert seen == ["orthogonal", "gp"] and not (tmp_path / "c").exists()
 
 
+def test_gap_takes_every_model_key_of_the_config(tmp_path, monkeypatch):
+    """`stancal gap` fits the config's model: its noise model (issue 33: the
+    candidates are compared under the same noise), kernel, mean terms and
+    the rest of [model] reach diagnose_gap (it passed only the kernel, the
+    discrepancy and the approximation before, so a per-source config was
+    diagnosed with iid noise)."""
+    import stancal.diagnosing.gap
+    from stancal.cli import main
+
+    seen = {}
+
+    def planned(data, candidates, **options):
+        seen.update(options)
+        raise ValueError("stopped before sampling")
+
+    monkeypatch.setattr(stancal.diagnosing.gap, "diagnose_gap", planned)
+    study = tmp_path / "two_instruments"
+    shutil.copytree(ROOT / "case_studies" / "two_instruments", study)
+    shutil.copytree(COOLING, tmp_path / "cooling")  # its simulator
+    text = (study / "config.toml").read_text()
+    assert 'noise = "per_source"' in text and 'discrepancy = "none"' in text
+    text = text.replace('noise = "per_source"', 'noise = "per_source"\nmean_formula = "I(t**2)"')
+    (study / "config.toml").write_text(text.replace('discrepancy = "none"', 'discrepancy = "gp"')
+                                       + '\n[candidates]\nstart = "T0"\n')
+    assert main(["gap", str(study / "config.toml"), "--out", str(tmp_path / "out")]) == 2
+    assert seen["noise"] == "per_source" and seen["mean_formula"] == "I(t**2)", seen
+    assert seen["biased_sources"] == ["camera"] and seen["discrepancy"] == "gp"
+
+
 def test_a_gap_in_a_discrepancy_that_cannot_take_the_covariates_stops_before_any_fit(tmp_path, capsys):
     """The orthogonal discrepancy integrates over the simulator inputs' box: with
     the cooling case's covariates, gap refuses it once, before compiling or

@@ -20,8 +20,9 @@ from conftest import (
 )
 
 import stancal
-from stancal.diagnosing.gap import Candidate, CandidateError, check_candidates, diagnose_gap, variant_data
+from stancal.diagnosing.gap import Candidate, CandidateError, check_candidates, diagnose_gap
 from stancal.fitting.warm_start import candidate_warmup, refit_draws, refit_warmup
+from stancal.problem.candidates import variant_data
 from stancal.problem.codes import Likelihood
 from stancal.problem.config import ConfigError, load_config
 from stancal.reporting.gap_report import write_gap_report
@@ -452,3 +453,15 @@ def assert_started_from(source, kwargs, warmup, draws):
     assert kwargs["stepsize"] == pytest.approx(np.median(np.asarray(source.idata["sample_stats"]["step_size"])))
     assert (kwargs["num_warmup"], kwargs["num_samples"]) == (warmup, draws)
     assert kwargs["init_buffer"] + kwargs["window"] + kwargs["term_buffer"] == kwargs["num_warmup"]
+
+
+def test_a_formula_candidate_keeps_the_baselines_mean_terms():
+    """A baseline with its own mean terms (mean_formula) keeps them in every
+    fit of the diagnosis; a formula candidate adds its terms to them."""
+    from stancal.problem.mean_terms import build_mean_terms
+
+    candidate = Candidate("start", formula="T0")
+    assert candidate.with_baseline_terms(None) == "T0"
+    joined = candidate.with_baseline_terms("I(t**2)")
+    frame = pd.DataFrame({"t": [1.0, 2.0, 3.0], "T0": [60.0, 90.0, 75.0]})
+    assert build_mean_terms(joined, frame).names == ["I(t ** 2)", "T0"]

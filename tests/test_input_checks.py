@@ -452,3 +452,75 @@ def test_malformed_tomls_end_in_one_named_line(case, command, capsys, no_fit):
         assert str(config) in line, line
         assert names in line, line
         assert not (Path(folder) / "out").exists()
+
+
+# ---- 6. the model, the candidates and [design] against the data, before any compile -------
+# (found by an audit of 130 perturbed configs, 2026-11-26: these reached a compile, or
+# `stancal compile` exited 0 on them, or the error named no file)
+@pytest.fixture
+def no_compile(monkeypatch):
+    """Planning runs as it would; compiling or checking a Stan program fails the test."""
+    from stancal.stan.backends.cmdstanpy_backend import CmdStanPyBackend
+    from stancal.stan.backends.pystan_backend import PyStanBackend
+
+    def reached(self, *args, **kwargs):
+        raise AssertionError("the bad input reached a compile")
+    for backend in (PyStanBackend, CmdStanPyBackend):
+        for name in ("compile", "check"):
+            monkeypatch.setattr(backend, name, reached)
+
+
+FULL_CONFIG = (COOLING / "config.toml").read_text()
+
+
+@pytest.mark.parametrize("command", ["calibrate", "compile"])
+@pytest.mark.parametrize("old, new, message", [
+    ('kernel = "se"', 'kernel = "se"\nmethod = "kho"', "method 'kho' is not built for a scalar output"),
+    ('kernel = "se"', 'kernel = "se"\nscaled_lambda = -1.0', "scaled_lambda must be a positive number"),
+    ('kernel = "se"', 'kernel = "se"\nscaled_lambda = 5.0', 'scaled_lambda applies to discrepancy = "scaled" only'),
+    ('kernel = "se"', 'kernel = "se"\nmean_formula = "I(t**"', "[model] mean_formula: formula 'I(t**'"),
+    ('kernel = "se"', 'kernel = "se"\nmean_formula = "nosuch"', "[model] mean_formula: formula 'nosuch'"),
+    ('c = [0.0, 0.002]', 'c = [0.002, 0.0]', "candidate 'quadratic_loss': theta 'c': bounds must be finite"),
+    ('gamma = [-0.5, 0.5]', 'gamma = [-0.5, 0.5]\nk = [0.0, 1.0]',
+     "candidate 'humid_convection': theta 'k' is the baseline's"),
+    ('humidity = "humidity"', 'humidity = "nosuch"', "candidate 'humidity': formula 'nosuch'"),
+    ('operator = "C(operator)"', 'operator = "C(operator"', "candidate 'operator': formula 'C(operator'"),
+    ('inputs = ["t", "T0", "humidity"]', 'inputs = ["t", "T0", "nosuch"]',
+     "candidate 'humid_convection': unknown input column(s) ['nosuch']"),
+    ("[units]", "[design]\ncutoff = inf\n\n[units]", "[design] cutoff must be a positive number; got inf"),
+    ("[units]", "[design]\nnroy_points = 10\n\n[units]", "[design] nroy_points must be at least 1000; got 10"),
+])
+def test_the_model_candidates_and_design_are_checked_before_any_compile(tmp_path, capsys, no_compile, command, old,
+                                                                       new, message):
+    config = copy_case(tmp_path)
+    assert old in FULL_CONFIG
+    config.write_text(FULL_CONFIG.replace(old, new, 1))
+    code, err = cli([command, config, *(["--out", tmp_path / "out"] if command == "calibrate" else [])], capsys)
+    line = error_line(err)
+    assert code == 2 and str(config) in line and message in line, line
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("old, new, message", [
+    ("[model]", "[model]\ncomponents = 0", "[model] components must be at least 1; got 0"),
+    ("[model]", "[model]\ncomponents = -1", "[model] components must be at least 1; got -1"),
+    ("[model]", "[model]\nvariance_share = 1.5", "[model] variance_share must lie in (0, 1]; got 1.5"),
+    ("[model]", "[model]\nvariance_share = 0.0", "[model] variance_share must lie in (0, 1]; got 0.0"),
+])
+def test_a_vector_outputs_basis_is_checked_with_the_config(tmp_path, old, new, message):
+    config = copy_case(tmp_path, CURVES)
+    text = (CURVES / "config.toml").read_text()
+    assert old in text
+    config.write_text(text.replace(old, new, 1))
+    with pytest.raises(ConfigError) as err:
+        load_config(config)
+    assert str(err.value) == f"{config}: {message}"
+
+
+def test_a_missing_output_is_named_before_the_units_that_use_it(tmp_path):
+    """[units] named the output as 'no column of this config' before the output's own error."""
+    config = copy_case(tmp_path)
+    config.write_text(FULL_CONFIG.replace('output = "temperature"', 'output = "temprature"'))
+    with pytest.raises(DataError, match=r"missing column\(s\) \['temprature'\]") as err:
+        load_config(config)
+    assert "[units]" not in str(err.value)

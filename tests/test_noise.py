@@ -354,9 +354,8 @@ def test_per_source_noise_on_modular():
 
 
 def test_subsets_keep_the_sources_and_candidates_keep_the_noise_model(tmp_path):
-    from stancal.diagnosing.gap import variant_data
     from stancal.fitting.plan import make_plan
-    from stancal.problem.candidates import Candidate
+    from stancal.problem.candidates import Candidate, variant_data
 
     data = stancal.CalibrationData(two_instruments(), ["t", "T0"], "temperature", THETA, source="instrument")
     # a K-fold training set without the probe keeps both sds, in the same order as the full data

@@ -45,13 +45,14 @@ Every likelihood and censoring stancal calibrates with is matched:
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 from scipy.spatial import cKDTree
 
 from stancal.numerics.parametrization import model_scale_values
 from stancal.problem.codes import Likelihood
+from stancal.problem.config_schema import table as config_table
 from stancal.problem.vector_data import VectorCalibrationData
 
 DISCREPANCY_FRACTION = 0.1  # of the observations' sd: docs/design.md, "The discrepancy's default"
@@ -72,15 +73,11 @@ class DesignSettings:
     nroy_points: int = 2000  # NROY sample size (nroy.csv)
 
     def __post_init__(self) -> None:
-        checks = [("discrepancy_sd", self.discrepancy_sd, lambda v: v is None or v >= 0, "at least 0"),
-                  ("discrepancy_fraction", self.discrepancy_fraction, lambda v: v >= 0, "at least 0"),
-                  ("noise_sd", self.noise_sd, lambda v: v is None or v > 0, "positive"),
-                  ("nth_maximum", self.nth_maximum, lambda v: v in (None, 1, 2, 3), "1, 2 or 3"),
-                  ("cutoff", self.cutoff, lambda v: v > 0, "positive"),
-                  ("nroy_points", self.nroy_points, lambda v: v >= 1000, "at least 1000")]
-        for name, value, ok, what in checks:
-            if not ok(value):
-                raise ValueError(f"[design] {name} must be {what}; got {value!r}")
+        design = config_table("design")  # the ranges the config's [design] keys are checked against
+        for name, value in asdict(self).items():
+            problem = None if value is None else design.key(name).out_of_range(value)
+            if problem:
+                raise ValueError(f"[design] {name} {problem}; got {value!r}")
 
 
 @dataclass

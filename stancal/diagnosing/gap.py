@@ -73,9 +73,8 @@ from stancal.fitting.stage_one import run_stage_one
 from stancal.fitting.stopwatch import COMPILED_EARLIER, Stopwatch
 from stancal.fitting.vector_calibrate import calibrate_vector
 from stancal.fitting.warm_start import warm_candidate_options, warm_refit_options
-from stancal.problem.candidates import Candidate, CandidateError
-from stancal.problem.data import CalibrationData, DataError, bounds_of
-from stancal.problem.mean_terms import FormulaError, build_mean_terms
+from stancal.problem.candidates import Candidate, CandidateError, check_candidate_data, variant_data
+from stancal.problem.data import CalibrationData, bounds_of
 from stancal.problem.sampling import SamplerOptions
 from stancal.problem.vector_data import VectorCalibrationData
 from stancal.results.result import CalibrationResult
@@ -192,19 +191,6 @@ def _slug(name: str) -> str:
 
 
 # ---- checking candidates before any fit -------------------------------------
-def variant_data(data: CalibrationData | VectorCalibrationData,
-                 candidate: Candidate) -> CalibrationData | VectorCalibrationData:
-    """The physical data as the variant sees it (each container's variant())."""
-    missing = [c for c in candidate.inputs if c not in data.source.columns]
-    if missing:
-        raise CandidateError(f"candidate '{candidate.name}': unknown input column(s) {missing}; "
-                             f"physical columns: {list(data.source.columns)}")
-    try:
-        return data.variant(candidate.inputs, candidate.theta)
-    except DataError as err:
-        raise CandidateError(f"candidate '{candidate.name}': {err}") from None
-
-
 def variant_program(data: CalibrationData | VectorCalibrationData, candidate: Candidate,
                     plan: Plan | None = None) -> FlatProgram:
     """The program a simulator variant runs: the baseline plan's model on
@@ -217,19 +203,10 @@ def variant_program(data: CalibrationData | VectorCalibrationData, candidate: Ca
 def check_candidates(data: CalibrationData | VectorCalibrationData, candidates: list[Candidate], backend,
                      plan: Plan | None = None) -> None:
     """Fail before sampling: formulas must evaluate, variants must pass stanc."""
-    names = [c.name for c in candidates]
-    repeated = sorted({n for n in names if names.count(n) > 1})
-    if repeated:
-        raise CandidateError(f"candidate name(s) {repeated} used twice")
     if not candidates:
         raise CandidateError("give at least one candidate effect")
-    for c in candidates:
-        if c.kind == "formula":
-            try:
-                build_mean_terms(c.formula, data.source)
-            except FormulaError as err:
-                raise CandidateError(f"candidate '{c.name}': {err}") from None
-            continue
+    check_candidate_data(data, candidates)
+    for c in (c for c in candidates if c.kind == "variant"):
         if not Path(c.stan).is_file():
             raise CandidateError(f"candidate '{c.name}': Stan file not found: {c.stan}")
         variant = variant_data(data, c)
@@ -255,7 +232,8 @@ def _fit_task(name: str, candidate: Candidate | None, data, new_points: pd.DataF
     if candidate is not None and candidate.kind == "variant":
         plan = plan.with_simulator(candidate.stan)
     elif candidate is not None:
-        plan = replace(plan, options=replace(plan.options, mean_formula=candidate.formula))
+        plan = replace(plan, options=replace(plan.options,
+                                             mean_formula=candidate.with_baseline_terms(plan.options.mean_formula)))
     options = dict(data=data, plan=plan, seed=fit_seed(seed, name), out_dir=folder, **{**sampling, **(warm or {})})
     if vector:
         return FitTask(name, calibrate_vector, {**options, "new_rows": new_points})
@@ -397,13 +375,14 @@ def _gap_plan(data, simulator, method: str | None, calibrate_options: dict[str, 
     """One plan for every fit: K-fold's smaller training sets keep the
     baseline's program and approximation, and every fit has a constant in
     the discrepancy mean, so that no candidate term wins by standing in for
-    the discrepancy's overall level. Takes the plan's keys out of
-    ``calibrate_options``."""
+    the discrepancy's overall level; the baseline's own mean terms (a
+    mean_formula) stay in every fit, a formula candidate's added to them.
+    Takes the plan's keys out of ``calibrate_options``."""
     if vector:
         calibrate_options.pop("approximation", None)
     plan = make_plan(data, simulator, method, calibrate_options.pop("program", None),
                      **model_keywords(calibrate_options, vector))
-    return replace(plan, options=replace(plan.options, mean_formula=None, mean_intercept=True))
+    return replace(plan, options=replace(plan.options, mean_intercept=True))
 
 
 def _full_fits(run, fit_task, candidates: list[Candidate], warm: bool, failed: list[FitFailure]) -> list:

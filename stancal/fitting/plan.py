@@ -15,6 +15,7 @@ from stancal.numerics.parametrization import choose_parametrization
 from stancal.problem.advice import config_key
 from stancal.problem.data import CalibrationData
 from stancal.problem.functional import check_functional
+from stancal.problem.mean_terms import FormulaError, build_mean_terms
 from stancal.problem.noise import check_noise, check_noise_inputs, noise_locations
 from stancal.problem.options import EXACT_SIZE_LIMIT, RESTRICTED_DISCREPANCIES, ModelOptions, VectorOptions
 from stancal.problem.source_bias import check_biased_sources
@@ -152,6 +153,7 @@ def plan_scalar(data: CalibrationData, simulator: str | Path | None = None, meth
     chosen = _latent_version(base, latent_reason(data, options), options) or _scalable_version(data, base, options)
     _check_options(chosen, options)
     _check_noise(chosen, options, data)
+    _check_mean_formula(data, options)
     if (l2 or options.discrepancy in RESTRICTED_DISCREPANCIES) and data.covariates:
         # both integrate over the box of the simulator's inputs (stancal.numerics.quadrature)
         raise ValueError(f"{'method l2' if l2 else f'discrepancy {options.discrepancy!r}'} integrates over the "
@@ -178,8 +180,20 @@ def plan_vector(data: VectorCalibrationData, simulator: str | Path | None = None
     options = options or VectorOptions(noise="known" if data.noise_sd else "one")
     chosen = _requested(data, simulator, method, "vector")
     _check_options(chosen, options)
+    _check_mean_formula(data, options)
     _check_fidelities(data, chosen, options, method)
     return Plan(chosen, options, _path(simulator), _path(program), fidelities=data.fidelities if chosen.runs else 1)
+
+
+def _check_mean_formula(data, options: ModelOptions | VectorOptions) -> None:
+    """The discrepancy's mean terms evaluate on the physical data, before
+    anything compiles (the Stan data builds them again, for the fit)."""
+    if options.mean_formula is None:
+        return
+    try:
+        build_mean_terms(options.mean_formula, data.source, intercept=options.mean_intercept)
+    except FormulaError as err:
+        raise FormulaError(f"[model] mean_formula: {err}") from None
 
 
 def _path(value: str | Path | None) -> Path | None:

@@ -6,6 +6,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from stancal.problem.mean_terms import FormulaError, build_mean_terms
+from stancal.problem.validation import DataError
+
 
 class CandidateError(ValueError):
     """A candidate effect that cannot be fitted; the message names it."""
@@ -28,8 +31,50 @@ class Candidate:
     def kind(self) -> str:
         return "formula" if self.formula is not None else "variant"
 
+    def with_baseline_terms(self, baseline: str | None) -> str:
+        """A formula candidate's mean terms beside the baseline's own (its
+        mean_formula), which every fit of a gap diagnosis keeps."""
+        return self.formula if baseline is None else f"{baseline} + {self.formula}"
+
     def __post_init__(self) -> None:
         if (self.formula is None) == (self.stan is None):
             raise CandidateError(f"candidate '{self.name}': give a formula or a Stan simulator, not both")
         if self.stan is not None and not self.inputs:
             raise CandidateError(f"candidate '{self.name}': a simulator variant needs its 'inputs' columns")
+
+
+def variant_data(data, candidate: Candidate):
+    """The physical data (a CalibrationData or VectorCalibrationData) as a
+    simulator variant sees it (each container's variant()): its inputs must
+    be physical columns, and its theta the variant's extra ones."""
+    missing = [c for c in candidate.inputs if c not in data.source.columns]
+    if missing:
+        raise CandidateError(f"candidate '{candidate.name}': unknown input column(s) {missing}; "
+                             f"physical columns: {list(data.source.columns)}")
+    baseline = [name for name in candidate.theta if name in data.theta_names]
+    if baseline:  # data.variant() would let the variant's bounds replace the baseline's
+        raise CandidateError(f"candidate '{candidate.name}': theta '{baseline[0]}' is the baseline's, which keeps "
+                             "its bounds in every variant; give the variant's extra parameters only")
+    try:
+        return data.variant(candidate.inputs, candidate.theta)
+    except DataError as err:
+        raise CandidateError(f"candidate '{candidate.name}': {err}") from None
+
+
+def check_candidate_data(data, candidates: list[Candidate]) -> None:
+    """Each candidate against the physical data, before anything compiles
+    (the config reader and `stancal gap` both): a name used once, a formula
+    that evaluates, a variant's inputs and theta. `stancal gap` then checks
+    each variant's Stan program with stanc."""
+    names = [c.name for c in candidates]
+    repeated = sorted({n for n in names if names.count(n) > 1})
+    if repeated:
+        raise CandidateError(f"candidate name(s) {repeated} used twice")
+    for c in candidates:
+        if c.kind == "variant":
+            variant_data(data, c)
+            continue
+        try:
+            build_mean_terms(c.formula, data.source)
+        except FormulaError as err:
+            raise CandidateError(f"candidate '{c.name}': {err}") from None

@@ -10,7 +10,7 @@ from typing import Any
 import pandas as pd
 
 from stancal.problem import config_schema
-from stancal.problem.candidates import Candidate, CandidateError
+from stancal.problem.candidates import Candidate, CandidateError, check_candidate_data
 from stancal.problem.codes import NOISE_MODES
 from stancal.problem.data import CalibrationData
 from stancal.problem.noise import NOISES, check_noise, check_noise_inputs, check_noise_name
@@ -36,9 +36,10 @@ class Problem:
 _OBSERVATION_KEYS = {"likelihood", "trials", "lower", "upper"}  # go to CalibrationData
 
 
-def _candidates(table: dict[str, Any], base: Path) -> list[Candidate]:
+def _candidates(table: dict[str, Any], base: Path, data) -> list[Candidate]:
     """[candidates]: name = "formula", or a [candidates.NAME] table for a
-    simulator variant (stan, inputs, theta) or a formula (formula)."""
+    simulator variant (stan, inputs, theta) or a formula (formula); each
+    checked against the physical ``data`` (check_candidate_data)."""
     out = []
     for name, spec in table.items():  # the schema checked their keys and types
         if isinstance(spec, str):
@@ -55,6 +56,10 @@ def _candidates(table: dict[str, Any], base: Path) -> list[Candidate]:
                                  theta=theta))
         except CandidateError as err:
             raise ConfigError(str(err)) from None
+    try:
+        check_candidate_data(data, out)
+    except CandidateError as err:
+        raise ConfigError(str(err)) from None
     return out
 
 
@@ -86,10 +91,14 @@ def load_config(path: str | Path) -> Problem:
     tables = ((raw["physical"], "csv"), (raw["simulator"], "runs"))
     csvs = [str(path.parent / table[key]) for table, key in tables if key in table]
     try:
-        return _problem(raw, path.parent)
+        problem = _problem(raw, path.parent)
     except (ConfigError, DataError) as err:  # name the config, unless the message names a CSV of it
         message = str(err).removeprefix("config: ")
         raise type(err)(message if any(csv in message for csv in csvs) else f"{path}: {message}") from None
+    units = config_schema.check_units(raw)
+    if units:
+        raise ConfigError(f"{path}: {units}")
+    return problem
 
 
 def _problem(raw: dict[str, Any], base: Path) -> Problem:
@@ -127,7 +136,7 @@ def _problem(raw: dict[str, Any], base: Path) -> Problem:
         low_fidelity_rho=simulator.get("low_fidelity", {}).get("rho", "constant"),
     )
     _check_noise(model.get("noise", "iid"), data, model.get("noise_inputs", []), model.get("biased_sources", []))
-    candidates = _candidates(raw.get("candidates", {}), base)
+    candidates = _candidates(raw.get("candidates", {}), base, data)
     return Problem(data=data, simulator=stan, model=model, candidates=candidates, units=dict(raw.get("units", {})),
                    design=dict(raw.get("design", {})))
 
@@ -177,5 +186,6 @@ def _vector_problem(physical: dict, simulator: dict, theta: dict, runs: pd.DataF
         runs=runs, run=_require(simulator, "run", "simulator") if runs is not None else None,
         noise_sd=physical.get("noise_sd"), covariates=physical.get("covariates", []), **basis,
         low_fidelity_runs=_low_fidelity_runs(simulator, base), low_fidelity_rho=low.get("rho", "constant"))
-    return Problem(data=data, simulator=stan, model=model, candidates=_candidates(raw.get("candidates", {}), base),
+    return Problem(data=data, simulator=stan, model=model,
+                   candidates=_candidates(raw.get("candidates", {}), base, data),
                    units=dict(raw.get("units", {})), design=dict(raw.get("design", {})))

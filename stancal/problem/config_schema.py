@@ -6,6 +6,7 @@ known one), and docs/config.md is checked against it."""
 from __future__ import annotations
 
 import difflib
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -68,9 +69,38 @@ class Key:
     meaning: str
     output: str = BOTH  # SCALAR, VECTOR or BOTH
     choices: tuple[str, ...] = ()  # the values a string key takes, when they are few
+    lowest: float | None = None  # a number's smallest value (inclusive)
+    above: float | None = None  # a number's bound from below (exclusive)
+    highest: float | None = None  # a number's largest value (inclusive)
 
     def __post_init__(self) -> None:
         assert self.type in TYPES, self.type
+
+    def out_of_range(self, value: Any) -> str | None:
+        """"must be at least 1", "must lie in (0, 1]", ... when a number is
+        outside the key's range (or not finite); None when it is inside or
+        the key has no range."""
+        if self.lowest is None and self.above is None and self.highest is None:
+            return None
+        inside = (math.isfinite(value) and (self.lowest is None or value >= self.lowest)
+                  and (self.above is None or value > self.above) and (self.highest is None or value <= self.highest))
+        if inside:
+            return None
+        if self.highest is not None:
+            low = f"({self.above:g}" if self.above is not None else f"[{self.lowest:g}"
+            return f"must lie in {low}, {self.highest:g}]"
+        if self.above is not None:
+            return "must be a positive number" if self.above == 0 else f"must be above {self.above:g}"
+        return f"must be at least {self.lowest:g}"
+
+    def range_text(self) -> str:
+        """The range as docs/config.md shows it: " (> 0)", " (1 to 3)", " (> 0, ≤ 1)", ""."""
+        low = f"> {self.above:g}" if self.above is not None else None
+        if self.highest is not None:
+            return f" ({low}, ≤ {self.highest:g})" if low else f" ({self.lowest:g} to {self.highest:g})"
+        if low:
+            return f" ({low})"
+        return f" (≥ {self.lowest:g})" if self.lowest is not None else ""
 
 
 @dataclass(frozen=True)
@@ -149,7 +179,7 @@ TABLES: tuple[Table, ...] = (
         Key("mean_centred", "boolean", "false", "centre the mean terms without a constant term (set by "
             "stancal when a theta carries the level: see the gap page)", SCALAR),
         Key("scaled_lambda", "number", "sqrt(N)", "the scaled GP's penalty lambda_z (discrepancy = "
-            '"scaled")', SCALAR),
+            '"scaled")', SCALAR, above=0),
         Key("functional", "list of names (or one name)", "[]", "theta that vary over functional_inputs: "
             "theta(x) as a latent GP", SCALAR),
         Key("functional_inputs", "list of names (or one name)", "[]", "the physical columns the functional "
@@ -186,9 +216,9 @@ TABLES: tuple[Table, ...] = (
             "[physical] source whose readings carry a bias GP of their own over the simulator inputs, beside the "
             "discrepancy; the others are references (docs/noise.md)", SCALAR),
         Key("variance_share", "number", str(DEFAULT_VARIANCE_SHARE), "the share of the runs' variance the "
-            "output basis keeps", VECTOR),
+            "output basis keeps", VECTOR, above=0, highest=1),
         Key("components", "integer", "by variance_share", "the output basis's number of components (overrides "
-            "variance_share)", VECTOR),
+            "variance_share)", VECTOR, lowest=1),
     )),
     Table("candidates", "Candidate unmodelled effects for `stancal gap`: `name = \"formula\"` (discrepancy "
           "mean terms), or a `[candidates.NAME]` table", entries="string or table"),
@@ -202,19 +232,19 @@ TABLES: tuple[Table, ...] = (
           "baseline's theta, which keep their bounds)", entries="[lower, upper]"),
     Table("design", "History matching and the next runs for `stancal design` (docs/design.md)", keys=(
         Key("discrepancy_sd", "number", "discrepancy_fraction x the observations' sd", "the model discrepancy's sd "
-            "in implausibility, output units (counts: on the link scale, log or logit)"),
+            "in implausibility, output units (counts: on the link scale, log or logit)", lowest=0),
         Key("discrepancy_fraction", "number", "0.1", "the discrepancy sd as a share of the observations' sd over "
-            "the physical points, when discrepancy_sd is not given"),
+            "the physical points, when discrepancy_sd is not given", lowest=0),
         Key("noise_sd", "number", "the known noise_sd column, else estimated", "the measurement noise sd in "
             "implausibility, output units (estimated: the smaller of Rice's difference estimate and the "
             "emulator's least-squares residual sd); for counts, an sd on the link scale added to the count "
-            "model's (a negative binomial's 1 / sqrt(phi), else estimated)"),
+            "model's (a negative binomial's 1 / sqrt(phi), else estimated)", above=0),
         Key("nth_maximum", "integer", "by the number of observations", "combine the observations' "
             "implausibilities by their 1st, 2nd or 3rd largest (Vernon et al. 2010); by default the smallest "
-            "whose chance of ruling out the true theta is at most 5 %"),
+            "whose chance of ruling out the true theta is at most 5 %", lowest=1, highest=3),
         Key("cutoff", "number", "3.0", "the implausibility cutoff (Pukelsheim's three-sigma rule); "
-            "--cutoff overrides it"),
-        Key("nroy_points", "integer", "2000", "the size of the NROY sample (nroy.csv; at least 1000)"),
+            "--cutoff overrides it", above=0),
+        Key("nroy_points", "integer", "2000", "the size of the NROY sample (nroy.csv)", lowest=1000),
     )),
     Table("units", 'Units for the figures\' axes, `name = "unit"`: the unit of an input, covariate, output, '
           'output index or theta (e.g. `T = "°C"`)', entries="string"),
@@ -255,8 +285,8 @@ def _edits(a: str, b: str) -> int:
 def check(raw: dict[str, Any]) -> str | None:
     """The first problem of a parsed config against the schema, as one
     sentence without the file's name, or None. Unknown and misspelled names
-    first (with the closest known name), then types, then the keys a scalar
-    or a vector output does not take."""
+    first (with the closest known name), then types and ranges, then the
+    keys a scalar or a vector output does not take. [units]: check_units."""
     top = [t.name for t in TABLES if "." not in t.name]
     for name, value in raw.items():
         if name not in top:
@@ -281,8 +311,7 @@ def check(raw: dict[str, Any]) -> str | None:
             or _check_entries(simulator.get("theta_per_experiment", {}), table("simulator.theta_per_experiment"))
             or _check_table(raw.get("model", {}), table("model"), output)
             or _check_table(raw.get("design", {}), table("design"), output)
-            or _check_candidates(raw.get("candidates", {}))
-            or _check_units(raw))
+            or _check_candidates(raw.get("candidates", {})))
 
 
 def _check_low_fidelity(simulator: dict[str, Any], output: str) -> str | None:
@@ -317,6 +346,8 @@ def _check_table(values: dict[str, Any], spec: Table, output: str, subtables: tu
             return f"unknown key '{name}' in {where}{closest(name, applicable)}"
         if not TYPES[key.type](value):
             return f"{where} {name} {must_be(key.type)}; got {value!r}"
+        if key.out_of_range(value):
+            return f"{where} {name} {key.out_of_range(value)}; got {value!r}"
         if key.choices and value not in key.choices:
             return (f"{where} {name} must be one of {', '.join(key.choices)}; got {value!r}"
                     + closest(value, list(key.choices)))
@@ -374,7 +405,9 @@ def named_quantities(raw: dict[str, Any]) -> list[str]:
     return list(dict.fromkeys(names))
 
 
-def _check_units(raw: dict[str, Any]) -> str | None:
+def check_units(raw: dict[str, Any]) -> str | None:
+    """[units] against the config's columns and parameters: checked after
+    the data, so that a missing column is named as itself, not as a unit."""
     known = named_quantities(raw)
     for name, unit in raw.get("units", {}).items():
         if name not in known:
@@ -396,8 +429,8 @@ def reference() -> str:
             out += [f"Every value: {spec.entries}.", ""]
         if spec.keys:
             out += ["| key | type | default | applies to | meaning |", "|---|---|---|---|---|"]
-            out += [f"| `{k.name}` | {k.type}{_choices(k)} | {k.default} | {applies[k.output]} | {k.meaning} |"
-                    for k in spec.keys]
+            out += [f"| `{k.name}` | {k.type}{k.range_text()}{_choices(k)} | {k.default} | {applies[k.output]} "
+                    f"| {k.meaning} |" for k in spec.keys]
             out.append("")
     return "\n".join(out).replace(": [lower, upper].", ": `[lower, upper]`.")
 
