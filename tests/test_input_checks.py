@@ -524,3 +524,17 @@ def test_a_missing_output_is_named_before_the_units_that_use_it(tmp_path):
     with pytest.raises(DataError, match=r"missing column\(s\) \['temprature'\]") as err:
         load_config(config)
     assert "[units]" not in str(err.value)
+
+
+@pytest.mark.parametrize("old, new, message", [
+    ('csv = "physical.csv"', 'csv = "nosuch.csv"', "[physical] csv: file not found: "),
+    ('runs = "runs.csv"', 'runs = "nosuch.csv"', "[simulator] runs: file not found: "),
+    ('kernel = "se"', 'kernel = "se"\nprogram = "nosuch.stan"', "[model] program: file not found: "),
+])
+def test_a_missing_file_names_the_config_and_its_key(tmp_path, old, new, message):
+    config = copy_case(tmp_path)
+    config.write_text(FULL_CONFIG.replace(old, new, 1))
+    with pytest.raises(ConfigError) as err:
+        load_config(config)
+    assert str(err.value).startswith(f"{config}: {message}"), err.value
+    assert "Errno" not in str(err.value)

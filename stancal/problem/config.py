@@ -89,7 +89,9 @@ def load_config(path: str | Path) -> Problem:
     if problem:
         raise ConfigError(f"{path}: {problem}")
     tables = ((raw["physical"], "csv"), (raw["simulator"], "runs"))
-    csvs = [str(path.parent / table[key]) for table, key in tables if key in table]
+    # a data error that names one of the config's CSVs (its lines) needs no config name; a missing file does
+    csvs = [str(path.parent / table[key]) for table, key in tables
+            if isinstance(table.get(key), str) and (path.parent / table[key]).is_file()]
     try:
         problem = _problem(raw, path.parent)
     except (ConfigError, DataError) as err:  # name the config, unless the message names a CSV of it
@@ -106,8 +108,8 @@ def _problem(raw: dict[str, Any], base: Path) -> Problem:
     theta = simulator["theta"]
     stan = base / simulator["stan"] if "stan" in simulator else None
     if stan is not None and not stan.is_file():
-        raise ConfigError(f"simulator.stan: file not found: {stan}")
-    runs = _read_csv(base / simulator["runs"], "simulator.runs") if "runs" in simulator else None
+        raise ConfigError(f"[simulator] stan: file not found: {stan}")
+    runs = _read_csv(base / simulator["runs"], "[simulator] runs") if "runs" in simulator else None
     if stan is None and runs is None:
         raise ConfigError("config: [simulator] needs 'stan' (a Stan simulator), 'runs' (a CSV of runs), or both")
     model = dict(raw.get("model", {}))
@@ -115,14 +117,13 @@ def _problem(raw: dict[str, Any], base: Path) -> Problem:
         model["stochastic"] = True
     if "output_index" in physical:
         return _vector_problem(physical, simulator, theta, runs, stan, model, raw, base)
-    if "program" in model:
-        model["program"] = base / model["program"]
+    _resolve_program(model, base)
     for key in ("functional", "functional_inputs", "noise_inputs", "biased_sources"):  # one name or a list
         if isinstance(model.get(key), str):
             model[key] = [model[key]]
     observation = {key: model.pop(key) for key in _OBSERVATION_KEYS if key in model}
     data = CalibrationData(
-        _read_csv(base / _require(physical, "csv", "physical"), "physical.csv"),
+        _read_csv(base / _require(physical, "csv", "physical"), "[physical] csv"),
         inputs=_require(physical, "inputs", "physical"),
         output=_require(physical, "output", "physical"),
         theta={k: tuple(v) if isinstance(v, list) else v for k, v in theta.items()},
@@ -141,10 +142,18 @@ def _problem(raw: dict[str, Any], base: Path) -> Problem:
                    design=dict(raw.get("design", {})))
 
 
+def _resolve_program(model: dict[str, Any], base: Path) -> None:
+    """[model] program: the user's copy of a Stan program, relative to the config."""
+    if "program" in model:
+        model["program"] = base / model["program"]
+        if not model["program"].is_file():
+            raise ConfigError(f"[model] program: file not found: {model['program']}")
+
+
 def _low_fidelity_runs(simulator: dict[str, Any], base: Path) -> list[pd.DataFrame]:
     """[simulator.low_fidelity] runs: one CSV, or several (levels, cheapest first)."""
     files = simulator.get("low_fidelity", {}).get("runs", [])
-    return [_read_csv(base / name, "simulator.low_fidelity.runs") for name in ([files] if isinstance(files, str)
+    return [_read_csv(base / name, "[simulator.low_fidelity] runs") for name in ([files] if isinstance(files, str)
                                                                              else files)]
 
 
@@ -166,8 +175,7 @@ def _check_noise(noise: str, data: CalibrationData, noise_inputs: list[str], bia
 def _vector_problem(physical: dict, simulator: dict, theta: dict, runs: pd.DataFrame | None, stan: Path | None,
                     model: dict, raw: dict, base: Path) -> Problem:
     """A vector output ([physical] output_index): long tables, one row per value."""
-    if "program" in model:
-        model["program"] = base / model["program"]
+    _resolve_program(model, base)
     basis = {k: model.pop(k) for k in ("variance_share", "components") if k in model}
     if model.get("noise", "one") not in NOISE_MODES:
         raise ConfigError(f"[model] noise {model['noise']!r} does not apply to a vector output ([physical] "
@@ -177,7 +185,7 @@ def _vector_problem(physical: dict, simulator: dict, theta: dict, runs: pd.DataF
         raise ConfigError("[simulator.low_fidelity.theta] (the cheap simulator's own theta_l) is not built for a "
                           "vector output: its runs take the shared theta")
     data = VectorCalibrationData(
-        _read_csv(base / _require(physical, "csv", "physical"), "physical.csv"),
+        _read_csv(base / _require(physical, "csv", "physical"), "[physical] csv"),
         experiment=_require(physical, "experiment", "physical"),
         inputs=_require(physical, "inputs", "physical"),
         output=_require(physical, "output", "physical"),
