@@ -233,7 +233,7 @@ def run_compare(args: argparse.Namespace) -> dict:
 
     problem = load_config(args.config)
     _require_command(problem, "compare")
-    model = {k: v for k, v in problem.model.items() if k not in ("method", "discrepancy", "scaled_lambda")}
+    model = {k: v for k, v in problem.model.items() if k not in ("method", "discrepancy")}
     if args.approximation:
         model["approximation"] = args.approximation
     # no args.out.mkdir here: the fits and reports create it, so a failure before sampling leaves none
@@ -341,7 +341,7 @@ def in_config(config: Path, err: Exception) -> str:
     """An input error of a config-driven command, one line, naming the
     config unless it names a file already (a CSV's line, a Stan program's)
     or a command-line flag (checked before the config is read)."""
-    message = _one_line(err)
+    message = _one_line(err).removeprefix("config: ")
     named = message.startswith("--") or str(config) in message or re.search(r"\.(csv|stan|toml)\b", message)
     return message if named else f"{config}: {message}"
 

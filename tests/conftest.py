@@ -317,3 +317,17 @@ def cooling_gap(tmp_path_factory):
         capture_output=True, text=True)
     assert done.returncode == 0, done.stderr[-3000:]
     return json.loads((out / "gap.json").read_text()), out
+
+
+@pytest.fixture
+def no_compile(monkeypatch):
+    """Planning runs as it would; compiling or checking a Stan program, on
+    either backend, fails the test (input checked before any compile)."""
+    from stancal.stan.backends.cmdstanpy_backend import CmdStanPyBackend
+    from stancal.stan.backends.pystan_backend import PyStanBackend
+
+    def reached(self, *args, **kwargs):
+        raise AssertionError("the bad input reached a compile")
+    for backend in (PyStanBackend, CmdStanPyBackend):
+        for name in ("compile", "check"):
+            monkeypatch.setattr(backend, name, reached)

@@ -456,8 +456,9 @@ def assert_started_from(source, kwargs, warmup, draws):
 
 
 def test_a_formula_candidate_keeps_the_baselines_mean_terms():
-    """A baseline with its own mean terms (mean_formula) keeps them in every
-    fit of the diagnosis; a formula candidate adds its terms to them."""
+    """The formula a formula candidate fits beside a baseline with mean terms
+    of its own (mean_formula): both sets of terms, the candidate's grouped so
+    that its own minus signs do not remove the baseline's terms."""
     from stancal.problem.mean_terms import build_mean_terms
 
     candidate = Candidate("start", formula="T0")
@@ -465,3 +466,5 @@ def test_a_formula_candidate_keeps_the_baselines_mean_terms():
     joined = candidate.with_baseline_terms("I(t**2)")
     frame = pd.DataFrame({"t": [1.0, 2.0, 3.0], "T0": [60.0, 90.0, 75.0]})
     assert build_mean_terms(joined, frame).names == ["I(t ** 2)", "T0"]
+    grouped = Candidate("rest", formula="T0 - t").with_baseline_terms("t")
+    assert build_mean_terms(grouped, frame).names == ["t", "T0"]

@@ -457,19 +457,6 @@ def test_malformed_tomls_end_in_one_named_line(case, command, capsys, no_fit):
 # ---- 6. the model, the candidates and [design] against the data, before any compile -------
 # (found by an audit of 130 perturbed configs, 2026-11-26: these reached a compile, or
 # `stancal compile` exited 0 on them, or the error named no file)
-@pytest.fixture
-def no_compile(monkeypatch):
-    """Planning runs as it would; compiling or checking a Stan program fails the test."""
-    from stancal.stan.backends.cmdstanpy_backend import CmdStanPyBackend
-    from stancal.stan.backends.pystan_backend import PyStanBackend
-
-    def reached(self, *args, **kwargs):
-        raise AssertionError("the bad input reached a compile")
-    for backend in (PyStanBackend, CmdStanPyBackend):
-        for name in ("compile", "check"):
-            monkeypatch.setattr(backend, name, reached)
-
-
 FULL_CONFIG = (COOLING / "config.toml").read_text()
 
 
@@ -477,7 +464,8 @@ FULL_CONFIG = (COOLING / "config.toml").read_text()
 @pytest.mark.parametrize("old, new, message", [
     ('kernel = "se"', 'kernel = "se"\nmethod = "kho"', "method 'kho' is not built for a scalar output"),
     ('kernel = "se"', 'kernel = "se"\nscaled_lambda = -1.0', "scaled_lambda must be a positive number"),
-    ('kernel = "se"', 'kernel = "se"\nscaled_lambda = 5.0', 'scaled_lambda applies to discrepancy = "scaled" only'),
+    ('kernel = "se"', 'kernel = "se"\nscaled_lambda = 5.0',
+     '[model] scaled_lambda applies to discrepancy = "scaled" only; this config\'s is \'gp\''),
     ('kernel = "se"', 'kernel = "se"\nmean_formula = "I(t**"', "[model] mean_formula: formula 'I(t**'"),
     ('kernel = "se"', 'kernel = "se"\nmean_formula = "nosuch"', "[model] mean_formula: formula 'nosuch'"),
     ('c = [0.0, 0.002]', 'c = [0.002, 0.0]', "candidate 'quadratic_loss': theta 'c': bounds must be finite"),
@@ -538,3 +526,10 @@ def test_a_missing_file_names_the_config_and_its_key(tmp_path, old, new, message
         load_config(config)
     assert str(err.value).startswith(f"{config}: {message}"), err.value
     assert "Errno" not in str(err.value)
+
+
+def test_a_gap_config_without_candidates_names_the_config_once(tmp_path, capsys):
+    config = copy_case(tmp_path)
+    config.write_text(FULL_CONFIG.split("[candidates]")[0])
+    code, err = cli(["gap", config, "--out", tmp_path / "out"], capsys)
+    assert code == 2 and error_line(err) == f"stancal: error: {config}: `stancal gap` needs a [candidates] section"

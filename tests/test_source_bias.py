@@ -330,9 +330,10 @@ def test_a_source_column_serves_biased_sources_with_one_noise_sd():
 
 
 def test_biased_sources_under_iid_noise_are_described_in_summary_and_report():
-    """iid noise with a biased source is still a measurement model: summary.json's
-    noise block (and so the report's section) names the biased and reference
-    sources; plain iid noise without a source or known sd has none."""
+    """iid noise with a biased source is still a measurement model: the
+    condition for summary.json's noise block (which the report's section
+    follows) holds for it, and not for plain iid noise without a source or a
+    known sd. (The block's contents: the slow bias_fit test below.)"""
     frame = pd.read_csv(CASE / "physical.csv")
     biased = make_plan(case_data(frame), SIMULATOR, noise="iid", biased_sources=["camera"])
     assert describes_noise(biased.options, case_data(frame))

@@ -75,7 +75,9 @@ class DesignSettings:
     def __post_init__(self) -> None:
         design = config_table("design")  # the ranges the config's [design] keys are checked against
         for name, value in asdict(self).items():
-            problem = None if value is None else design.key(name).out_of_range(value)
+            key = design.key(name)
+            problem = None if value is None else key.out_of_range(value) or (
+                "must be an integer" if key.type == "integer" and not float(value).is_integer() else None)
             if problem:
                 raise ValueError(f"[design] {name} {problem}; got {value!r}")
 

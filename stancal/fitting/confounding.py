@@ -142,7 +142,7 @@ def program_simulator(plan: Plan, data: CalibrationData, stan_backend):
     plan's compiled program: its generated quantities' f_new there, with no
     discrepancy and no mean terms (every other parameter at 0.1, inside its
     constraints; f_new does not depend on them)."""
-    options = replace(plan.options, discrepancy="none", scaled_lambda=None, mean_formula=None, mean_intercept=False,
+    options = replace(plan.options, discrepancy="none", mean_formula=None, mean_intercept=False,
                       mean_centred=False, estimate_rho=False)
     stan_json = to_stan_json(build_stan_data(data, plan.program.data, options, data.source.reset_index(drop=True)))
     program = plan.main_program()

@@ -191,7 +191,8 @@ def _check_mean_formula(data, options: ModelOptions | VectorOptions) -> None:
     if options.mean_formula is None:
         return
     try:
-        build_mean_terms(options.mean_formula, data.source, intercept=options.mean_intercept)
+        build_mean_terms(options.mean_formula, data.source, intercept=options.mean_intercept,
+                         centred=getattr(options, "mean_centred", False))  # VectorOptions: never centred
     except FormulaError as err:
         raise FormulaError(f"[model] mean_formula: {err}") from None
 

@@ -34,7 +34,7 @@ class Candidate:
     def with_baseline_terms(self, baseline: str | None) -> str:
         """A formula candidate's mean terms beside the baseline's own (its
         mean_formula), which every fit of a gap diagnosis keeps."""
-        return self.formula if baseline is None else f"{baseline} + {self.formula}"
+        return self.formula if baseline is None else f"({baseline}) + ({self.formula})"
 
     def __post_init__(self) -> None:
         if (self.formula is None) == (self.stan is None):

@@ -310,6 +310,7 @@ def check(raw: dict[str, Any]) -> str | None:
             or _check_entries(simulator["theta"], table("simulator.theta"))
             or _check_entries(simulator.get("theta_per_experiment", {}), table("simulator.theta_per_experiment"))
             or _check_table(raw.get("model", {}), table("model"), output)
+            or _check_scaled_lambda(raw.get("model", {}))
             or _check_table(raw.get("design", {}), table("design"), output)
             or _check_candidates(raw.get("candidates", {})))
 
@@ -354,6 +355,16 @@ def _check_table(values: dict[str, Any], spec: Table, output: str, subtables: tu
         if key.output not in (BOTH, output):
             return (f"{where} {name} applies to a vector output only (a [physical] output_index)" if output == SCALAR
                     else f"{where} {name} does not apply to a vector output ([physical] output_index)")
+    return None
+
+
+def _check_scaled_lambda(model: dict[str, Any]) -> str | None:
+    """scaled_lambda is the scaled GP's penalty: in a config whose discrepancy
+    is another, it would be ignored (a --discrepancy flag may still override
+    a scaled config's discrepancy for one run)."""
+    discrepancy = model.get("discrepancy", "gp")
+    if "scaled_lambda" in model and discrepancy != "scaled":
+        return f'[model] scaled_lambda applies to discrepancy = "scaled" only; this config\'s is {discrepancy!r}'
     return None
 
 

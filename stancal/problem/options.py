@@ -84,9 +84,6 @@ class ModelOptions:
         check_noise_inputs(self.noise, self.noise_inputs)
         if self.scaled_lambda is not None and not (np.isfinite(self.scaled_lambda) and self.scaled_lambda > 0):
             raise ValueError(f"scaled_lambda must be a positive number; got {self.scaled_lambda!r}")
-        if self.scaled_lambda is not None and self.discrepancy != "scaled":
-            raise ValueError(f'scaled_lambda applies to discrepancy = "scaled" only (the scaled GP\'s penalty); '
-                             f"this model's discrepancy is {self.discrepancy!r}")
 
     @property
     def kernel_id(self) -> int:
