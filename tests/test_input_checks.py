@@ -163,6 +163,18 @@ def test_docs_config_lists_every_table_and_key_as_the_schema_says():
             assert f"| `{key.name}` | {key.type}" in docs and f" | {key.default} | " in docs, key
 
 
+def test_the_schema_prints_its_reference_without_a_warning():
+    """docs/config.md's command: `import stancal` must not import the schema
+    module before runpy runs it (a RuntimeWarning when DesignSettings did)."""
+    import subprocess
+    import sys
+
+    done = subprocess.run([sys.executable, "-W", "error", "-m", "stancal.problem.config_schema"], cwd=ROOT,
+                          capture_output=True, text=True, check=False)
+    assert done.returncode == 0 and not done.stderr, done.stderr
+    assert done.stdout.strip() == schema().reference().strip()
+
+
 def test_the_docs_example_config_passes_the_schema():
     docs = (ROOT / "docs" / "config.md").read_text()
     example = re.search(r"```toml\n(.*?)```", docs, re.S).group(1)

@@ -52,7 +52,6 @@ from scipy.spatial import cKDTree
 
 from stancal.numerics.parametrization import model_scale_values
 from stancal.problem.codes import Likelihood
-from stancal.problem.config_schema import table as config_table
 from stancal.problem.vector_data import VectorCalibrationData
 
 DISCREPANCY_FRACTION = 0.1  # of the observations' sd: docs/design.md, "The discrepancy's default"
@@ -73,6 +72,10 @@ class DesignSettings:
     nroy_points: int = 2000  # NROY sample size (nroy.csv)
 
     def __post_init__(self) -> None:
+        # imported here: `python -m stancal.problem.config_schema` (docs/config.md) must not find it imported
+        # already by `import stancal`, which imports this module
+        from stancal.problem.config_schema import table as config_table
+
         design = config_table("design")  # the ranges the config's [design] keys are checked against
         for name, value in asdict(self).items():
             key = design.key(name)
