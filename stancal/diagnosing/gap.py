@@ -205,11 +205,11 @@ def check_candidates(data: CalibrationData | VectorCalibrationData, candidates: 
     """Fail before sampling: formulas must evaluate, variants must pass stanc."""
     if not candidates:
         raise CandidateError("give at least one candidate effect")
-    check_candidate_data(data, candidates)
+    variants = check_candidate_data(data, candidates)
     for c in (c for c in candidates if c.kind == "variant"):
         if not Path(c.stan).is_file():
             raise CandidateError(f"candidate '{c.name}': Stan file not found: {c.stan}")
-        variant = variant_data(data, c)
+        variant = variants[c.name]
         if plan is not None and not isinstance(data, VectorCalibrationData):
             try:  # the baseline's model on the variant's data: what it cannot do is named now
                 plan_scalar(variant, c.stan, None, plan.options)

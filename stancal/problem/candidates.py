@@ -61,20 +61,23 @@ def variant_data(data, candidate: Candidate):
         raise CandidateError(f"candidate '{candidate.name}': {err}") from None
 
 
-def check_candidate_data(data, candidates: list[Candidate]) -> None:
+def check_candidate_data(data, candidates: list[Candidate]) -> dict:
     """Each candidate against the physical data, before anything compiles
     (the config reader and `stancal gap` both): a name used once, a formula
-    that evaluates, a variant's inputs and theta. `stancal gap` then checks
-    each variant's Stan program with stanc."""
+    that evaluates, a variant's inputs and theta. Returns each variant's
+    data by name (variant_data), which `stancal gap` plans each variant's
+    Stan program on before checking it with stanc."""
     names = [c.name for c in candidates]
     repeated = sorted({n for n in names if names.count(n) > 1})
     if repeated:
         raise CandidateError(f"candidate name(s) {repeated} used twice")
+    variants = {}
     for c in candidates:
         if c.kind == "variant":
-            variant_data(data, c)
+            variants[c.name] = variant_data(data, c)
             continue
         try:
             build_mean_terms(c.formula, data.source)
         except FormulaError as err:
             raise CandidateError(f"candidate '{c.name}': {err}") from None
+    return variants

@@ -19,6 +19,7 @@ import pandas as pd
 
 from stancal.problem.advice import config_key
 from stancal.problem.codes import Noise
+from stancal.problem.run_replicates import group_settings
 from stancal.problem.validation import DataError, numeric_values, row_labels
 
 NOISES = tuple(code.name.lower() for code in Noise)  # iid, per_source, student_t, heteroscedastic
@@ -169,9 +170,8 @@ class NoiseLocations:
 
     @classmethod
     def of(cls, unit_values: np.ndarray, inputs: Sequence[str]) -> NoiseLocations:
-        distinct, index = np.unique(np.asarray(unit_values, float).reshape(len(unit_values), -1), axis=0,
-                                    return_inverse=True)
-        return cls(tuple(inputs), distinct, index.ravel())
+        distinct, index, _ = group_settings(unit_values)
+        return cls(tuple(inputs), distinct, index)
 
     def length_scale_prior(self) -> tuple[float, float]:
         """The lognormal (location, scale) of the log sd GP's length scales
@@ -225,7 +225,7 @@ def replicate_counts(inputs: np.ndarray) -> dict[str, int]:
     equality. ``settings``: distinct input settings; ``replicated_settings``:
     those measured more than once; ``replicate_rows``: the rows beyond each
     setting's first (rows - settings)."""
-    _, counts = np.unique(np.asarray(inputs).reshape(len(inputs), -1), axis=0, return_counts=True)
+    _, _, counts = group_settings(inputs)
     return {"rows": int(counts.sum()), "settings": len(counts), "replicated_settings": int((counts > 1).sum()),
             "replicate_rows": int(counts.sum() - len(counts))}
 

@@ -21,9 +21,10 @@ def pooled_variance(counts: np.ndarray, variances: np.ndarray) -> float:
 
 
 def group_settings(settings: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Rows of ``settings`` (M, K) grouped where exactly equal: the distinct
+    """Rows of ``settings`` (M, K), or values (M,), grouped where exactly equal: the distinct
     rows, each row's group (an index into them) and each group's size."""
-    distinct, index, counts = np.unique(np.asarray(settings, float), axis=0, return_inverse=True,
+    rows = np.asarray(settings, float)
+    distinct, index, counts = np.unique(rows.reshape(len(rows), -1), axis=0, return_inverse=True,
                                         return_counts=True)
     return distinct, index.ravel(), counts
 
