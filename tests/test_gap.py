@@ -21,6 +21,7 @@ from conftest import (
 
 import stancal
 from stancal.diagnosing.gap import Candidate, CandidateError, check_candidates, diagnose_gap
+from stancal.fitting.plan import make_plan
 from stancal.fitting.warm_start import candidate_warmup, refit_draws, refit_warmup
 from stancal.problem.candidates import variant_data
 from stancal.problem.codes import Likelihood
@@ -348,6 +349,18 @@ def test_bad_candidates_are_named(cooling_problem, candidate, message):
     with pytest.raises(CandidateError) as err:
         check_candidates(cooling_problem.data, [candidate], get_backend("pystan"))
     assert message in str(err.value)
+
+
+def test_a_formula_candidate_must_add_a_term_to_the_baselines_mean(cooling_problem):
+    """A formula candidate whose terms the baseline's mean_formula already
+    has would fit the baseline again: refused by name (the Python API's
+    check; the config's is in test_input_checks). One new term is enough."""
+    plan = make_plan(cooling_problem.data, COOLING / "simulator.stan", mean_formula="humidity + t")
+    backend = get_backend("pystan")
+    with pytest.raises(CandidateError, match="candidate 'humidity': formula 'humidity' adds no term to "
+                                             r"\[model\] mean_formula 'humidity \+ t'"):
+        check_candidates(cooling_problem.data, [Candidate("humidity", formula="humidity")], backend, plan)
+    check_candidates(cooling_problem.data, [Candidate("start", formula="humidity + T0")], backend, plan)
 
 
 def test_variant_that_does_not_compile_is_named(cooling_problem, tmp_path):

@@ -484,6 +484,9 @@ FULL_CONFIG = (COOLING / "config.toml").read_text()
     ('gamma = [-0.5, 0.5]', 'gamma = [-0.5, 0.5]\nk = [0.0, 1.0]',
      "candidate 'humid_convection': theta 'k' is the baseline's"),
     ('humidity = "humidity"', 'humidity = "nosuch"', "candidate 'humidity': formula 'nosuch'"),
+    # a candidate all of whose terms the baseline's mean already has would fit the baseline again
+    ('kernel = "se"', 'kernel = "se"\nmean_formula = "humidity + t"',
+     "candidate 'humidity': formula 'humidity' adds no term to [model] mean_formula 'humidity + t'"),
     ('operator = "C(operator)"', 'operator = "C(operator"', "candidate 'operator': formula 'C(operator'"),
     ('inputs = ["t", "T0", "humidity"]', 'inputs = ["t", "T0", "nosuch"]',
      "candidate 'humid_convection': unknown input column(s) ['nosuch']"),

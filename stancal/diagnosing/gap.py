@@ -205,7 +205,7 @@ def check_candidates(data: CalibrationData | VectorCalibrationData, candidates: 
     """Fail before sampling: formulas must evaluate, variants must pass stanc."""
     if not candidates:
         raise CandidateError("give at least one candidate effect")
-    variants = check_candidate_data(data, candidates)
+    variants = check_candidate_data(data, candidates, None if plan is None else plan.options.mean_formula)
     for c in (c for c in candidates if c.kind == "variant"):
         if not Path(c.stan).is_file():
             raise CandidateError(f"candidate '{c.name}': Stan file not found: {c.stan}")

@@ -61,23 +61,37 @@ def variant_data(data, candidate: Candidate):
         raise CandidateError(f"candidate '{candidate.name}': {err}") from None
 
 
-def check_candidate_data(data, candidates: list[Candidate]) -> dict:
+def _terms_of(formula: str | None, physical) -> set[str]:
+    """The baseline mean's terms; none where it has no formula, or one that
+    does not evaluate (the plan names that error as the [model]'s)."""
+    try:
+        return set() if formula is None else set(build_mean_terms(formula, physical).names)
+    except FormulaError:
+        return set()
+
+
+def check_candidate_data(data, candidates: list[Candidate], baseline_formula: str | None = None) -> dict:
     """Each candidate against the physical data, before anything compiles
     (the config reader and `stancal gap` both): a name used once, a formula
-    that evaluates, a variant's inputs and theta. Returns each variant's
-    data by name (variant_data), which `stancal gap` plans each variant's
-    Stan program on before checking it with stanc."""
+    that evaluates and adds a term to the baseline's ``baseline_formula``
+    (else its fit is the baseline's again), a variant's inputs and theta.
+    Returns each variant's data by name (variant_data), which `stancal gap`
+    plans each variant's Stan program on before checking it with stanc."""
     names = [c.name for c in candidates]
     repeated = sorted({n for n in names if names.count(n) > 1})
     if repeated:
         raise CandidateError(f"candidate name(s) {repeated} used twice")
     variants = {}
+    baseline = _terms_of(baseline_formula, data.source)
     for c in candidates:
         if c.kind == "variant":
             variants[c.name] = variant_data(data, c)
             continue
         try:
-            build_mean_terms(c.formula, data.source)
+            terms = build_mean_terms(c.formula, data.source).names
         except FormulaError as err:
             raise CandidateError(f"candidate '{c.name}': {err}") from None
+        if set(terms) <= baseline:
+            raise CandidateError(f"candidate '{c.name}': formula {c.formula!r} adds no term to [model] mean_formula "
+                                 f"{baseline_formula!r}, so its fit would be the baseline's again")
     return variants
