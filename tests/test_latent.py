@@ -495,6 +495,15 @@ def test_successes_above_trials():
         make(frame(), likelihood="binomial")
 
 
+def test_binomial_proportions_without_trials_ask_for_the_trials_column():
+    """Observed fractions (successes / trials) under a binomial likelihood
+    without a trials column: the error says what a binomial output is and
+    which key names its trials, not only that the values are not whole."""
+    with pytest.raises(stancal.DataError, match=r"column 'y' holds fractions in rows \[0, 2\]: a binomial output counts "
+                                                r"successes; give those counts with the trials column \(trials = "):
+        make(frame(y=[0.3, 1, 0.5, 0, 1, 1]), likelihood="binomial")
+
+
 def test_unknown_likelihood_and_misplaced_columns():
     with pytest.raises(stancal.DataError, match="likelihood must be one of gaussian, poisson, negbinomial, binomial"):
         make(frame(), likelihood="gamma")

@@ -111,6 +111,16 @@ class Observations:
         return {kind.name.lower(): int(np.sum(self.censoring == kind)) for kind in Censoring}
 
 
+def _refuse_proportions(value: np.ndarray, output: str, index: pd.Index, what: str) -> None:
+    """Fractions in (0, 1) under a binomial likelihood without trials are
+    most likely observed proportions: say what the likelihood takes."""
+    fractions = (value > 0) & (value < 1)
+    if fractions.any():
+        raise DataError(f"{what}: output column '{output}' holds fractions in {_rows(fractions, index)}: a binomial "
+                        "output counts successes; give those counts with the trials column (trials = ...), "
+                        "or 0/1 outcomes")
+
+
 def read_observations(frame: pd.DataFrame, output: str, likelihood: str = "gaussian",
                       trials: str | None = None, lower: str | None = None,
                       upper: str | None = None, what: str = "physical data") -> Observations:
@@ -149,6 +159,8 @@ def read_observations(frame: pd.DataFrame, output: str, likelihood: str = "gauss
         censoring[empty & np.isfinite(low) & np.isfinite(high)] = Censoring.INTERVAL
         low[~empty], high[~empty] = -np.inf, np.inf  # rows with a value are exact
     else:
+        if kind is Likelihood.BINOMIAL and trials is None:
+            _refuse_proportions(value, output, frame.index, what)
         require_whole(value, output, frame.index, what, 0)
         if kind is Likelihood.BINOMIAL:
             if trials is None:  # binary outcomes
