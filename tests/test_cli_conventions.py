@@ -267,26 +267,38 @@ def test_without_a_terminal_progress_is_a_line_per_quarter(monkeypatch, caplog):
         assert bar is None
 
 
-def test_a_compile_ticks_until_it_is_done(monkeypatch, caplog):
+def test_a_compile_ticks_from_its_own_start_until_it_is_done(monkeypatch, caplog):
+    """Each program's time counts from when its build starts: a program
+    queued behind others (more programs than cores) shows 'queued', not the
+    time it waited, and logs nothing until it starts."""
     from stancal.stan import progress
 
     terminal = Terminal()
     monkeypatch.setattr(progress, "terminal_stream", lambda: terminal)
-    with progress.ticking(["koh.stan (1/2)", "koh_latent.stan (2/2)"]) as done:
+    with progress.ticking(["koh.stan (1/2)", "koh_latent.stan (2/2)"]) as ticker:
+        ticker.start("koh.stan (1/2)")
         time.sleep(1.5)  # a tick a second
-        done("koh.stan (1/2)")
+        ticker.done("koh.stan (1/2)")
+        ticker.start("koh_latent.stan (2/2)")
         time.sleep(1.2)
-        done("koh_latent.stan (2/2)")
+        ticker.done("koh_latent.stan (2/2)")
     drawn = terminal.getvalue()
-    assert "compiling koh.stan (1/2): 00:01, done" in drawn and "compiling koh_latent.stan (2/2): 00:02, done" in drawn
+    assert "compiling koh_latent.stan (2/2): queued" in drawn
+    assert "compiling koh.stan (1/2): 00:01, done" in drawn and "compiling koh_latent.stan (2/2): 00:01, done" in drawn
     monkeypatch.setattr(progress, "terminal_stream", lambda: None)
     monkeypatch.setattr(progress, "COMPILE_LOG_EVERY_S", 0.5)
-    with caplog.at_level("INFO", logger="stancal"), progress.ticking(["koh.stan (1/1)"]) as done:
+    with caplog.at_level("INFO", logger="stancal"), progress.ticking(["koh.stan (1/2)", "koh_latent.stan (2/2)"]) as ticker:
+        ticker.start("koh.stan (1/2)")
         time.sleep(1.2)
-        done("koh.stan (1/1)")
+        ticker.done("koh.stan (1/2)")
+        ticker.start("koh_latent.stan (2/2)")
+        time.sleep(1.2)
+        ticker.done("koh_latent.stan (2/2)")
     said = [r.getMessage() for r in caplog.records]
-    ticks = [m for m in said if re.fullmatch(r"compiling koh.stan \(1/1\): \d s so far", m)]
-    assert ticks and said[-1] == "compiling koh.stan (1/1): done in 1 s", said
+    first = said.index("compiling koh.stan (1/2): done in 1 s")
+    assert any(re.fullmatch(r"compiling koh.stan \(1/2\): \d s so far", m) for m in said[:first]), said
+    assert not any("koh_latent" in m for m in said[:first]), said  # queued: no tick yet
+    assert said[-1] == "compiling koh_latent.stan (2/2): done in 1 s", said
 
 
 def test_a_real_fit_drives_the_bar_to_its_total(monkeypatch, tmp_path):

@@ -19,7 +19,7 @@ import re
 import sys
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from typing import TextIO
 
 logger = logging.getLogger("stancal")
@@ -156,48 +156,69 @@ def progress_lines(progress: SamplingProgress | None) -> Iterator[None]:
         reader.flush()
 
 
-@contextlib.contextmanager
-def ticking(names: list[str], what: str = "compiling") -> Iterator[Callable[[str], None]]:
-    """A line per long task that counts its time, until the block calls
-    ``done(name)``: a bar per task on a terminal, ticking every second;
-    elsewhere a log line per running task a minute, and one when it ends."""
-    started = time.perf_counter()
-    stream = None if _quiet else terminal_stream()
-    bars = {}
-    if stream is not None:
-        from tqdm import tqdm
+class Ticker:
+    """The tasks of one ``ticking`` block: each is queued until ``start``,
+    and counts its own time from then until ``done`` (a program queued
+    behind others for a core has not been compiling all that while)."""
 
-        bars = {name: tqdm(desc=f"{what} {name}", bar_format="{desc}: {elapsed}{postfix}", file=stream,
-                           ncols=_width(stream), leave=True) for name in names}
-    running = set(names)
-    stop, lock = threading.Event(), threading.Lock()  # the ticks and done() come from different threads
+    def __init__(self, names: list[str], what: str, stream: TextIO | None) -> None:
+        self.what, self.stream = what, stream
+        self.started: dict[str, float] = {}  # running tasks: name -> start
+        self.lock = threading.Lock()  # the ticks, start() and done() come from different threads
+        self.bars = {}
+        if stream is not None:
+            from tqdm import tqdm
+
+            self.bars = {name: tqdm(desc=f"{what} {name}", bar_format="{desc}: queued", file=stream,
+                                    ncols=_width(stream), leave=True) for name in names}
+
+    def start(self, name: str) -> None:
+        with self.lock:
+            self.started[name] = time.perf_counter()
+            if name in self.bars:
+                self.bars[name].bar_format = "{desc}: {elapsed}{postfix}"
+                self.bars[name].reset()  # its clock starts now
+
+    def tick(self) -> None:
+        with self.lock:
+            for name, since in sorted(self.started.items()):
+                if name in self.bars:
+                    self.bars[name].refresh()
+                elif self.stream is None and not _quiet:
+                    logger.info("%s %s: %.0f s so far", self.what, name, time.perf_counter() - since)
+
+    def done(self, name: str) -> None:
+        with self.lock:
+            since = self.started.pop(name)
+            if name in self.bars:
+                self.bars[name].set_postfix_str("done")  # tqdm puts ", " before it
+                self.bars[name].close()
+            elif not _quiet:
+                logger.info("%s %s: done in %.0f s", self.what, name, time.perf_counter() - since)
+
+
+@contextlib.contextmanager
+def ticking(names: list[str], what: str = "compiling") -> Iterator[Ticker]:
+    """A line per long task that counts its time from its ``start(name)``
+    until the block calls ``done(name)``: a bar per task on a terminal,
+    ticking every second; elsewhere a log line per running task a minute,
+    and one when it ends."""
+    stream = None if _quiet else terminal_stream()
+    ticker = Ticker(names, what, stream)
+    stop = threading.Event()
 
     def tick() -> None:
         while not stop.wait(1.0 if stream is not None else COMPILE_LOG_EVERY_S):
-            with lock:
-                for name in sorted(running):
-                    if name in bars:
-                        bars[name].refresh()
-                    elif stream is None and not _quiet:
-                        logger.info("%s %s: %.0f s so far", what, name, time.perf_counter() - started)
-
-    def done(name: str) -> None:
-        with lock:
-            running.discard(name)
-            if name in bars:
-                bars[name].set_postfix_str("done")  # tqdm puts ", " before it
-                bars[name].close()
-            elif not _quiet:
-                logger.info("%s %s: done in %.0f s", what, name, time.perf_counter() - started)
+            ticker.tick()
 
     thread = threading.Thread(target=tick, daemon=True)
     thread.start()
     try:
-        yield done
+        yield ticker
     finally:
         stop.set()
         thread.join()
-        for bar in bars.values():
+        for bar in ticker.bars.values():
             bar.close()
         if stream is not None:
             stream.close()

@@ -357,13 +357,16 @@ def compile_programs(programs: list[FlatProgram]) -> float:
                        ", ".join(program_file(p) for p in building))
     names = [f"{program_file(p)} ({i + 1}/{len(building)})" for i, p in enumerate(building)]
     built = {}  # name -> True if this process built it, False if another did meanwhile
-    with ticking(names) as done, ThreadPoolExecutor(max_workers=workers) as pool:  # a thread waits on a subprocess
-        builds = {pool.submit(_compile_in_subprocess, p, toolchain): (p, name)
-                  for p, name in zip(building, names, strict=True)}
+    with ticking(names) as ticker, ThreadPoolExecutor(max_workers=workers) as pool:  # a thread waits on a subprocess
+        def build_one(program: FlatProgram, name: str) -> bool:
+            ticker.start(name)  # queued until a core is free
+            return _compile_in_subprocess(program, toolchain)
+
+        builds = {pool.submit(build_one, p, name): name for p, name in zip(building, names, strict=True)}
         for build in as_completed(builds):
-            program, name = builds[build]
+            name = builds[build]
             built[name] = build.result()  # a failure is raised here
-            done(name)
+            ticker.done(name)
     for code in todo:  # into this process's httpstan cache
         _install(code, stored_module(code))
     for whose, here in (("compiled", True), ("another process compiled", False)):
