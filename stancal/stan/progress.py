@@ -190,9 +190,10 @@ class Ticker:
     def done(self, name: str) -> None:
         with self.lock:
             since = self.started.pop(name)
-            if name in self.bars:
-                self.bars[name].set_postfix_str("done")  # tqdm puts ", " before it
-                self.bars[name].close()
+            if name in self.bars:  # its line is frozen, and closed with the others at the end: bars closed
+                bar = self.bars[name]  # one by one as they finish, out of order, leave stray lines behind
+                bar.bar_format = f"{{desc}}: {bar.format_interval(time.perf_counter() - since)}, done"
+                bar.refresh()
             elif not _quiet:
                 logger.info("%s %s: done in %.0f s", self.what, name, time.perf_counter() - since)
 
