@@ -351,16 +351,23 @@ def test_bad_candidates_are_named(cooling_problem, candidate, message):
     assert message in str(err.value)
 
 
-def test_a_formula_candidate_must_add_a_term_to_the_baselines_mean(cooling_problem):
-    """A formula candidate whose terms the baseline's mean_formula already
-    has would fit the baseline again: refused by name (the Python API's
-    check; the config's is in test_input_checks). One new term is enough."""
-    plan = make_plan(cooling_problem.data, COOLING / "simulator.stan", mean_formula="humidity + t")
+@pytest.mark.parametrize("baseline, candidate", [
+    ("humidity + t", "humidity"),
+    ("humidity * t", "t:humidity"),  # the same interaction, named otherwise
+    ("C(operator)", "operator"),  # the same offsets, coded again
+    ("t + T0", "I(t + T0)"),  # a combination of the baseline's terms
+])
+def test_a_formula_candidate_must_add_a_term_to_the_baselines_mean(cooling_problem, baseline, candidate):
+    """A formula candidate that does not widen the baseline's mean (its
+    mean_formula and a constant: the columns' rank) would fit the baseline
+    again: refused by name before anything compiles. One new term is enough."""
+    plan = make_plan(cooling_problem.data, COOLING / "simulator.stan", mean_formula=baseline)
     backend = get_backend("pystan")
-    with pytest.raises(CandidateError, match="candidate 'humidity': formula 'humidity' adds no term to "
-                                             r"\[model\] mean_formula 'humidity \+ t'"):
-        check_candidates(cooling_problem.data, [Candidate("humidity", formula="humidity")], backend, plan)
-    check_candidates(cooling_problem.data, [Candidate("start", formula="humidity + T0")], backend, plan)
+    with pytest.raises(CandidateError) as err:
+        check_candidates(cooling_problem.data, [Candidate("c", formula=candidate)], backend, plan)
+    assert str(err.value) == (f"candidate 'c': formula {candidate!r} adds no term to [model] mean_formula "
+                              f"{baseline!r}, so its fit would be the baseline's again")
+    check_candidates(cooling_problem.data, [Candidate("start", formula=f"{candidate} + humidity:T0")], backend, plan)
 
 
 def test_variant_that_does_not_compile_is_named(cooling_problem, tmp_path):

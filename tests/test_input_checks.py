@@ -484,9 +484,6 @@ FULL_CONFIG = (COOLING / "config.toml").read_text()
     ('gamma = [-0.5, 0.5]', 'gamma = [-0.5, 0.5]\nk = [0.0, 1.0]',
      "candidate 'humid_convection': theta 'k' is the baseline's"),
     ('humidity = "humidity"', 'humidity = "nosuch"', "candidate 'humidity': formula 'nosuch'"),
-    # a candidate all of whose terms the baseline's mean already has would fit the baseline again
-    ('kernel = "se"', 'kernel = "se"\nmean_formula = "humidity + t"',
-     "candidate 'humidity': formula 'humidity' adds no term to [model] mean_formula 'humidity + t'"),
     ('operator = "C(operator)"', 'operator = "C(operator"', "candidate 'operator': formula 'C(operator'"),
     ('inputs = ["t", "T0", "humidity"]', 'inputs = ["t", "T0", "nosuch"]',
      "candidate 'humid_convection': unknown input column(s) ['nosuch']"),
@@ -541,6 +538,21 @@ def test_a_missing_file_names_the_config_and_its_key(tmp_path, old, new, message
         load_config(config)
     assert str(err.value).startswith(f"{config}: {message}"), err.value
     assert "Errno" not in str(err.value)
+
+
+def test_a_candidate_the_baselines_mean_already_has_is_refused_by_gap_only(tmp_path, capsys, no_compile):
+    """A formula candidate with no term beyond [model] mean_formula would fit
+    the baseline again: `stancal gap` refuses it before compiling, while the
+    other commands take the config (the winning term moved into the mean,
+    its candidate left in place)."""
+    config = copy_case(tmp_path)
+    config.write_text(FULL_CONFIG.replace('kernel = "se"', 'kernel = "se"\nmean_formula = "humidity + t"', 1))
+    assert load_config(config).model["mean_formula"] == "humidity + t"
+    code, err = cli(["gap", config, "--out", tmp_path / "out"], capsys)
+    line = error_line(err)
+    assert code == 2 and str(config) in line, line
+    assert "candidate 'humidity': formula 'humidity' adds no term to [model] mean_formula 'humidity + t'" in line, line
+    assert not (tmp_path / "out").exists()
 
 
 def test_a_gap_config_without_candidates_names_the_config_once(tmp_path, capsys):

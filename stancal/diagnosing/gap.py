@@ -73,7 +73,7 @@ from stancal.fitting.stage_one import run_stage_one
 from stancal.fitting.stopwatch import COMPILED_EARLIER, Stopwatch
 from stancal.fitting.vector_calibrate import calibrate_vector
 from stancal.fitting.warm_start import warm_candidate_options, warm_refit_options
-from stancal.problem.candidates import Candidate, CandidateError, check_candidate_data, variant_data
+from stancal.problem.candidates import Candidate, CandidateError, check_adds_terms, check_candidate_data, variant_data
 from stancal.problem.data import CalibrationData, bounds_of
 from stancal.problem.sampling import SamplerOptions
 from stancal.problem.vector_data import VectorCalibrationData
@@ -205,7 +205,9 @@ def check_candidates(data: CalibrationData | VectorCalibrationData, candidates: 
     """Fail before sampling: formulas must evaluate, variants must pass stanc."""
     if not candidates:
         raise CandidateError("give at least one candidate effect")
-    variants = check_candidate_data(data, candidates, None if plan is None else plan.options.mean_formula)
+    variants = check_candidate_data(data, candidates)
+    if plan is not None:
+        check_adds_terms(data, candidates, plan.options.mean_formula)
     for c in (c for c in candidates if c.kind == "variant"):
         if not Path(c.stan).is_file():
             raise CandidateError(f"candidate '{c.name}': Stan file not found: {c.stan}")

@@ -6,6 +6,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
+
 from stancal.problem.mean_terms import FormulaError, build_mean_terms
 from stancal.problem.validation import DataError
 
@@ -61,37 +63,47 @@ def variant_data(data, candidate: Candidate):
         raise CandidateError(f"candidate '{candidate.name}': {err}") from None
 
 
-def _terms_of(formula: str | None, physical) -> set[str]:
-    """The baseline mean's terms; none where it has no formula, or one that
-    does not evaluate (the plan names that error as the [model]'s)."""
-    try:
-        return set() if formula is None else set(build_mean_terms(formula, physical).names)
-    except FormulaError:
-        return set()
-
-
-def check_candidate_data(data, candidates: list[Candidate], baseline_formula: str | None = None) -> dict:
+def check_candidate_data(data, candidates: list[Candidate]) -> dict:
     """Each candidate against the physical data, before anything compiles
     (the config reader and `stancal gap` both): a name used once, a formula
-    that evaluates and adds a term to the baseline's ``baseline_formula``
-    (else its fit is the baseline's again), a variant's inputs and theta.
-    Returns each variant's data by name (variant_data), which `stancal gap`
-    plans each variant's Stan program on before checking it with stanc."""
+    that evaluates, a variant's inputs and theta. Returns each variant's
+    data by name (variant_data), which `stancal gap` plans each variant's
+    Stan program on before checking it with stanc."""
     names = [c.name for c in candidates]
     repeated = sorted({n for n in names if names.count(n) > 1})
     if repeated:
         raise CandidateError(f"candidate name(s) {repeated} used twice")
     variants = {}
-    baseline = _terms_of(baseline_formula, data.source)
     for c in candidates:
         if c.kind == "variant":
             variants[c.name] = variant_data(data, c)
             continue
         try:
-            terms = build_mean_terms(c.formula, data.source).names
+            build_mean_terms(c.formula, data.source)
         except FormulaError as err:
             raise CandidateError(f"candidate '{c.name}': {err}") from None
-        if set(terms) <= baseline:
+    return variants
+
+
+def check_adds_terms(data, candidates: list[Candidate], baseline_formula: str | None) -> None:
+    """`stancal gap` only: a formula candidate must widen the mean the
+    baseline fits (its ``baseline_formula`` and a constant), else its fit
+    is the baseline's again. Judged on the terms as fitted (with_baseline_terms),
+    by the rank of their columns, so a renamed or recoded copy (``t:humidity``
+    beside ``humidity*t``, ``operator`` beside ``C(operator)``) counts as no term.
+    A config may keep such a candidate for a plain calibration."""
+    if baseline_formula is None:  # every formula has a term beside the constant (build_mean_terms)
+        return
+    try:
+        baseline = _rank(baseline_formula, data.source)
+    except FormulaError:  # the plan names the [model]'s own error
+        return
+    for c in (c for c in candidates if c.kind == "formula"):
+        if _rank(c.with_baseline_terms(baseline_formula), data.source) <= baseline:
             raise CandidateError(f"candidate '{c.name}': formula {c.formula!r} adds no term to [model] mean_formula "
                                  f"{baseline_formula!r}, so its fit would be the baseline's again")
-    return variants
+
+
+def _rank(formula: str, physical) -> int:
+    """How many independent columns the mean has: the formula's terms and a constant."""
+    return int(np.linalg.matrix_rank(build_mean_terms(formula, physical, intercept=True).h))

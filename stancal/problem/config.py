@@ -36,11 +36,10 @@ class Problem:
 _OBSERVATION_KEYS = {"likelihood", "trials", "lower", "upper"}  # go to CalibrationData
 
 
-def _candidates(table: dict[str, Any], base: Path, data, model: dict[str, Any]) -> list[Candidate]:
+def _candidates(table: dict[str, Any], base: Path, data) -> list[Candidate]:
     """[candidates]: name = "formula", or a [candidates.NAME] table for a
     simulator variant (stan, inputs, theta) or a formula (formula); each
-    checked against the physical ``data`` and the [model]'s mean_formula
-    (check_candidate_data)."""
+    checked against the physical ``data`` (check_candidate_data)."""
     out = []
     for name, spec in table.items():  # the schema checked their keys and types
         if isinstance(spec, str):
@@ -58,7 +57,7 @@ def _candidates(table: dict[str, Any], base: Path, data, model: dict[str, Any]) 
         except CandidateError as err:
             raise ConfigError(str(err)) from None
     try:
-        check_candidate_data(data, out, model.get("mean_formula"))
+        check_candidate_data(data, out)
     except CandidateError as err:
         raise ConfigError(str(err)) from None
     return out
@@ -138,7 +137,7 @@ def _problem(raw: dict[str, Any], base: Path) -> Problem:
         low_fidelity_rho=simulator.get("low_fidelity", {}).get("rho", "constant"),
     )
     _check_noise(model.get("noise", "iid"), data, model.get("noise_inputs", []), model.get("biased_sources", []))
-    candidates = _candidates(raw.get("candidates", {}), base, data, model)
+    candidates = _candidates(raw.get("candidates", {}), base, data)
     return Problem(data=data, simulator=stan, model=model, candidates=candidates, units=dict(raw.get("units", {})),
                    design=dict(raw.get("design", {})))
 
@@ -196,5 +195,5 @@ def _vector_problem(physical: dict, simulator: dict, theta: dict, runs: pd.DataF
         noise_sd=physical.get("noise_sd"), covariates=physical.get("covariates", []), **basis,
         low_fidelity_runs=_low_fidelity_runs(simulator, base), low_fidelity_rho=low.get("rho", "constant"))
     return Problem(data=data, simulator=stan, model=model,
-                   candidates=_candidates(raw.get("candidates", {}), base, data, model),
+                   candidates=_candidates(raw.get("candidates", {}), base, data),
                    units=dict(raw.get("units", {})), design=dict(raw.get("design", {})))
