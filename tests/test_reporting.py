@@ -313,6 +313,40 @@ def test_compile_reports_the_seconds_it_built_for(monkeypatch, caplog):
     assert caplog.text.count("Compiling 1 Stan program with PyStan and g++, 1 at a time") == 1
 
 
+def test_a_failed_compile_stops_the_queue_and_says_so(monkeypatch, caplog):
+    """Three programs on two workers, the first failing: its error is raised,
+    the program still queued never starts (a real build is minutes), and the
+    failed one's line says it failed instead of ticking on."""
+    import time
+
+    from stancal.stan import progress
+    from stancal.stan.backends import pystan_compile
+    from stancal.stan.backends.base import StanRuntimeError
+    from stancal.stan.source import FlatProgram
+
+    programs = [FlatProgram(f"parameters {{ real x{i}; }}\n", ((f"p{i}.stan", 1),)) for i in range(3)]
+    started: list[str] = []
+
+    def build(program, toolchain):
+        started.append(program.code)
+        time.sleep(0.2 if program is programs[0] else 0.6)
+        if program is programs[0]:
+            raise StanRuntimeError("compiling p0.stan with g++ failed: planted")
+        return True
+
+    monkeypatch.setattr(pystan_compile, "is_compiled", lambda code: False)
+    monkeypatch.setattr(pystan_compile, "stored_module", lambda code: Path("/nonexistent/module.so"))
+    monkeypatch.setattr(pystan_compile, "prepare_toolchain", lambda: pystan_compile.PYTHONS_COMPILER)
+    monkeypatch.setattr(pystan_compile, "_compile_in_subprocess", build)
+    monkeypatch.setattr(pystan_compile.os, "cpu_count", lambda: 2)
+    monkeypatch.setattr(progress, "terminal_stream", lambda: None)
+    with caplog.at_level(logging.INFO, logger="stancal"), pytest.raises(StanRuntimeError, match="planted"):
+        pystan_compile.compile_programs(programs)
+    assert started == [programs[0].code, programs[1].code]  # p2.stan, queued, never started
+    said = [r.getMessage() for r in caplog.records]
+    assert "compiling p0.stan (1/3): failed after 0 s" in said, said
+
+
 def test_curves_of_a_fit_are_predicted_at_thinned_draws(koh_fit):
     """The figures' curves come from generated quantities on a fine grid,
     at GRID_DRAWS thinned draws: their bands agree with all 4,000 draws'."""

@@ -188,14 +188,21 @@ class Ticker:
                     logger.info("%s %s: %.0f s so far", self.what, name, time.perf_counter() - since)
 
     def done(self, name: str) -> None:
+        self._end(name, "done in")
+
+    def failed(self, name: str) -> None:
+        self._end(name, "failed after")
+
+    def _end(self, name: str, how: str) -> None:
         with self.lock:
-            since = self.started.pop(name)
+            seconds = time.perf_counter() - self.started.pop(name)
             if name in self.bars:  # its line is frozen, and closed with the others at the end: bars closed
                 bar = self.bars[name]  # one by one as they finish, out of order, leave stray lines behind
-                bar.bar_format = f"{{desc}}: {bar.format_interval(time.perf_counter() - since)}, done"
+                bar.bar_format = ("{desc}: " + bar.format_interval(seconds)
+                                  + (", done" if how == "done in" else ", failed"))
                 bar.refresh()
             elif not _quiet:
-                logger.info("%s %s: done in %.0f s", self.what, name, time.perf_counter() - since)
+                logger.info("%s %s: %s %.0f s", self.what, name, how, seconds)
 
 
 @contextlib.contextmanager

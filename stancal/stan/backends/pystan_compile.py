@@ -27,6 +27,7 @@ import shutil
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from concurrent.futures import ThreadPoolExecutor, as_completed
 from importlib.machinery import EXTENSION_SUFFIXES
@@ -358,15 +359,24 @@ def compile_programs(programs: list[FlatProgram]) -> float:
     names = [f"{program_file(p)} ({i + 1}/{len(building)})" for i, p in enumerate(building)]
     built = {}  # name -> True if this process built it, False if another did meanwhile
     with ticking(names) as ticker, ThreadPoolExecutor(max_workers=workers) as pool:  # a thread waits on a subprocess
-        def build_one(program: FlatProgram, name: str) -> bool:
+        failed = threading.Event()  # after a failure, the programs still queued do not start
+
+        def build_one(program: FlatProgram, name: str) -> bool | None:
+            if failed.is_set():
+                return None
             ticker.start(name)  # queued until a core is free
-            return _compile_in_subprocess(program, toolchain)
+            try:
+                return _compile_in_subprocess(program, toolchain)
+            except BaseException:
+                failed.set()
+                ticker.failed(name)
+                raise
 
         builds = {pool.submit(build_one, p, name): name for p, name in zip(building, names, strict=True)}
         for build in as_completed(builds):
-            name = builds[build]
-            built[name] = build.result()  # a failure is raised here
-            ticker.done(name)
+            if (by_us := build.result()) is not None:  # a failure is raised here, once the running builds end
+                built[builds[build]] = by_us
+                ticker.done(builds[build])
     for code in todo:  # into this process's httpstan cache
         _install(code, stored_module(code))
     for whose, here in (("compiled", True), ("another process compiled", False)):
