@@ -502,6 +502,9 @@ def test_binomial_proportions_without_trials_ask_for_the_trials_column():
     with pytest.raises(stancal.DataError, match=r"column 'y' holds fractions in rows \[0, 2\]: a binomial output counts "
                                                 r"successes; give those counts with the trials column \(trials = "):
         make(frame(y=[0.3, 1, 0.5, 0, 1, 1]), likelihood="binomial")
+    with pytest.raises(stancal.DataError, match=r"column 'y' holds fractions in rows \[0, 2\]: a binomial output counts "
+                                                r"successes; give the number of successes out of 'n'"):
+        make(frame(y=[0.3, 1, 0.5, 0, 1, 1], n=[10] * 6), likelihood="binomial", trials="n")
 
 
 def test_unknown_likelihood_and_misplaced_columns():

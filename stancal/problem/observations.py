@@ -111,14 +111,15 @@ class Observations:
         return {kind.name.lower(): int(np.sum(self.censoring == kind)) for kind in Censoring}
 
 
-def _refuse_proportions(value: np.ndarray, output: str, index: pd.Index, what: str) -> None:
-    """Fractions in (0, 1) under a binomial likelihood without trials are
-    most likely observed proportions: say what the likelihood takes."""
+def _refuse_proportions(value: np.ndarray, output: str, trials: str | None, index: pd.Index, what: str) -> None:
+    """Fractions in (0, 1) under a binomial likelihood are most likely
+    observed proportions: say what the likelihood takes."""
     fractions = (value > 0) & (value < 1)
     if fractions.any():
+        hint = (f"give the number of successes out of '{trials}'" if trials is not None else
+                "give those counts with the trials column (trials = ...), or 0/1 outcomes")
         raise DataError(f"{what}: output column '{output}' holds fractions in {_rows(fractions, index)}: a binomial "
-                        "output counts successes; give those counts with the trials column (trials = ...), "
-                        "or 0/1 outcomes")
+                        f"output counts successes; {hint}")
 
 
 def read_observations(frame: pd.DataFrame, output: str, likelihood: str = "gaussian",
@@ -159,8 +160,8 @@ def read_observations(frame: pd.DataFrame, output: str, likelihood: str = "gauss
         censoring[empty & np.isfinite(low) & np.isfinite(high)] = Censoring.INTERVAL
         low[~empty], high[~empty] = -np.inf, np.inf  # rows with a value are exact
     else:
-        if kind is Likelihood.BINOMIAL and trials is None:
-            _refuse_proportions(value, output, frame.index, what)
+        if kind is Likelihood.BINOMIAL:
+            _refuse_proportions(value, output, trials, frame.index, what)
         require_whole(value, output, frame.index, what, 0)
         if kind is Likelihood.BINOMIAL:
             if trials is None:  # binary outcomes
