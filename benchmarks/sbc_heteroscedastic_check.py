@@ -88,7 +88,6 @@ from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
-import pandas as pd
 import xarray as xr
 from scipy import integrate, stats
 
@@ -104,7 +103,11 @@ from stancal.diagnosing.sbc_ranks import fractional_ranks, rank_of, uniformity  
 from stancal.fitting.calibrate import calibrate  # noqa: E402
 from stancal.fitting.plan import model_keywords  # noqa: E402
 from stancal.fitting.resume import write_json  # noqa: E402
+from stancal.numerics.kernels import ard_cross_cov  # noqa: E402
+from stancal.numerics.scalable_emulator import JITTER  # noqa: E402
+from stancal.problem.codes import Kernel  # noqa: E402
 from stancal.problem.noise import NoiseLocations  # noqa: E402
+from stancal.problem.run_replicates import group_settings  # noqa: E402
 
 FAMILY = "modular_heteroscedastic"
 NOISE = "noise_sd"  # the parameter SBC rejects (noise_sd_original: sigma x y_scale)
@@ -117,8 +120,8 @@ TINY_SD = 0.003  # a location sd (standardised) this small lets the generator's 
 
 # ---------------------------------------------------------------- the design
 def settings_of(t: np.ndarray, t0: np.ndarray) -> np.ndarray:
-    """Each row's (t, T0) setting, numbered in order of first appearance (the reports' order)."""
-    return pd.Series(list(zip(t, t0, strict=True))).factorize()[0]
+    """Each row's (t, T0) setting: the package's one exact grouping (run_replicates.group_settings)."""
+    return group_settings(np.column_stack([t, t0]))[1]
 
 
 def dof_of(setting: np.ndarray) -> int:
@@ -155,9 +158,10 @@ class Design:
 
 
 def log_sd_shape(unit_t: np.ndarray, gp_sd: float, length_scale: float, z: np.ndarray) -> np.ndarray:
-    """g - mean(g) at the locations (noise_log_scale_at, centred as row_noise_variance does)."""
-    diff = unit_t[:, None] - unit_t[None, :]
-    k = gp_sd**2 * np.exp(-0.5 * diff**2 / length_scale**2) + 1e-6 * gp_sd**2 * np.eye(len(unit_t))
+    """g - mean(g) at the locations (noise_log_scale_at, centred as row_noise_variance does), with
+    the kernel and jitter numerics.noise_gp uses."""
+    points = unit_t[:, None]
+    k = ard_cross_cov(points, points, Kernel.SE, gp_sd, [length_scale]) + JITTER * gp_sd**2 * np.eye(len(unit_t))
     g = np.linalg.cholesky(k) @ z
     return g - g.mean()
 
