@@ -188,21 +188,20 @@ class Ticker:
                     logger.info("%s %s: %.0f s so far", self.what, name, time.perf_counter() - since)
 
     def done(self, name: str) -> None:
-        self._end(name, "done in")
+        self._end(name, "done", "done in")
 
     def failed(self, name: str) -> None:
-        self._end(name, "failed after")
+        self._end(name, "failed", "failed after")
 
-    def _end(self, name: str, how: str) -> None:
+    def _end(self, name: str, shown: str, logged: str) -> None:
         with self.lock:
             seconds = time.perf_counter() - self.started.pop(name)
             if name in self.bars:  # its line is frozen, and closed with the others at the end: bars closed
                 bar = self.bars[name]  # one by one as they finish, out of order, leave stray lines behind
-                bar.bar_format = ("{desc}: " + bar.format_interval(seconds)
-                                  + (", done" if how == "done in" else ", failed"))
+                bar.bar_format = f"{{desc}}: {bar.format_interval(seconds)}, {shown}"
                 bar.refresh()
             elif not _quiet:
-                logger.info("%s %s: %s %.0f s", self.what, name, how, seconds)
+                logger.info("%s %s: %s %.0f s", self.what, name, logged, seconds)
 
 
 @contextlib.contextmanager
