@@ -6,7 +6,9 @@ diagnosis, and a killed command that leaves nothing running."""
 
 from __future__ import annotations
 
+import itertools
 import json
+import multiprocessing
 import os
 import signal
 import subprocess
@@ -224,6 +226,54 @@ def test_a_killed_command_leaves_nothing_running(stop, tmp_path):
     time.sleep(2)
     assert (_files(out) if out.exists() else {}) == written
     assert list(temporary.glob("stancal-*")) == []  # the cluster's scratch folder (the workers' httpstan caches)
+
+
+def _write_forever(folder: Path, pid_file: Path) -> None:
+    """A chain's process as httpstan runs one: it writes into its worker's
+    cache (under the scratch folder) until it notices its worker's end."""
+    from stancal.stan.backends.base import end_when_orphaned
+
+    end_when_orphaned(os.getppid())
+    pid_file.write_text(str(os.getpid()))
+    for n in itertools.count():
+        try:
+            (folder / f"draws-{n}").write_text("x")
+        except FileNotFoundError:  # its folder removed: a real chain fails here too, and is ended
+            time.sleep(0.001)
+
+
+def _worker_removing_scratch(scratch: Path, pid_file: Path) -> None:
+    """A cluster's worker whose command is gone, with a chain still writing."""
+    from stancal.fitting.cluster import remove_scratch
+
+    chain = multiprocessing.get_context("fork").Process(target=_write_forever, args=(scratch / "httpstan", pid_file))
+    chain.start()
+    while len(list((scratch / "httpstan").iterdir())) < 100:
+        time.sleep(0.01)
+    remove_scratch(scratch)
+    os._exit(0)
+
+
+def test_the_scratch_folder_is_removed_though_chains_still_write_into_it(tmp_path):
+    """A SIGKILLed gap diagnosis once left its cluster's scratch folder
+    behind: each worker removed it as soon as the command was gone, while
+    the worker's chain processes, which end only when they notice their
+    worker's end, still wrote their httpstan cache into it. A worker's
+    clean-up ends its own chains first."""
+    scratch, pid_file = tmp_path / "stancal-cluster-x", tmp_path / "chain.pid"
+    (scratch / "httpstan").mkdir(parents=True)
+    worker = multiprocessing.get_context("fork").Process(target=_worker_removing_scratch, args=(scratch, pid_file))
+    worker.start()
+    worker.join(20)  # the chain holds the worker's end of the pipe join waits on: it returns when both end
+    chain = int(pid_file.read_text())
+    deadline = time.time() + 5
+    while psutil.pid_exists(chain) and _alive(psutil.Process(chain)) and time.time() < deadline:
+        time.sleep(0.1)
+    alive = psutil.pid_exists(chain) and _alive(psutil.Process(chain))
+    if alive:  # not to leave it writing if this test fails
+        psutil.Process(chain).kill()
+    assert worker.exitcode == 0 and not alive
+    assert not scratch.exists(), sorted(p.name for p in scratch.rglob("*"))[:5]
 
 
 def test_a_scheduler_slow_to_start_is_stopped_and_named():

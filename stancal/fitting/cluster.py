@@ -46,7 +46,7 @@ import click
 from stancal.problem import advice
 from stancal.stan import progress as stan_progress
 from stancal.stan.backends import get_backend
-from stancal.stan.backends.base import end_when_orphaned
+from stancal.stan.backends.base import end_children, end_when_orphaned
 from stancal.stan.source import FlatProgram
 
 logger = logging.getLogger("stancal")
@@ -129,7 +129,16 @@ def dask_setup(server, scratch: str) -> None:
     ``preload``): each ends when the command that started it is gone, as a
     killed command cannot stop them itself, and removes the command's
     scratch folder (the workers' httpstan caches), as it cannot either."""
-    end_when_orphaned(os.getppid(), clean_up=lambda: shutil.rmtree(scratch, ignore_errors=True))
+    end_when_orphaned(os.getppid(), clean_up=lambda: remove_scratch(scratch))
+
+
+def remove_scratch(scratch: str | Path) -> None:
+    """Remove the command's scratch folder, from a process of its cluster:
+    after this process's own chains have ended, as they write into it until
+    they notice this process's end (removed under them, it was left behind).
+    Every process of the cluster removes it; the last one leaves nothing."""
+    end_children()
+    shutil.rmtree(scratch, ignore_errors=True)
 
 
 def _private_cache_plugin(scratch: Path | None):

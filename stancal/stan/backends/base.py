@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any, Protocol
 
 import numpy as np
+import psutil
 
 from stancal.stan.source import FlatProgram
 
@@ -47,6 +48,23 @@ def end_when_orphaned(parent: int, every: float = 0.5, clean_up: Callable[[], No
         os._exit(1)  # nothing else: this process's work belongs to a command that is gone
 
     threading.Thread(target=watch, name="stancal-end-when-orphaned", daemon=True).start()
+
+
+def end_children(wait: float = 5.0) -> None:
+    """Kill this process's child processes (and theirs), and wait up to
+    ``wait`` seconds for them to end; again while new ones appear (a thread
+    may start a chain meanwhile), as a process about to end does with the
+    work it started."""
+    for _ in range(3):
+        children = psutil.Process().children(recursive=True)
+        if not children:
+            return
+        for child in children:
+            try:
+                child.kill()
+            except psutil.NoSuchProcess:
+                pass
+        psutil.wait_procs(children, timeout=wait)
 
 
 # Stan's sampler columns -> ArviZ sample_stats names
