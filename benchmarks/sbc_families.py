@@ -208,9 +208,14 @@ def main() -> None:
     parser.add_argument("--draws", type=int, default=None,
                         help="each fit's draws per chain (default: the SBC's, 2 x draws-per-fit over the chains); "
                              "longer fits: is a rejection the model's or short chains'?")
+    parser.add_argument("--subset", type=int, default=None,
+                        help="fit only this many of the simulations, numpy.random.default_rng(seed).choice(sims, "
+                             "SUBSET, replace=False), each as in the whole run (with longer fits: sampler or model?)")
     parser.add_argument("--out", type=Path, default=None,
                         help="keep each simulation's fit, truth and ranked draws under OUT/FAMILY (resumable)")
     args = parser.parse_args()
+    subset = None if args.subset is None else \
+        sorted(np.random.default_rng(args.seed).choice(args.sims, args.subset, replace=False).tolist())
     for family in args.family:
         started = time.perf_counter()
         # the fits' warnings (sampler trouble in some simulations) are counted into the row, not hidden
@@ -219,14 +224,16 @@ def main() -> None:
             design, options = FAMILIES[family]
             result = simulation_based_calibration(DESIGNS[design](), simulations=args.sims, scheduler=args.scheduler,
                                                   draws_per_fit=args.draws_per_fit, seed=args.seed,
-                                                  warmup=args.warmup, draws=args.draws,
+                                                  warmup=args.warmup, draws=args.draws, subset=subset,
                                                   out_dir=args.out / family if args.out else None, **options)
         kinds = collections.Counter(type(w.message).__name__ for w in caught)  # SamplerWarning: a fit's trouble
         print(f"{family}: warnings {dict(kinds) or 'none'}")
         default_fits = args.warmup == parser.get_default("warmup") and args.draws is None
-        longer = "" if default_fits else f"_warmup{args.warmup}_draws{args.draws}"
+        longer = ("" if default_fits else f"_warmup{args.warmup}_draws{args.draws}") + \
+            ("" if subset is None else f"_subset{args.subset}")
         rows = add_row(family + ("" if args.seed == 1 else f"_seed{args.seed}") + longer, {
-            "simulations": args.sims, "draws_per_fit": args.draws_per_fit, "seed": args.seed,
+            "simulations": result.simulations, "subset_of": None if subset is None else args.sims,
+            "draws_per_fit": args.draws_per_fit, "seed": args.seed,
             "warmup": args.warmup, "draws": args.draws, "prior_run": result.prior_run,
             "warnings": dict(kinds),
             "p_values": {n: t.p_value for n, t in result.tests.items()},

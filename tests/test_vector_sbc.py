@@ -88,12 +88,13 @@ def test_a_tiny_vector_sbc_writes_its_ranks_and_reuses_stage_one(tmp_path, monke
     simulation for theta, the discrepancy's hyperparameters and the
     log-likelihood, each the count of its thinned draws below the truth
     (truth.json, ranked_draws.json); stage 1 runs once, for the prior; a
-    rerun into the same folder reuses the finished simulations."""
+    rerun into the same folder reuses the finished simulations, and so
+    does a subset of them."""
     import stancal.diagnosing.sbc as sbc
     import stancal.fitting.vector_calibrate as vector_module
-    from stancal.diagnosing.sbc import RANKED_DRAWS, TRUTH, simulation_based_calibration
+    from stancal.diagnosing.sbc import RANKED_DRAWS, SBC_WARMUP, TRUTH, simulation_based_calibration
 
-    ran, calls = [], []
+    ran, calls, warmups = [], [], set()
 
     def counted(*args, **kwargs):
         ran.append(kwargs["seed"])
@@ -101,16 +102,19 @@ def test_a_tiny_vector_sbc_writes_its_ranks_and_reuses_stage_one(tmp_path, monke
 
     def called(*args, **kwargs):
         calls.append("prior" if kwargs.get("prior") else "fit")
+        warmups.add((calls[-1], kwargs["warmup"]))
         return calibrate_vector(*args, **kwargs)
 
     run_stage_one, calibrate_vector = vector_module.run_stage_one, sbc.calibrate_vector
     monkeypatch.setattr(vector_module, "run_stage_one", counted)
     monkeypatch.setattr(sbc, "calibrate_vector", called)
+    short_fits = "R-hat|effective sample size|beyond the simulator runs"
     settings = {"method": "modular", "discrepancy": "gp", "simulations": 2, "draws_per_fit": 10, "chains": 1,
                 "warmup": 100, "seed": 3, "scheduler": "in-process", "out_dir": tmp_path}
     # health is not asserted per fit: only ranks travel back from SBC's fits (as test_sbc's study); fits
-    # this short mix poorly, and say so
-    with no_stancal_warnings(allow="R-hat|effective sample size"):
+    # this short mix poorly, and say so; a truth drawn from theta's prior may lie beyond the runs, and its fit
+    # says so
+    with no_stancal_warnings(allow=short_fits):
         result = simulation_based_calibration(design(), **settings)
         again = simulation_based_calibration(design(), **settings)  # all finished: the prior run alone
     assert len(ran) == 2 and not result.failed  # one stage 1 per SBC, its prior run's
@@ -126,6 +130,21 @@ def test_a_tiny_vector_sbc_writes_its_ranks_and_reuses_stage_one(tmp_path, monke
             assert len(draws[name]) == 10
             assert saved[name]["ranks"][s] == result.ranks[name][s] == int(np.sum(np.asarray(draws[name])
                                                                                   < truth[name]))
+    # a subset of the simulations (to refit some with longer chains) is fitted as in the whole run: the same
+    # fingerprint, so here reused; a simulation that is not in the run is refused before the prior run
+    with pytest.raises(ValueError, match=r"subset must list distinct simulations from 0 to 1; got \[2\]"):
+        simulation_based_calibration(design(), **settings, subset=[2])
+    with no_stancal_warnings(allow=short_fits):
+        part = simulation_based_calibration(design(), **settings, subset=[1, 0])
+    assert calls[4:] == ["prior"] and part.simulations == 2 and not part.failed
+    assert part.ranks == {name: [ranks[1], ranks[0]] for name, ranks in result.ranks.items()}
+    with pytest.raises(ValueError, match=r"SBC's rank test needs at least 2 simulations; got 1 \(2 simulations, "
+                                         r"subset \[0\]\)"):
+        simulation_based_calibration(design(), **settings, subset=[0])
+    assert len(calls) == 5
+    # the prior run's warm-up is SBC's own, not the fits': longer fits (to tell the sampler from the model)
+    # refit the very simulations of a run with the default fits
+    assert warmups == {("prior", SBC_WARMUP), ("fit", 100)}
 
 
 def test_a_program_sbc_does_not_take_is_refused_before_anything_compiles(tmp_path, monkeypatch, capsys):

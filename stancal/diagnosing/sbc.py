@@ -64,7 +64,9 @@ PRIOR_THINNING = 5  # the prior run's first length: 5 draws per simulation, even
 # to one draw per simulation, successive truths are then at least two autocorrelation times apart
 PRIOR_ESS_PER_SIMULATION = 2
 PRIOR_MAX_THINNING = 200  # and at most 200 draws per simulation
-SBC_CHAINS, SBC_WARMUP = 2, 300  # each fit's defaults: many fits, each of a small posterior
+# each fit's defaults: many fits, each of a small posterior; the prior run's warm-up is SBC_WARMUP whatever
+# the fits' (its draws' length is set by their ESS), so that longer fits refit the very same simulations
+SBC_CHAINS, SBC_WARMUP = 2, 300
 LOG_LIKELIHOOD = "log_likelihood"  # ranked beside the parameters (Modrák et al. 2023)
 TRUTH = "truth.json"  # in each simulation's folder: the values it was simulated from
 RANKED_DRAWS = "ranked_draws.json"  # and the thinned posterior draws they were ranked among
@@ -279,6 +281,7 @@ def simulation_based_calibration(
     seed: int | None = None,
     out_dir: str | Path | None = None,
     scheduler: str | FitRunner | None = None,
+    subset: list[int] | None = None,
     **calibrate_options: Any,
 ) -> SBCResult:
     """SBC of the program ``calibrate`` (``calibrate_vector`` for a
@@ -292,14 +295,19 @@ def simulation_based_calibration(
     Under ``out_dir``, each simulation's folder holds its fit, its truth and
     the draws each truth was ranked among; a rerun with the same ``out_dir``
     reuses the simulations finished there (stancal.fitting.resume).
-    ``calibrate_options`` (chains, warmup, discrepancy, ...) go to every fit;
+    ``calibrate_options`` (chains, warmup, discrepancy, ...) go to every fit
+    (the prior run's warm-up is SBC_WARMUP, whatever the fits');
     ``draws`` per chain of each fit default to 2 x draws_per_fit over the chains.
     Every fit reuses the prior run's stage 1 where it reads the runs alone
     (the emulator's hyperparameters, which the simulations share), so it fits
     the program its data were simulated from, at a fraction of the cost: the
     SBC then checks stage 2 given stage 1, not stage 1's own randomness.
+    ``subset``: fit only these of the S simulations, each with the truth, data
+    and seed it has in the whole run (the prior run is the same), e.g. to
+    refit some with longer chains: is a rejection the sampler's or the model's?
     A program the registry does not let SBC take is refused before anything compiles."""
     sampling = _sampling(calibrate_options, seed, draws_per_fit)
+    fitted = _subset(subset, simulations)
     started = time.perf_counter()
     chains, warmup, per_chain = sampling.chains, sampling.warmup, sampling.draws
     prior_parametrization, fit_parametrization = functional_parametrizations(calibrate_options)
@@ -318,7 +326,7 @@ def simulation_based_calibration(
     resume = Resume(out_dir, seed)  # a rerun into the same folder reuses the simulations it finished
     seed = resume.seed
     prior_fit, prior_run = _independent_prior(functools.partial(
-        _calibrate_for(data), data, simulator=simulator, method=method, prior=True, chains=1, warmup=warmup,
+        _calibrate_for(data), data, simulator=simulator, method=method, prior=True, chains=1, warmup=SBC_WARMUP,
         seed=seed, **calibrate_options, **prior_model), simulations)
     # the simulations share the runs, so a stage 1 from the runs alone (not the scalable one, which reads y)
     # is the prior's: each fit conditions on the hyperparameters its data were simulated with
@@ -333,25 +341,42 @@ def simulation_based_calibration(
         prior_discrepancy=prior_discrepancy, draws_per_fit=draws_per_fit, plan=plan,
         chains=chains, warmup=warmup, draws=per_chain, seed=fit_seed(seed, f"simulation {s}"),
         out_dir=None if out_dir is None else Path(out_dir) / "fits" / f"{s:04d}", **calibrate_options))
-        for s in range(simulations)]
+        for s in fitted]
     with fit_runner(scheduler) as runner:
         runner.prepare([], calibrate_options.get("backend"))  # the prior's fit compiled the programs here
         outcomes = resume.map(runner, tasks, keep=keep_whole, restore=lambda task, folder, ranks: ranks)
-    return _result(outcomes, simulations, draws_per_fit, level, seed, started, out_dir, prior_run)
+    return _result(dict(zip(fitted, outcomes, strict=True)), draws_per_fit, level, seed, started, out_dir,
+                   prior_run)
 
 
-def _result(outcomes: list, simulations: int, draws_per_fit: int, level: float, seed: int, started: float,
+def _subset(subset: list[int] | None, simulations: int) -> list[int]:
+    """The simulations fitted: all S, or the subset asked for (checked before anything compiles)."""
+    if subset is None:
+        fitted = list(range(simulations)) if isinstance(simulations, int) else []
+    elif all(isinstance(s, int | np.integer) and 0 <= s < simulations for s in subset) and \
+            len(set(subset)) == len(subset):
+        fitted = [int(s) for s in subset]
+    else:
+        raise ValueError(f"subset must list distinct simulations from 0 to {simulations - 1}; got {list(subset)!r}")
+    if len(fitted) < 2:  # the rank test compares an ECDF with the uniform one: one rank has none
+        raise ValueError(f"SBC's rank test needs at least 2 simulations; got {len(fitted)} ({simulations!r} "
+                         f"simulations{'' if subset is None else f', subset {list(subset)!r}'})")
+    return fitted
+
+
+def _result(outcomes: dict[int, Any], draws_per_fit: int, level: float, seed: int, started: float,
             out_dir: str | Path | None, prior_run: dict[str, Any]) -> SBCResult:
-    """Each parameter's ranks over the simulations that finished, their uniformity tests, and sbc.json."""
+    """Each parameter's ranks over the simulations that finished (by simulation
+    number: their outcomes), their uniformity tests, and sbc.json."""
     ranks: dict[str, list[int]] = {}
-    failed = [s for s, outcome in enumerate(outcomes) if isinstance(outcome, FitFailure)]
-    for outcome in outcomes:
+    failed = [s for s, outcome in outcomes.items() if isinstance(outcome, FitFailure)]
+    for outcome in outcomes.values():
         if not isinstance(outcome, FitFailure):
             for name, rank in outcome.items():
                 ranks.setdefault(name, []).append(rank)
     rng = np.random.default_rng(seed)
     tests = {name: uniformity(fractional_ranks(r, draws_per_fit, rng), level, seed) for name, r in ranks.items()}
-    result = SBCResult(simulations, draws_per_fit, ranks, tests, time.perf_counter() - started, failed, prior_run)
+    result = SBCResult(len(outcomes), draws_per_fit, ranks, tests, time.perf_counter() - started, failed, prior_run)
     if out_dir is not None:
         Path(out_dir).mkdir(parents=True, exist_ok=True)
         (Path(out_dir) / "sbc.json").write_text(json.dumps(result.to_json(), indent=2))
