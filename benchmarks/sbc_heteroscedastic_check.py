@@ -8,6 +8,7 @@ scatter's own statistic Q; `generator` tests the simulated data themselves.
 
     nice -n 19 env OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/sbc_heteroscedastic_check.py \\
         ranks FITS_DIR [--out JSON] [--toy 10000]
+    ... paired SHORT_FITS LONG_FITS [--out JSON]
     ... generator [--draws 4000] [--seed 2] [--out JSON] [--fits FITS_DIR]
     ... generator --reanalyse NPZ [--out JSON]
 
@@ -17,7 +18,12 @@ only simulations with finished.json are read); it fits and compiles nothing.
 `generator` runs the family's prior once, long (minutes), and tests every draw's
 simulated data against that draw's own parameters; with --fits it matches SBC's
 truths to the run's draws. `--reanalyse NPZ` reruns only its jitter check on the
-draws a run saved (JSON with .npz), adding it to JSON. Both print and write JSON.
+draws a run saved (JSON with .npz), adding it to JSON. `paired` sets each
+simulation's ranks from two runs on the same simulated data side by side (the
+default short fits and longer ones, `sbc_families.py --subset N --warmup W
+--draws D`): if the longer fits' noise-sd ranks are lower by more than two
+standard errors, the short fits were the cause; else the model. All print and
+write JSON.
 
 The model (stan_models/modular.stan, functions/noise.stan, docs/noise.md)
 -------------------------------------------------------------------------
@@ -639,6 +645,47 @@ def generator(args: argparse.Namespace) -> None:
     print(f"written {args.out}")
 
 
+def paired(args: argparse.Namespace) -> None:
+    """Each simulation fitted in both runs: the longer fits' ranks less the short fits', per parameter."""
+    design = Design.load()
+    both = sorted(p.name for p in args.long_fits.iterdir() if (p / "finished.json").is_file()
+                  and (args.short_fits / p.name / "finished.json").is_file())
+    short, long = ([simulation(folder / name, design).record for name in both]
+                   for folder in (args.short_fits, args.long_fits))
+    if any(a["noise_sd_true"] != b["noise_sd_true"] for a, b in zip(short, long, strict=True)):
+        raise SystemExit("the two runs' truths differ: not the same simulations")
+    report = {"short_fits": str(args.short_fits), "long_fits": str(args.long_fits), "simulations": len(both),
+              "parameters": {}}
+    for name in short[0]["ranks_all"]:
+        diff = np.array([b["ranks_all"][name] - a["ranks_all"][name] for a, b in zip(short, long, strict=True)])
+        report["parameters"][name] = {
+            "mean_long_minus_short": float(diff.mean()), "se": float(diff.std(ddof=1) / np.sqrt(len(diff))),
+            "t_test_p": float(stats.ttest_1samp(diff, 0).pvalue),
+            "mean_short": float(np.mean([a["ranks_all"][name] for a in short])),
+            "mean_long": float(np.mean([b["ranks_all"][name] for b in long]))}
+    reference = np.array([a["reference_rank"] for a in short])
+    for label, run in (("short", short), ("long", long)):
+        diff = np.array([r["rank_norm"] for r in run]) - reference
+        report[f"{label}_minus_reference"] = {"mean": float(diff.mean()),
+                                              "se": float(diff.std(ddof=1) / np.sqrt(len(diff))),
+                                              "t_test_p": float(stats.ttest_1samp(diff, 0).pvalue)}
+    noise = report["parameters"][NOISE]
+    report["verdict"] = ("sampler: the longer fits rank the noise sd's truth lower by more than 2 se"
+                         if noise["mean_long_minus_short"] < -2 * noise["se"] else
+                         "model: the longer fits do not rank the noise sd's truth lower by more than 2 se")
+    print(f"{len(both)} simulations fitted in both runs")
+    for name, v in report["parameters"].items():
+        print(f"  {name}: long - short {v['mean_long_minus_short']:+.4f} (se {v['se']:.4f}, p = {v['t_test_p']:.3f});"
+              f" mean rank/L short {v['mean_short']:.3f}, long {v['mean_long']:.3f}")
+    for label in ("short", "long"):
+        v = report[f"{label}_minus_reference"]
+        print(f"  noise sd, {label} fits - exact reference: {v['mean']:+.4f} (se {v['se']:.4f}, "
+              f"p = {v['t_test_p']:.3f})")
+    print(report["verdict"])
+    write_json(args.out, report)
+    print(f"written {args.out}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     commands = parser.add_subparsers(dest="command", required=True)
@@ -647,6 +694,11 @@ def main() -> None:
     check.add_argument("--out", type=Path, default=Path("sbc_heteroscedastic_ranks.json"))
     check.add_argument("--toy", type=int, default=10000, help="toy simulations of the reference (0: skip)")
     check.set_defaults(run=ranks)
+    pair = commands.add_parser("paired", help="two runs' fits of the same simulations, rank by rank")
+    pair.add_argument("short_fits", type=Path, metavar="SHORT_FITS", help="the default fits' OUT/FAMILY/fits")
+    pair.add_argument("long_fits", type=Path, metavar="LONG_FITS", help="the longer fits' OUT/FAMILY/fits")
+    pair.add_argument("--out", type=Path, default=Path("sbc_heteroscedastic_paired.json"))
+    pair.set_defaults(run=paired)
     prior = commands.add_parser("generator", help="one long prior run: every draw's Q")
     prior.add_argument("--draws", type=int, default=4000)
     prior.add_argument("--seed", type=int, default=2, help="the prior run's seed (SBC's, to find its truths)")

@@ -260,3 +260,98 @@ def test_the_length_scale_prior_spans_the_settings_own_spacing_and_range():
     two = NoiseLocations.of(np.array([[0.0], [1.0], [0.0], [1.0]]), ["T0"])
     location, scale = two.length_scale_prior()
     assert scale > 0 and np.exp(location) == pytest.approx(1.0)
+
+
+# ---- modular: its likelihood and its simulated data are one law -------------------------------------
+# SBC of modular_heteroscedastic rejects the noise sd (docs/validation.md): the program's likelihood and the
+# y_rep it simulates from (prior_only = 1, as SBC's prior run) are checked here against one written-out model.
+
+MODULAR_EMULATOR = {"emulator_mean": 0.1, "emulator_sd": 1.2, "emulator_length_scale": [0.4, 0.9, 0.5],
+                    "emulator_nugget": 0.03}  # stage 1's hyperparameters: modular takes them as data
+
+
+def modular_case():
+    """The hetero_noise readings, every third (27 rows, 20 settings, some replicated), the cooling runs; its
+    program and Stan data (stage 1 given) and three parameter points."""
+    frame = pd.read_csv(CASE / "physical.csv").iloc[::3].reset_index(drop=True)
+    data = stancal.CalibrationData(frame, ["t", "T0"], "temperature", THETA, runs=pd.read_csv(COOLING / "runs.csv"))
+    plan = make_plan(data, method="modular", discrepancy="gp", noise="heteroscedastic", noise_inputs=["t"])
+    d = to_stan_json(build_stan_data(data, plan.program.data, plan.options, frame.iloc[:2],
+                                     emulator_hyperparameters=MODULAR_EMULATOR))
+    assert d["N_loc"] == 10 and d["noise_id"] == 4 and d["estimate_rho"] == 0 and d["H"] == 0 and d["L"] == 1
+    points = []
+    for p in parameter_points(d, True, np.random.default_rng(6)):
+        points.append({**p, "theta_low_unit": [], "bias_sd": [], "bias_length_scale": []})
+    return plan.main_program(), d, points
+
+
+def modular_law(d: dict, p: dict) -> tuple[np.ndarray, np.ndarray]:
+    """Mean and covariance of the standardised readings given the runs and the parameters, written out:
+    the squared exponential emulator given the runs (their nugget on the diagonal), its nugget at the
+    points shared by a setting's replicates, delta's kernel, each row's noise variance
+    s_i = noise_sd exp(g[loc_i] - mean g); the jitter 1e-6 emulator_sd^2 on the runs' and the rows' diagonal."""
+    e = MODULAR_EMULATOR
+    sd, ls, nugget, jitter = e["emulator_sd"], e["emulator_length_scale"], e["emulator_nugget"], 1e-6 * 1.2**2
+    x, x_sim = np.asarray(d["x"]), np.asarray(d["x_sim"])
+    xt_sim = np.column_stack([x_sim, d["theta_sim"]])
+    xt = np.column_stack([x, np.tile(p["theta_unit"], (len(x), 1))])
+    runs = se(xt_sim, xt_sim, sd, ls) + (nugget**2 + jitter) * np.eye(len(xt_sim))
+    cross = se(xt, xt_sim, sd, ls)
+    mean = e["emulator_mean"] + cross @ np.linalg.solve(runs, np.asarray(d["y_sim"]) - e["emulator_mean"])
+    same = (x[:, None, :] == x[None, :, :]).all(-1)
+    a, ls_noise = p["noise_gp_sd"][0], np.asarray(p["noise_length_scale"])
+    x_noise = np.asarray(d["x_noise"])
+    g = np.linalg.cholesky(se(x_noise, x_noise, a, ls_noise) + 1e-6 * a**2 * np.eye(len(x_noise))) @ p["noise_z"]
+    noise = (p["noise_sd"][0] * np.exp(g[np.asarray(d["noise_loc"]) - 1] - g.mean())) ** 2
+    cov = (se(xt, xt, sd, ls) - cross @ np.linalg.solve(runs, cross.T) + nugget**2 * same
+           + se(np.asarray(d["x_delta"]), np.asarray(d["x_delta"]), p["delta_sd"][0], p["delta_input_length_scale"])
+           + np.diag(noise) + jitter * np.eye(len(x)))
+    return mean, cov
+
+
+def numpy_modular_log_density(d: dict, p: dict) -> float:
+    """log p(theta, the parameters, y | runs) of modular.stan up to a constant: modular_law's normal and the
+    priors of priors.stan and noise.stan."""
+    mean, cov = modular_law(d, p)
+    mu, sigma = d["noise_length_scale_prior"]
+    priors = (stats.norm(0, 1).logpdf(p["noise_sd"][0]) + stats.norm(0, 1).logpdf(p["noise_gp_sd"][0])
+              + stats.lognorm(sigma, scale=np.exp(mu)).logpdf(p["noise_length_scale"]).sum()
+              + stats.norm().logpdf(p["noise_z"]).sum() + stats.norm(0, 0.5).logpdf(p["delta_sd"][0])
+              + stats.invgamma(3, scale=1).logpdf(p["delta_input_length_scale"]).sum())
+    return float(stats.multivariate_normal(mean, cov).logpdf(np.asarray(d["y"])) + priors)
+
+
+def test_modulars_heteroscedastic_log_density_is_the_numpy_one():
+    """modular.stan with heteroscedastic noise and a discrepancy (the family SBC rejects) at three parameter
+    points against the written-out model, 1e-8."""
+    program, d, points = modular_case()
+    assert_log_density_is(program, d, points, numpy_modular_log_density)
+
+
+def test_modulars_simulated_readings_have_its_likelihoods_law():
+    """SBC's data are modular.stan's y_rep with prior_only = 1 (the runs only given). At one parameter point,
+    4,000 runs of its generated quantities: whitened by the likelihood's own law (modular_law), the
+    readings are independent standard normals (each row's variance, the pairs within a setting, all of them
+    together), so what SBC simulates is what its fits assume."""
+    from test_source_bias import fixed_parameter_draws
+
+    program, d, points = modular_case()
+    point = points[0]
+    draws = 4000
+    given = {name: value for name, value in point.items() if np.size(value)}  # the empty ones: Stan's own shape
+    y_rep = fixed_parameter_draws(program, {**d, "prior_only": 1}, given, draws)["y_rep"].T  # draws x rows
+    mean, cov = modular_law(d, point)
+    z = np.linalg.solve(np.linalg.cholesky(cov), ((y_rep - d["y_center"]) / d["y_scale"] - mean).T).T
+    # a standard normal's mean over 4,000 draws has se 0.016, its variance's 0.022: 5 se per row (a miss
+    # has probability 6e-7 per row) and, over all 27 rows' 108,000 squares, 5 x 0.0043
+    assert np.all(np.abs(z.mean(axis=0)) < 5 / np.sqrt(draws)), z.mean(axis=0)
+    assert np.all(np.abs(z.var(axis=0) - 1) < 5 * np.sqrt(2 / draws)), z.var(axis=0)
+    assert abs(np.mean(z**2) - 1) < 5 * np.sqrt(2 / z.size), np.mean(z**2)
+    # the within-setting scatter, noise alone: each replicate pair's difference, raw, against its variance
+    rows = (y_rep - d["y_center"]) / d["y_scale"]
+    loc, x = np.asarray(d["noise_loc"]), np.asarray(d["x"])
+    pairs = [(i, j) for i in range(len(x)) for j in range(i + 1, len(x)) if (x[i] == x[j]).all()]
+    assert pairs
+    for i, j in pairs:
+        expected = cov[i, i] + cov[j, j] - 2 * cov[i, j]
+        assert abs(np.var(rows[:, i] - rows[:, j]) / expected - 1) < 5 * np.sqrt(2 / draws), (i, j, loc[i])
