@@ -17,7 +17,7 @@ fault; rejected here too: the fits.
 
     OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/sbc_written_out.py --sims 200 --seed 2 --out DIR
 
-The 147 simulations of seed 2 finished on 2026-11-29 are kept in
+The 186 simulations of seed 2 finished on 2026-11-29 are kept in
 benchmarks/sbc_written_out_seed2.jsonl: copy it to DIR/ranks.jsonl to resume
 (every simulation's truth, data and fit seed follow from --seed and its number).
 
