@@ -96,9 +96,8 @@ def truths(d: dict, p: dict, theta_bounds: tuple[float, float]) -> dict[str, flo
 
 
 def posterior_values(fit, name: str) -> np.ndarray:
-    if name == "theta[k]":
-        return np.asarray(fit.idata["posterior"]["theta"]).reshape(-1)
-    return np.asarray(fit.idata["posterior"][name]).reshape(-1)
+    """A ranked value's draws, chain after chain (theta has one component, k)."""
+    return np.asarray(fit.idata["posterior"]["theta" if name == "theta[k]" else name]).reshape(-1)
 
 
 def setup(seed: int):
