@@ -235,6 +235,7 @@ def main() -> None:
             "simulations": result.simulations, "subset_of": None if subset is None else args.sims,
             "draws_per_fit": args.draws_per_fit, "seed": args.seed,
             "warmup": args.warmup, "draws": args.draws, "prior_run": result.prior_run,
+            "fits_health": result.fits_health,
             "warnings": dict(kinds),
             "p_values": {n: t.p_value for n, t in result.tests.items()},
             "rejected": [n for n, t in result.tests.items() if t.rejected],

@@ -11,6 +11,7 @@ scatter's own statistic Q; `generator` tests the simulated data themselves.
     ... paired SHORT_FITS LONG_FITS [--out JSON]
     ... generator [--draws 4000] [--seed 2] [--out JSON] [--fits FITS_DIR]
     ... generator --reanalyse NPZ [--out JSON]
+    ... written RANKS_JSONL [--seed 2] [--out JSON]
 
 `ranks` reads a finished SBC run of the family, FITS_DIR being the folder
 `benchmarks/sbc_families.py --out OUT` writes (OUT/modular_heteroscedastic/fits;
@@ -22,8 +23,10 @@ draws a run saved (JSON with .npz), adding it to JSON. `paired` sets each
 simulation's ranks from two runs on the same simulated data side by side (the
 default short fits and longer ones, `sbc_families.py --subset N --warmup W
 --draws D`): if the longer fits' noise-sd ranks are lower by more than two
-standard errors, the short fits were the cause; else the model. All print and
-write JSON.
+standard errors, the short fits were the cause; else the model. `written` sets
+the ranks of benchmarks/sbc_written_out.py's simulations (truths and data drawn
+by numpy, each again from its seed) beside the same exact reference, as `ranks`
+does for Stan's. All print and write JSON.
 
 The model (stan_models/modular.stan, functions/noise.stan, docs/noise.md)
 -------------------------------------------------------------------------
@@ -311,6 +314,7 @@ def simulation(folder: Path, design: Design) -> Simulation:
     truth = json.loads((folder / "truth.json").read_text())
     ranked = json.loads((folder / "ranked_draws.json").read_text())
     kept = json.loads((folder / "finished.json").read_text())["kept"]
+    kept = kept.get("ranks", kept)  # since 2026-11-29 the ranks beside the fit's health
     values, par, draws_per_fit = truth["values"], truth["stan_parameters"], len(ranked[NOISE])
     ranks = {name: rank_of(values[name], np.asarray(d)) for name, d in ranked.items()}
     mismatches = [f"{folder.name}: {name} rank {r} != sbc.py's {kept.get(name)}"
@@ -686,6 +690,39 @@ def paired(args: argparse.Namespace) -> None:
     print(f"written {args.out}")
 
 
+def written(args: argparse.Namespace) -> None:
+    """The written-out SBC's simulations (benchmarks/sbc_written_out.py) against the same exact reference:
+    each truth and data set drawn again from its seed, its W and reference rank beside the fit's rank."""
+    import sbc_written_out as wo
+
+    design = Design.load()
+    done = sorted((json.loads(line) for line in args.ranks_jsonl.read_text().splitlines()),
+                  key=lambda r: r["simulation"])
+    _, _, d = wo.setup(args.seed)
+    sims = []
+    for record in done:
+        rng = np.random.default_rng([args.seed, record["simulation"]])
+        p = wo.prior_draw(d, rng)
+        mean, cov = wo.law(d, p)
+        y_std = mean + np.linalg.cholesky(cov) @ rng.standard_normal(len(mean))  # as the script drew it
+        if abs(p["noise_sd"] * d["y_scale"] - record["truth"][NOISE]) > 1e-9 * record["truth"][NOISE]:
+            raise SystemExit(f"simulation {record['simulation']}: the truth drawn again differs from the kept one")
+        shape = log_sd_shape(design.unit_t, p["noise_gp_sd"], p["noise_length_scale"][0], p["noise_z"])
+        w = scatter_w(y_std, design.setting, design.location, shape)
+        sims.append({"simulation": record["simulation"], "rank_norm": record["ranks"][NOISE] / wo.DRAWS_PER_FIT,
+                     "Q": w / p["noise_sd"] ** 2, "Q_cdf": float(stats.chi2.cdf(w / p["noise_sd"] ** 2, design.dof)),
+                     "reference_rank": float(reference_cdf(w, p["noise_sd"], design.dof)[0])})
+    report = {"ranks": str(args.ranks_jsonl), "seed": args.seed, "simulations": len(sims),
+              **ranks_summary(sims, args.seed, design.dof)}
+    q, r, pr = report["Q"], report["reference"], report["paired"]
+    print(f"{len(sims)} written-out simulations: Q lowest tenth {q['lowest_tenth']} (KS p {q['ks_p_chi2']:.3f}), "
+          f"Spearman(rank, Q) {q['spearman_rank_vs_Q']:.2f}; reference gamma p {r['gamma_p']:.3f}; paired fit - "
+          f"reference {pr['mean_fit_minus_reference']:+.4f} (sd {pr['sd']:.3f}, t p {pr['t_test_p']:.4f}, "
+          f"Wilcoxon p {pr['wilcoxon_p']:.4f})")
+    write_json(args.out, report)
+    print(f"written {args.out}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     commands = parser.add_subparsers(dest="command", required=True)
@@ -709,6 +746,11 @@ def main() -> None:
     prior.add_argument("--reanalyse", type=Path, default=None, metavar="NPZ",
                        help="no prior run: the jitter check on the draws saved in NPZ, added to OUT")
     prior.set_defaults(run=generator)
+    out = commands.add_parser("written", help="the written-out SBC's simulations against the exact reference")
+    out.add_argument("ranks_jsonl", type=Path, metavar="RANKS_JSONL", help="sbc_written_out.py's OUT/ranks.jsonl")
+    out.add_argument("--seed", type=int, default=2, help="that run's --seed")
+    out.add_argument("--out", type=Path, default=Path("sbc_heteroscedastic_written.json"))
+    out.set_defaults(run=written)
     args = parser.parse_args()
     args.run(args)
 

@@ -89,6 +89,9 @@ def _parser() -> argparse.ArgumentParser:
     sbc.add_argument("--sims", type=int, default=200, help="simulated data sets (S)")
     sbc.add_argument("--draws-per-fit", type=int, default=100, help="thinned posterior draws per fit (L)")
     sbc.add_argument("--level", type=float, default=0.95, help="a parameter is rejected below p = 1 - level")
+    sbc.add_argument("--subset", type=int, nargs="+", default=None, metavar="S",
+                     help="fit only these simulations (numbered from 0), each with its whole-run truth, data and "
+                          "seed: e.g. to refit some with longer chains into another --out (default: all of --sims)")
     sampler_arguments(sbc, chains=SBC_CHAINS, warmup=SBC_WARMUP, draws=None)
     sbc.add_argument("--backend", choices=BACKENDS, default=None, help=_BACKEND_HELP)
     for command in (cal, gap, comp):
@@ -264,7 +267,7 @@ def run_sbc(args: argparse.Namespace) -> dict:
         warnings.simplefilter("always")
         result = simulation_based_calibration(
             problem.data, simulator=problem.simulator, simulations=args.sims, draws_per_fit=args.draws_per_fit,
-            level=args.level, out_dir=args.out, **sampler_options(args),
+            level=args.level, out_dir=args.out, subset=args.subset, **sampler_options(args),
             backend=args.backend, scheduler=args.scheduler, **model)
     write_sbc_report(result, args.out)
     for message in _stancal_warnings(caught):  # each naming its simulation

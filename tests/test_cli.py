@@ -92,9 +92,10 @@ def test_stan_error_points_at_the_users_file_and_line(tmp_path):
 def test_sbc_command_writes_ranks_and_verdicts(tmp_path):
     """`stancal sbc` end to end on a few simulations: a rank per simulation
     for every parameter and for the log-likelihood, an ECDF figure, and a
-    verdict line per quantity."""
-    # health not asserted: 1 chain of 100 + 40 draws per fit checks the command's files and fields,
-    # and SBCResult keeps no per-fit diagnostics
+    verdict line per quantity; the fits' health summed up, with advice; a
+    subset of the simulations refitted as in the whole run."""
+    # health not asserted: 1 chain of 100 + 40 draws per fit checks the command's files and fields; that the
+    # fits are short is what the run's health summary must say
     out = tmp_path / "sbc"
     done = run("sbc", COOLING / "config.toml", "--out", out, "--sims", 6, "--draws-per-fit", 20, "--chains", 1,
                "--warmup", 100, "--seed", 2, "--scheduler", "in-process")
@@ -125,3 +126,14 @@ def test_sbc_command_writes_ranks_and_verdicts(tmp_path):
         assert all(np.isin(draws[name], posterior).all() for name in draws if name != "log_likelihood")
         assert all(np.isclose(d, sums, rtol=1e-12).any() for d in draws["log_likelihood"])
         assert 0.01 <= truth["theta[k]"] <= 0.2  # from the prior, within k's bounds
+    health = summary["fits_health"]
+    assert health["fits"] == 6 and health["draws_per_fit"] == 40 and health["ess_below_needed"] >= 1
+    assert "warning: SBC's fits: " in done.stderr and "--subset with --warmup 1000 --draws 1000" in done.stderr
+    # --subset: those simulations alone, each as in the whole run (the same fingerprint: here reused)
+    part = run("sbc", COOLING / "config.toml", "--out", out, "--sims", 6, "--draws-per-fit", 20, "--chains", 1,
+               "--warmup", 100, "--seed", 2, "--scheduler", "in-process", "--subset", 4, 1)
+    assert part.returncode == 0, part.stderr[-3000:]
+    assert "reused 2 of 2 fits finished earlier" in part.stderr
+    again = json.loads((out / "sbc.json").read_text())
+    assert again["simulations"] == 2 and again["parameters"]["noise_sd"]["ranks"] == \
+        [parameters["noise_sd"]["ranks"][4], parameters["noise_sd"]["ranks"][1]]

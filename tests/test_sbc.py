@@ -69,8 +69,8 @@ def test_sbc_passes_koh_and_flags_a_likelihood_with_the_wrong_noise_scale(tmp_pa
     from stancal.diagnosing.sbc import simulation_based_calibration
     from stancal.stan.source import shipped_models_dir
 
-    # health is not asserted per fit: only each simulation's ranks travel back from the workers
-    # (the library keeps no per-fit diagnostics in SBCResult); uniform ranks are the check here
+    # health is not asserted per fit: 60 fits of 2 x (200 + 50) draws, some short of ESS (SBCResult's
+    # fits_health says how many); uniform ranks are the check here
     data = cooling_data(seed=7)
     settings = {"simulator": COOLING / "simulator.stan", "method": "koh", "discrepancy": "none", "simulations": 60,
                     "draws_per_fit": 50, "seed": 5, "warmup": 200}

@@ -30,7 +30,6 @@ anything compiles.
 from __future__ import annotations
 
 import functools
-import json
 import math
 import time
 import warnings
@@ -40,6 +39,7 @@ from typing import Any
 
 import numpy as np
 
+from stancal.diagnosing.sbc_health import fit_health, fits_health, health_message
 from stancal.diagnosing.sbc_ranks import Uniformity, fractional_ranks, rank_of, uniformity
 from stancal.fitting.calibrate import calibrate
 from stancal.fitting.cluster import FitFailure, FitRunner, FitTask, fit_runner
@@ -81,6 +81,7 @@ class SBCResult:
     seconds: float
     failed: list[int] = field(default_factory=list)  # simulations whose fit raised
     prior_run: dict[str, Any] = field(default_factory=dict)  # its draws and smallest ESS (_independent_prior)
+    fits_health: dict[str, Any] = field(default_factory=dict)  # how the fits mixed (sbc_health.fits_health)
 
     def verdict(self, name: str) -> str:
         test = self.tests[name]
@@ -93,7 +94,8 @@ class SBCResult:
                 "parameters": {name: {"ranks": ranks, "p_value": self.tests[name].p_value,
                                       "rejected": self.tests[name].rejected, "verdict": self.verdict(name)}
                                for name, ranks in self.ranks.items()},
-                "failed_simulations": self.failed, "prior_run": self.prior_run, "seconds": round(self.seconds, 1)}
+                "failed_simulations": self.failed, "prior_run": self.prior_run, "fits_health": self.fits_health,
+                "seconds": round(self.seconds, 1)}
 
 
 def _scalars(group, draw: int | None = None) -> dict[str, np.ndarray]:
@@ -205,10 +207,11 @@ def simulated_ranks(data: CalibrationData | VectorCalibrationData, truth: dict[s
                     truth_parameters: dict[str, np.ndarray], draws_per_fit: int,
                     prior_parametrization: str | None = None, prior_discrepancy: str | None = None,
                     out_dir: str | Path | None = None,
-                    **calibrate_options: Any) -> dict[str, int]:
+                    **calibrate_options: Any) -> dict[str, dict]:
     """Fit one simulated data set and rank each true value among L evenly
     thinned posterior draws, and the log-likelihood at the truth among its
-    values at those draws (run where the fit runs: only ranks travel back).
+    values at those draws (run where the fit runs: only the ranks and the
+    fit's sampler checks travel back, as {"ranks": ..., "health": ...}).
     In ``out_dir``, beside the fit: the truth (TRUTH) and the thinned draws
     each was ranked among (RANKED_DRAWS), so that a rank can be checked."""
     fit = _calibrate_for(data)(data, out_dir=out_dir, **calibrate_options)
@@ -222,7 +225,14 @@ def simulated_ranks(data: CalibrationData | VectorCalibrationData, truth: dict[s
                                            "stan_parameters": {k: np.asarray(v).tolist()
                                                                for k, v in truth_parameters.items()}})
         write_json(Path(out_dir) / RANKED_DRAWS, {k: v.tolist() for k, v in ranked.items()})
-    return {name: rank_of(at_truth[name], draws) for name, draws in ranked.items()}
+    return {"ranks": {name: rank_of(at_truth[name], draws) for name, draws in ranked.items()},
+            "health": fit_health(fit.diagnostics, fit.idata["posterior"].sizes["chain"])}
+
+
+def _restored(task: FitTask, folder: Path, kept: dict) -> dict:
+    """A finished simulation's record as simulated_ranks returns it; one
+    written before SBC kept its fits' health holds the ranks alone."""
+    return kept if set(kept) == {"ranks", "health"} else {"ranks": kept, "health": None}
 
 
 def _sampling(calibrate_options: dict[str, Any], seed: int | None, draws_per_fit: int) -> SamplerOptions:
@@ -344,9 +354,9 @@ def simulation_based_calibration(
         for s in fitted]
     with fit_runner(scheduler) as runner:
         runner.prepare([], calibrate_options.get("backend"))  # the prior's fit compiled the programs here
-        outcomes = resume.map(runner, tasks, keep=keep_whole, restore=lambda task, folder, ranks: ranks)
+        outcomes = resume.map(runner, tasks, keep=keep_whole, restore=_restored)
     return _result(dict(zip(fitted, outcomes, strict=True)), draws_per_fit, level, seed, started, out_dir,
-                   prior_run)
+                   prior_run, sampling)
 
 
 def _subset(subset: list[int] | None, simulations: int) -> list[int]:
@@ -365,19 +375,25 @@ def _subset(subset: list[int] | None, simulations: int) -> list[int]:
 
 
 def _result(outcomes: dict[int, Any], draws_per_fit: int, level: float, seed: int, started: float,
-            out_dir: str | Path | None, prior_run: dict[str, Any]) -> SBCResult:
+            out_dir: str | Path | None, prior_run: dict[str, Any], sampling: SamplerOptions) -> SBCResult:
     """Each parameter's ranks over the simulations that finished (by simulation
-    number: their outcomes), their uniformity tests, and sbc.json."""
+    number: their outcomes), their uniformity tests, the fits' health (a
+    SamplerWarning says where they mixed poorly), and sbc.json."""
     ranks: dict[str, list[int]] = {}
     failed = [s for s, outcome in outcomes.items() if isinstance(outcome, FitFailure)]
-    for outcome in outcomes.values():
-        if not isinstance(outcome, FitFailure):
-            for name, rank in outcome.items():
-                ranks.setdefault(name, []).append(rank)
+    finished = [outcome for outcome in outcomes.values() if not isinstance(outcome, FitFailure)]
+    for outcome in finished:
+        for name, rank in outcome["ranks"].items():
+            ranks.setdefault(name, []).append(rank)
     rng = np.random.default_rng(seed)
     tests = {name: uniformity(fractional_ranks(r, draws_per_fit, rng), level, seed) for name, r in ranks.items()}
-    result = SBCResult(len(outcomes), draws_per_fit, ranks, tests, time.perf_counter() - started, failed, prior_run)
+    health = fits_health([outcome["health"] for outcome in finished])
+    result = SBCResult(len(outcomes), draws_per_fit, ranks, tests, time.perf_counter() - started, failed, prior_run,
+                       health)
     if out_dir is not None:
         Path(out_dir).mkdir(parents=True, exist_ok=True)
-        (Path(out_dir) / "sbc.json").write_text(json.dumps(result.to_json(), indent=2))
+        write_json(Path(out_dir) / "sbc.json", result.to_json())
+    message = health_message(health, sampling.warmup, sampling.draws)
+    if message:  # after sbc.json is on disk: a caller that turns warnings into errors keeps the results
+        warnings.warn(message, SamplerWarning, stacklevel=3)
     return result
