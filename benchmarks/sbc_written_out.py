@@ -17,9 +17,11 @@ fault; rejected here too: the fits.
 
     OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/sbc_written_out.py --sims 200 --seed 2 --out DIR
 
-The 186 simulations of seed 2 finished on 2026-11-29 are kept in
-benchmarks/sbc_written_out_seed2.jsonl: copy it to DIR/ranks.jsonl to resume
-(every simulation's truth, data and fit seed follow from --seed and its number).
+The 200 simulations of seed 2 (finished 2026-11-29) are kept in
+benchmarks/sbc_written_out_seed2.jsonl: copy it to DIR/ranks.jsonl for their
+summary, or to extend them (every simulation's truth, data and fit seed follow
+from --seed and its number); `sbc_heteroscedastic_check.py written` sets them
+beside the exact reference.
 
 Each simulation's ranks are a line of DIR/ranks.jsonl, written as it ends (a
 rerun resumes); the summary is printed and written to DIR/summary.json
