@@ -703,15 +703,16 @@ def written(args: argparse.Namespace) -> None:
     for record in done:
         rng = np.random.default_rng([args.seed, record["simulation"]])
         p = wo.prior_draw(d, rng)
-        mean, cov = wo.law(d, p)
+        mean, cov = wo.modular_law(d, p)
         y_std = mean + np.linalg.cholesky(cov) @ rng.standard_normal(len(mean))  # as the script drew it
-        if abs(p["noise_sd"] * d["y_scale"] - record["truth"][NOISE]) > 1e-9 * record["truth"][NOISE]:
+        sigma = float(p["noise_sd"][0])
+        if abs(sigma * d["y_scale"] - record["truth"][NOISE]) > 1e-9 * record["truth"][NOISE]:
             raise SystemExit(f"simulation {record['simulation']}: the truth drawn again differs from the kept one")
-        shape = log_sd_shape(design.unit_t, p["noise_gp_sd"], p["noise_length_scale"][0], p["noise_z"])
+        shape = log_sd_shape(design.unit_t, p["noise_gp_sd"][0], p["noise_length_scale"][0], p["noise_z"])
         w = scatter_w(y_std, design.setting, design.location, shape)
         sims.append({"simulation": record["simulation"], "rank_norm": record["ranks"][NOISE] / wo.DRAWS_PER_FIT,
-                     "Q": w / p["noise_sd"] ** 2, "Q_cdf": float(stats.chi2.cdf(w / p["noise_sd"] ** 2, design.dof)),
-                     "reference_rank": float(reference_cdf(w, p["noise_sd"], design.dof)[0])})
+                     "Q": w / sigma**2, "Q_cdf": float(stats.chi2.cdf(w / sigma**2, design.dof)),
+                     "reference_rank": float(reference_cdf(w, sigma, design.dof)[0])})
     report = {"ranks": str(args.ranks_jsonl), "seed": args.seed, "simulations": len(sims),
               **ranks_summary(sims, args.seed, design.dof)}
     q, r, pr = report["Q"], report["reference"], report["paired"]

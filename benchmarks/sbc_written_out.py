@@ -9,7 +9,9 @@ rank the truths as the short ones did. This script leaves Stan's prior run
 out: each truth is drawn by numpy from the priors (priors.stan, noise.stan),
 and each data set from the written-out model given it (the stage-1 emulator
 given the runs, its nugget shared by a setting's replicates, delta's kernel,
-each row's noise s_i = noise_sd exp(g[loc_i] - mean g), the jitter), then
+each row's noise s_i = noise_sd exp(g[loc_i] - mean g), the jitter;
+tests/test_hetero_noise.py's modular_law, which its tests check against
+modular.stan's log density and simulated readings), then
 fitted by stancal as SBC fits it (2 x (300 + 100), the same stage 1), and
 each truth ranked among 100 thinned draws (Talts et al. 2018,
 arXiv:1804.06788). Uniform here and rejected there: the prior run is at
@@ -43,58 +45,33 @@ from scipy import stats
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import sbc_families  # noqa: E402  (the family's design and options, as its SBC ran them)
+from test_hetero_noise import modular_law, numpy_modular_log_density  # noqa: E402  (the written-out model)
 
 from stancal.diagnosing.sbc_ranks import fractional_ranks, rank_of, uniformity  # noqa: E402
 from stancal.fitting.calibrate import calibrate  # noqa: E402
 from stancal.fitting.plan import make_plan, model_keywords  # noqa: E402
-from stancal.numerics.kernels import ard_cross_cov  # noqa: E402
-from stancal.problem.codes import Kernel  # noqa: E402
 from stancal.stan.standata import build_stan_data, to_stan_json  # noqa: E402
 
 FAMILY = "modular_heteroscedastic"
 DRAWS_PER_FIT = 100
-JITTER = 1e-6  # add_jitter's share of the prior variance (functions/gp_kernels.stan)
-
-
-def se(a: np.ndarray, b: np.ndarray, sd: float, length_scale) -> np.ndarray:
-    return ard_cross_cov(np.asarray(a, float), np.asarray(b, float), Kernel.SE, sd, np.asarray(length_scale, float))
 
 
 def prior_draw(d: dict, rng: np.random.Generator) -> dict:
-    """One draw of the parameters from modular.stan's priors (standardised units)."""
+    """One draw of the parameters from modular.stan's priors (standardised units; Stan's names and shapes)."""
     mu, sigma = d["noise_length_scale_prior"]
-    return {"theta_unit": rng.uniform(size=1), "noise_sd": abs(rng.normal()), "noise_gp_sd": abs(rng.normal()),
+    return {"theta_unit": rng.uniform(size=1), "noise_sd": np.abs(rng.normal(size=1)),
+            "noise_gp_sd": np.abs(rng.normal(size=1)),
             "noise_length_scale": np.exp(rng.normal(mu, sigma, size=d["D_noise"])),
-            "noise_z": rng.standard_normal(d["N_loc"]), "delta_sd": abs(rng.normal(0, 0.5)),
+            "noise_z": rng.standard_normal(d["N_loc"]), "delta_sd": np.abs(rng.normal(0, 0.5, size=1)),
             "delta_input_length_scale": stats.invgamma(3, scale=1).rvs(size=d["D"], random_state=rng)}
-
-
-def law(d: dict, p: dict) -> tuple[np.ndarray, np.ndarray]:
-    """Mean and covariance of the standardised readings given the runs and p (modular.stan's model block)."""
-    sd, ls = d["emulator_sd"][0], np.asarray(d["emulator_length_scale"][0])
-    mean0, nugget, jitter = d["emulator_mean"][0], d["emulator_nugget"][0], JITTER * sd**2
-    x = np.asarray(d["x"])
-    xt_sim = np.column_stack([d["x_sim"], d["theta_sim"]])
-    xt = np.column_stack([x, np.tile(p["theta_unit"], (len(x), 1))])
-    runs = se(xt_sim, xt_sim, sd, ls) + (nugget**2 + jitter) * np.eye(len(xt_sim))
-    cross = se(xt, xt_sim, sd, ls)
-    mean = mean0 + cross @ np.linalg.solve(runs, np.asarray(d["y_sim"]) - mean0)
-    same = (x[:, None, :] == x[None, :, :]).all(-1)
-    x_noise, a = np.asarray(d["x_noise"]), p["noise_gp_sd"]
-    g = np.linalg.cholesky(se(x_noise, x_noise, a, p["noise_length_scale"]) + JITTER * a**2 * np.eye(len(x_noise))) \
-        @ p["noise_z"]
-    noise = (p["noise_sd"] * np.exp(g[np.asarray(d["noise_loc"]) - 1] - g.mean())) ** 2
-    cov = (se(xt, xt, sd, ls) - cross @ np.linalg.solve(runs, cross.T) + nugget**2 * same
-           + se(d["x_delta"], d["x_delta"], p["delta_sd"], p["delta_input_length_scale"]) + np.diag(noise)
-           + jitter * np.eye(len(x)))
-    return mean, cov
 
 
 def truths(d: dict, p: dict, theta_bounds: tuple[float, float]) -> dict[str, float]:
     """The ranked values as the fit's posterior reports them (original units)."""
     low, high = theta_bounds
-    return {"theta[k]": low + (high - low) * float(p["theta_unit"][0]), "noise_sd": p["noise_sd"] * d["y_scale"],
-            "delta_sd": p["delta_sd"] * d["y_scale"], "noise_gp_sd": p["noise_gp_sd"]}
+    return {"theta[k]": low + (high - low) * float(p["theta_unit"][0]),
+            "noise_sd": float(p["noise_sd"][0]) * d["y_scale"], "delta_sd": float(p["delta_sd"][0]) * d["y_scale"],
+            "noise_gp_sd": float(p["noise_gp_sd"][0])}
 
 
 def posterior_values(fit, name: str) -> np.ndarray:
@@ -128,17 +105,9 @@ def check_against_stan(plan, d: dict, seed: int) -> float:
     rng, values = np.random.default_rng(seed), []
     for _ in range(2):
         p = prior_draw(d, rng)
-        point = {"theta_unit": p["theta_unit"].tolist(), "noise_sd": [p["noise_sd"]], "noise_gp_sd": [p["noise_gp_sd"]],
-                 "noise_length_scale": p["noise_length_scale"].tolist(), "noise_z": p["noise_z"].tolist(),
-                 "delta_sd": [p["delta_sd"]], "delta_input_length_scale": p["delta_input_length_scale"].tolist()}
-        mean, cov = law(d, p)
-        mu, sigma = d["noise_length_scale_prior"]
-        prior = (stats.norm().logpdf(p["noise_sd"]) + stats.norm().logpdf(p["noise_gp_sd"])
-                 + stats.lognorm(sigma, scale=np.exp(mu)).logpdf(p["noise_length_scale"]).sum()
-                 + stats.norm().logpdf(p["noise_z"]).sum() + stats.norm(0, 0.5).logpdf(p["delta_sd"])
-                 + stats.invgamma(3, scale=1).logpdf(p["delta_input_length_scale"]).sum())
+        point = {name: np.asarray(value).tolist() for name, value in p.items()}
         values.append((model.log_prob(model.unconstrain_pars(point), adjust_transform=False),
-                       stats.multivariate_normal(mean, cov).logpdf(d["y"]) + prior))
+                       numpy_modular_log_density(d, p)))
     return float(abs((values[1][0] - values[0][0]) - (values[1][1] - values[0][1])))
 
 
@@ -166,7 +135,7 @@ def main() -> None:
             continue
         rng = np.random.default_rng([args.seed, s])
         p = prior_draw(d, rng)
-        mean, cov = law(d, p)
+        mean, cov = modular_law(d, p)
         y = d["y_center"] + d["y_scale"] * (mean + np.linalg.cholesky(cov) @ rng.standard_normal(len(mean)))
         with warnings.catch_warnings(record=True) as caught:  # the short fits' sampler warnings: counted
             warnings.simplefilter("always")

@@ -286,18 +286,19 @@ def modular_case():
 
 
 def modular_law(d: dict, p: dict) -> tuple[np.ndarray, np.ndarray]:
-    """Mean and covariance of the standardised readings given the runs and the parameters, written out:
-    the squared exponential emulator given the runs (their nugget on the diagonal), its nugget at the
-    points shared by a setting's replicates, delta's kernel, each row's noise variance
-    s_i = noise_sd exp(g[loc_i] - mean g); the jitter 1e-6 emulator_sd^2 on the runs' and the rows' diagonal."""
-    e = MODULAR_EMULATOR
-    sd, ls, nugget, jitter = e["emulator_sd"], e["emulator_length_scale"], e["emulator_nugget"], 1e-6 * 1.2**2
+    """Mean and covariance of the standardised readings given the runs and the parameters (Stan's names and
+    shapes), written out: the squared exponential emulator given the runs (stage 1's hyperparameters from the
+    Stan data, their nugget on the runs' diagonal), its nugget at the points shared by a setting's replicates,
+    delta's kernel, each row's noise variance s_i = noise_sd exp(g[loc_i] - mean g); the jitter
+    1e-6 emulator_sd^2 on the runs' and the rows' diagonal. benchmarks/sbc_written_out.py simulates from it."""
+    sd, ls = d["emulator_sd"][0], np.asarray(d["emulator_length_scale"][0])
+    mean0, nugget, jitter = d["emulator_mean"][0], d["emulator_nugget"][0], 1e-6 * d["emulator_sd"][0] ** 2
     x, x_sim = np.asarray(d["x"]), np.asarray(d["x_sim"])
     xt_sim = np.column_stack([x_sim, d["theta_sim"]])
     xt = np.column_stack([x, np.tile(p["theta_unit"], (len(x), 1))])
     runs = se(xt_sim, xt_sim, sd, ls) + (nugget**2 + jitter) * np.eye(len(xt_sim))
     cross = se(xt, xt_sim, sd, ls)
-    mean = e["emulator_mean"] + cross @ np.linalg.solve(runs, np.asarray(d["y_sim"]) - e["emulator_mean"])
+    mean = mean0 + cross @ np.linalg.solve(runs, np.asarray(d["y_sim"]) - mean0)
     same = (x[:, None, :] == x[None, :, :]).all(-1)
     a, ls_noise = p["noise_gp_sd"][0], np.asarray(p["noise_length_scale"])
     x_noise = np.asarray(d["x_noise"])
