@@ -701,10 +701,7 @@ def written(args: argparse.Namespace) -> None:
     _, _, d = wo.setup(args.seed)
     sims = []
     for record in done:
-        rng = np.random.default_rng([args.seed, record["simulation"]])
-        p = wo.prior_draw(d, rng)
-        mean, cov = wo.modular_law(d, p)
-        y_std = mean + np.linalg.cholesky(cov) @ rng.standard_normal(len(mean))  # as the script drew it
+        p, y_std = wo.simulation(d, args.seed, record["simulation"])  # as the script drew it
         sigma = float(p["noise_sd"][0])
         if abs(sigma * d["y_scale"] - record["truth"][NOISE]) > 1e-9 * record["truth"][NOISE]:
             raise SystemExit(f"simulation {record['simulation']}: the truth drawn again differs from the kept one")

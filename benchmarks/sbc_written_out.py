@@ -66,6 +66,15 @@ def prior_draw(d: dict, rng: np.random.Generator) -> dict:
             "delta_input_length_scale": stats.invgamma(3, scale=1).rvs(size=d["D"], random_state=rng)}
 
 
+def simulation(d: dict, seed: int, s: int) -> tuple[dict, np.ndarray]:
+    """Simulation s of the run with --seed seed: its truth (prior_draw) and its standardised readings drawn
+    from modular_law given it, from one generator seeded by (seed, s), so that any one can be drawn again."""
+    rng = np.random.default_rng([seed, s])
+    p = prior_draw(d, rng)
+    mean, cov = modular_law(d, p)
+    return p, mean + np.linalg.cholesky(cov) @ rng.standard_normal(len(mean))
+
+
 def truths(d: dict, p: dict, theta_bounds: tuple[float, float]) -> dict[str, float]:
     """The ranked values as the fit's posterior reports them (original units)."""
     low, high = theta_bounds
@@ -133,10 +142,8 @@ def main() -> None:
     for s in range(args.sims):
         if s in done:
             continue
-        rng = np.random.default_rng([args.seed, s])
-        p = prior_draw(d, rng)
-        mean, cov = modular_law(d, p)
-        y = d["y_center"] + d["y_scale"] * (mean + np.linalg.cholesky(cov) @ rng.standard_normal(len(mean)))
+        p, y_std = simulation(d, args.seed, s)
+        y = d["y_center"] + d["y_scale"] * y_std
         with warnings.catch_warnings(record=True) as caught:  # the short fits' sampler warnings: counted
             warnings.simplefilter("always")
             fit = calibrate(data.with_output(y), plan=plan, chains=2, warmup=300, draws=DRAWS_PER_FIT,

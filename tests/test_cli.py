@@ -127,7 +127,7 @@ def test_sbc_command_writes_ranks_and_verdicts(tmp_path):
         assert all(np.isclose(d, sums, rtol=1e-12).any() for d in draws["log_likelihood"])
         assert 0.01 <= truth["theta[k]"] <= 0.2  # from the prior, within k's bounds
     health = summary["fits_health"]
-    assert health["fits"] == 6 and health["draws_per_fit"] == 40 and health["ess_below_needed"] >= 1
+    assert health["fits"] == 6 and health["fit_draws"] == 40 and health["ess_below_needed"] >= 1
     assert "warning: SBC's fits: " in done.stderr and "--subset with --warmup 1000 --draws 1000" in done.stderr
     # --subset: those simulations alone, each as in the whole run (the same fingerprint: here reused)
     part = run("sbc", COOLING / "config.toml", "--out", out, "--sims", 6, "--draws-per-fit", 20, "--chains", 1,

@@ -23,7 +23,7 @@ def test_the_fits_checks_are_counted_with_the_parameters_most_often_worst():
     assert summary["rhat_above_limit"] == 3 and summary["worst_rhat_most_often"] == "noise_gp_sd"
     assert summary["ess_below_needed"] == 3 and summary["worst_ess_most_often"] == "noise_gp_sd"  # < 100 x 2
     assert summary["median_max_rhat"] == pytest.approx(1.025) and summary["median_min_ess"] == pytest.approx(120)
-    assert summary["divergent_fits"] == 1 and summary["divergences"] == 3 and summary["draws_per_fit"] == 200
+    assert summary["divergent_fits"] == 1 and summary["divergences"] == 3 and summary["fit_draws"] == 200
     message = health_message(summary, warmup=300, draws=100)
     assert message.startswith("SBC's fits: R-hat above 1.01 in 3 of 4 fits (median largest 1.025, most often "
                               "noise_gp_sd); effective sample size below 100 per chain in 3 (median smallest 120 "

@@ -122,7 +122,7 @@ def test_a_tiny_vector_sbc_writes_its_ranks_and_reuses_stage_one(tmp_path, monke
     names = {"theta[k]", "delta_sd", "delta_length_scale[T0]", "delta_length_scale[t]", "log_likelihood"}
     assert set(result.ranks) == names and all(len(r) == 2 for r in result.ranks.values())
     # each fit's sampler checks travel back with its ranks and are summed up (tests/test_sbc_health.py)
-    assert result.fits_health["fits"] == 2 and result.fits_health["draws_per_fit"] == 20  # 1 chain x 2 x 10
+    assert result.fits_health["fits"] == 2 and result.fits_health["fit_draws"] == 20  # 1 chain x 2 x 10
     assert json.loads((tmp_path / "sbc.json").read_text())["fits_health"] == result.fits_health
     saved = json.loads((tmp_path / "sbc.json").read_text())["parameters"]
     for s in range(2):

@@ -46,7 +46,7 @@ def fits_health(healths: list[dict[str, Any] | None]) -> dict[str, Any]:
         "rhat_above_limit": len(high_rhat), "median_max_rhat": float(np.median([h["max_rhat"] for h in known])),
         "worst_rhat_most_often": _most_often([h["worst_rhat"] for h in high_rhat]),
         "ess_below_needed": len(low_ess), "median_min_ess": float(np.median([h["min_ess"] for h in known])),
-        "draws_per_fit": int(np.median([h["draws"] for h in known])),
+        "fit_draws": int(np.median([h["draws"] for h in known])),
         "worst_ess_most_often": _most_often([h["worst_ess"] for h in low_ess]),
         "divergent_fits": sum(h["divergences"] > 0 for h in known),
         "divergences": int(sum(h["divergences"] for h in known)),
@@ -66,7 +66,7 @@ def health_message(summary: dict[str, Any], warmup: int, draws: int) -> str | No
                      f"{summary['median_max_rhat']:.3f}, most often {summary['worst_rhat_most_often']})")
     if summary["ess_below_needed"]:
         parts.append(f"effective sample size below {ESS_PER_CHAIN} per chain in {summary['ess_below_needed']} "
-                     f"(median smallest {summary['median_min_ess']:.0f} of {summary['draws_per_fit']} draws, most "
+                     f"(median smallest {summary['median_min_ess']:.0f} of {summary['fit_draws']} draws, most "
                      f"often {summary['worst_ess_most_often']})")
     if summary["divergent_fits"]:
         parts.append(f"divergences in {summary['divergent_fits']} ({summary['divergences']} transitions)")
